@@ -1,0 +1,39 @@
+# Developer entry points for a plain virtual environment (no ROS install needed).
+# On a robot, build with colcon instead: see test/test_colcon_build.py.
+
+PYTHON ?= python3
+VENV := .venv
+VENV_PY := $(VENV)/bin/python
+STAMP := $(VENV)/.stamp
+PYTEST_ARGS ?=
+
+.PHONY: venv demo test bench clean
+
+venv: $(STAMP)
+
+# --use-pep517 makes pip build an editable wheel, so pip itself writes the console
+# script into $(VENV)/bin. Without it, pip falls back to the legacy `setup.py develop`
+# whenever `wheel` is importable in the venv, and that obeys setup.cfg's
+# [develop] script_dir (the ament layout $base/lib/mlx_tempcomp meant for colcon).
+$(STAMP): setup.py setup.cfg package.xml
+	test -x $(VENV_PY) || $(PYTHON) -m venv $(VENV)
+	$(VENV_PY) -m pip install --progress-bar off --use-pep517 -e '.[venv,test]'
+	test -x $(VENV)/bin/mlx-tempcomp
+	touch $@
+
+demo: venv
+	$(VENV_PY) -m mlx_tempcomp.sweep
+
+test: venv
+	$(VENV_PY) -m pytest test $(PYTEST_ARGS)
+
+bench: venv
+	@set -e; for script in bench/*.py; do \
+		[ -e "$$script" ] || continue; \
+		echo "== $$script"; \
+		$(VENV_PY) "$$script"; \
+	done
+
+clean:
+	rm -rf $(VENV) build install log .pytest_cache *.egg-info
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

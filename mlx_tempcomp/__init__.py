@@ -1,0 +1,1 @@
+"""Temperature-compensated angular rate for MLX90609-class gyros."""

@@ -1,0 +1,5 @@
+"""
+Numpy-only core: EEPROM decoding, interpolation, compensation, statistics.
+
+Nothing in this package imports rclpy.
+"""

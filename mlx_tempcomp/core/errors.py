@@ -1,0 +1,13 @@
+"""Errors raised by the numpy-only core."""
+
+
+class TempCompError(Exception):
+    """Base class of every error the core raises."""
+
+
+class ConfigError(TempCompError):
+    """A model, parameter or coefficient set is invalid."""
+
+
+class EepromError(TempCompError):
+    """An EEPROM image cannot be decoded or encoded."""

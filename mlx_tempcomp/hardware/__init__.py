@@ -1,0 +1,1 @@
+"""Hardware I/O: SPI transports and device protocols. Nothing here imports rclpy."""

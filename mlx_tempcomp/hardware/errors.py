@@ -1,0 +1,29 @@
+"""Errors raised by transports and device protocols."""
+
+
+class HardwareError(Exception):
+    """Base class of every error the hardware layer raises."""
+
+
+class TransportError(HardwareError):
+    """The bus itself failed (device node missing, permission, I/O error)."""
+
+
+class SilentBusError(HardwareError):
+    """Every answer bit is the same (all ones or all zeros): nothing drives MISO."""
+
+
+class RefusalError(HardwareError):
+    """The device answered with a refusal word (bit 15 set)."""
+
+    def __init__(self, message: str, answer: int):
+        super().__init__(message)
+        self.answer = answer
+
+
+class EocTimeoutError(HardwareError):
+    """A conversion did not signal end of conversion within the poll limit."""
+
+
+class ProtocolError(HardwareError):
+    """An answer is not what the protocol allows (for example a wrong channel echo)."""

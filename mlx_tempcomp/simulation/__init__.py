@@ -1,0 +1,1 @@
+"""Simulated sensors: physics models and frame-level simulated devices (no rclpy)."""

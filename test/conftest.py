@@ -1,0 +1,23 @@
+"""Session-wide test set-up: private DDS traffic and hardware-only tests."""
+
+import glob
+import os
+
+import pytest
+
+# Set at import time, before any test initializes rclpy. Every subprocess a test starts
+# inherits os.environ, so nodes it launches join the same private, localhost-only domain
+# and never see (or disturb) a robot or another test session on the network.
+os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('ROS_STATIC_PEERS', None)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip tests marked ``hardware`` on a machine without an SPI device."""
+    if glob.glob('/dev/spidev*'):
+        return
+    skip = pytest.mark.skip(reason='needs an SPI device (/dev/spidev*)')
+    for item in items:
+        if 'hardware' in item.keywords:
+            item.add_marker(skip)
