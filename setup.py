@@ -23,7 +23,7 @@ setup(
             'pyyaml',
             'matplotlib',
             'spidev',
-            'rosbags>=0.10',
+            'rosbags>=0.11',
             'allantools',
             'ros-jazzy-rclpy[fastrtps]',
             'ros-jazzy-common-interfaces',
@@ -56,6 +56,9 @@ setup(
     entry_points={
         'console_scripts': [
             'mlx-tempcomp = mlx_tempcomp.cli:main',
+            'driver_node = mlx_tempcomp.ros.driver_node:main',
+            'compensation_node = mlx_tempcomp.ros.compensation_node:main',
+            'bringup = mlx_tempcomp.ros.bringup:main',
         ],
     },
 )

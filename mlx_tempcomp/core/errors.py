@@ -11,3 +11,7 @@ class ConfigError(TempCompError):
 
 class EepromError(TempCompError):
     """An EEPROM image cannot be decoded or encoded."""
+
+
+class CalibrationError(TempCompError):
+    """A calibration or recalibration cannot be done with the data given."""

@@ -6,7 +6,7 @@ from typing import Optional
 import numpy as np
 
 from .conversion import Output, SensorTransfer
-from .eeprom import EepromFields
+from .eeprom import decode_eeprom, EepromFields
 from .errors import ConfigError, EepromError
 from .interpolation import check_triplets
 
@@ -104,3 +104,40 @@ def _storable_byte(name: str, value: float, ee: float) -> int:
         msg = f'{name} {value:.4g} is outside what the EEPROM byte can store'
         raise EepromError(msg)
     return code
+
+
+@dataclass(frozen=True)
+class SensorTables:
+    """The decoded EEPROMs of one to three chips read as one sensor."""
+
+    fields: tuple
+    full_scale_dps: float
+    tables: tuple
+
+    @property
+    def outvoted_bits(self) -> int:
+        return sum(f.total_outvoted_bits for f in self.fields)
+
+
+def sensor_tables(images, output: Output, transfer: SensorTransfer = SensorTransfer(),
+                  full_scale_dps: float = 0.0) -> SensorTables:
+    """
+    Decode each chip's EEPROM image and build its factory table.
+
+    The chips share one full scale: ``full_scale_dps`` when positive, else
+    their common RANGE field.
+    """
+    fields = tuple(decode_eeprom(image) for image in images)
+    if not 1 <= len(fields) <= 3:
+        msg = f'one to three EEPROM images are supported, got {len(fields)}'
+        raise EepromError(msg)
+    if full_scale_dps <= 0.0:
+        scales = sorted({f.full_scale_dps for f in fields})
+        if len(scales) != 1 or scales[0] <= 0.0:
+            msg = (f'the chips report full scales {scales} deg/s (RANGE x 5); give the full '
+                   'scale explicitly')
+            raise EepromError(msg)
+        full_scale_dps = scales[0]
+    return SensorTables(fields=fields, full_scale_dps=full_scale_dps,
+                        tables=tuple(factory_table(f, output, transfer, full_scale_dps)
+                                     for f in fields))

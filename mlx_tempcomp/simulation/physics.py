@@ -46,13 +46,16 @@ class ThermalProfile:
 
     @classmethod
     def cycle(cls, temperatures_c: tuple, rate_c_per_min: float, start_c: float = 25.0,
-              time_constant_s: float = 0.0) -> 'ThermalProfile':
-        """Linear ramps at ``rate_c_per_min`` from ``start_c`` through each temperature."""
+              time_constant_s: float = 0.0, hold_s: float = 0.0) -> 'ThermalProfile':
+        """Ramp at ``rate_c_per_min`` from ``start_c`` through each temperature, hold each."""
         times = [0.0]
         points = [start_c]
         for target in temperatures_c:
             times.append(times[-1] + abs(target - points[-1]) / rate_c_per_min * 60.0)
             points.append(target)
+            if hold_s > 0.0:
+                times.append(times[-1] + hold_s)
+                points.append(target)
         return cls(times_s=tuple(times), temperatures_c=tuple(points),
                    time_constant_s=time_constant_s)
 

@@ -1,0 +1,277 @@
+"""
+Rate models the compensation node runs: they map raw rate and temperature to corrected rate.
+
+Every model works on rate in rad/s of shape (samples, axes) and temperature in
+degC of shape (samples,) or (samples, axes), and carries a ZRO offset per axis:
+the residual learned at rest on top of the thermal model (the ZRO recalibration),
+so recalibration and temperature model never count the same bias twice.
+
+- `PolynomialModel`: bias(T) per axis, optional scale factor(T).
+- `LinearBtcModel`: ADIS16130 note, RBC = RATE + PBC + (TEMP - T3) x BTC.
+- `EepromModel`: the MLX90609 factory table (AN2 method 4) with its ZRO shift.
+"""
+
+from dataclasses import dataclass, field, replace
+import hashlib
+import json
+import math
+
+import numpy as np
+
+from .compensation import TableCompensation
+from .conversion import SensorTransfer
+from .errors import ConfigError
+
+AXIS_NAMES = ('x', 'y', 'z')
+
+
+@dataclass(frozen=True)
+class CorrectedRate:
+    """Corrected rate in rad/s and which samples had their temperature clamped."""
+
+    rate_rad_s: np.ndarray
+    temperature_clamped: np.ndarray
+
+
+def _columns(rate_rad_s, temperature_c, axes: int) -> tuple:
+    rate = np.asarray(rate_rad_s, dtype=np.float64)
+    if rate.ndim == 1:
+        rate = rate[:, None]
+    if rate.ndim != 2 or rate.shape[1] != axes:
+        msg = f'rate must have shape (samples, {axes}), got {np.shape(rate_rad_s)}'
+        raise ConfigError(msg)
+    temperature = np.asarray(temperature_c, dtype=np.float64)
+    if temperature.ndim == 1:
+        temperature = temperature[:, None]
+    if temperature.shape[0] != rate.shape[0] or temperature.shape[1] not in (1, axes):
+        msg = (f'temperature shape {np.shape(temperature_c)} does not match rate '
+               f'{np.shape(rate_rad_s)}')
+        raise ConfigError(msg)
+    return rate, np.broadcast_to(temperature, rate.shape)
+
+
+def _finite_tuple(name: str, values, length: int) -> tuple:
+    values = tuple(float(v) for v in values)
+    if len(values) != length:
+        msg = f'{name} needs {length} values (one per axis), got {len(values)}'
+        raise ConfigError(msg)
+    if not all(math.isfinite(v) for v in values):
+        msg = f'{name} must be finite, got {list(values)}'
+        raise ConfigError(msg)
+    return values
+
+
+def _fingerprint(name: str, content: dict) -> str:
+    text = json.dumps({'model': name, **content}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class _OffsetModel:
+    """ZRO offset handling shared by the models whose offset is in rad/s."""
+
+    offset_unit = 'rad/s'
+
+    @property
+    def zro_offset(self) -> tuple:
+        return self.zro_offset_rad_s
+
+    def with_zro_offset(self, offset):
+        offset = _finite_tuple('zro_offset_rad_s', np.ravel(offset), self.axes)
+        return replace(self, zro_offset_rad_s=offset)
+
+    def learn_zro_offset(self, rate_rad_s, temperature_c) -> np.ndarray:
+        """Return the total offset that zeroes the mean of readings taken at rest."""
+        base = self.with_zro_offset(np.zeros(self.axes))
+        return np.mean(base.correct(rate_rad_s, temperature_c).rate_rad_s, axis=0)
+
+    def offset_rad_s(self, temperature_c: float) -> np.ndarray:
+        return np.asarray(self.zro_offset_rad_s)
+
+
+@dataclass(frozen=True)
+class PolynomialModel(_OffsetModel):
+    """
+    Bias polynomial per axis, optional scale factor polynomial, in x = (T - Tref) / scale.
+
+    corrected = (raw - bias(x)) / (1 + sf(x)) - offset; coefficients lowest order
+    first, bias in rad/s, sf relative (0 = nominal). Temperatures outside
+    [min, max] are clamped and flagged, as PX4 and ArduPilot do.
+    """
+
+    bias_coefficients: tuple
+    reference_temperature_c: float = 25.0
+    temperature_scale_c: float = 1.0
+    scale_coefficients: tuple = ()
+    temperature_min_c: float = -math.inf
+    temperature_max_c: float = math.inf
+    zro_offset_rad_s: tuple = field(default=())
+
+    name = 'polynomial'
+
+    def __post_init__(self) -> None:
+        bias = tuple(tuple(float(c) for c in axis) for axis in self.bias_coefficients)
+        if not 1 <= len(bias) <= 3:
+            msg = f'polynomial needs bias coefficients for 1 to 3 axes, got {len(bias)}'
+            raise ConfigError(msg)
+        for axis, coefficients in zip(AXIS_NAMES, bias):
+            if not coefficients or not all(math.isfinite(c) for c in coefficients):
+                msg = f'polynomial bias coefficients of axis {axis} must be finite and non-empty'
+                raise ConfigError(msg)
+        object.__setattr__(self, 'bias_coefficients', bias)
+        scale = tuple(tuple(float(c) for c in axis) for axis in self.scale_coefficients)
+        if scale and len(scale) != len(bias):
+            msg = (f'polynomial scale coefficients given for {len(scale)} axes, '
+                   f'bias for {len(bias)}')
+            raise ConfigError(msg)
+        if not all(math.isfinite(c) for axis in scale for c in axis):
+            msg = 'polynomial scale coefficients must be finite'
+            raise ConfigError(msg)
+        object.__setattr__(self, 'scale_coefficients', scale)
+        if not (math.isfinite(self.temperature_scale_c) and self.temperature_scale_c > 0.0):
+            msg = f'temperature_scale_c must be positive, got {self.temperature_scale_c}'
+            raise ConfigError(msg)
+        if not math.isfinite(self.reference_temperature_c):
+            msg = 'reference_temperature_c must be finite'
+            raise ConfigError(msg)
+        if not self.temperature_min_c < self.temperature_max_c:
+            msg = (f'temperature_min_c ({self.temperature_min_c}) must be below '
+                   f'temperature_max_c ({self.temperature_max_c})')
+            raise ConfigError(msg)
+        offset = self.zro_offset_rad_s or (0.0,) * len(bias)
+        object.__setattr__(self, 'zro_offset_rad_s',
+                           _finite_tuple('zro_offset_rad_s', offset, len(bias)))
+
+    @property
+    def axes(self) -> int:
+        return len(self.bias_coefficients)
+
+    def fingerprint(self) -> str:
+        return _fingerprint(self.name, {
+            'bias': self.bias_coefficients, 'scale': self.scale_coefficients,
+            'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
+            'range': [self.temperature_min_c, self.temperature_max_c]})
+
+    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        clamped_t = np.clip(temperature, self.temperature_min_c, self.temperature_max_c)
+        x = (clamped_t - self.reference_temperature_c) / self.temperature_scale_c
+        out = np.empty(rate.shape)
+        for axis in range(self.axes):
+            bias = np.polynomial.polynomial.polyval(x[:, axis], self.bias_coefficients[axis])
+            corrected = rate[:, axis] - bias
+            if self.scale_coefficients:
+                corrected = corrected / (1.0 + np.polynomial.polynomial.polyval(
+                    x[:, axis], self.scale_coefficients[axis]))
+            out[:, axis] = corrected - self.zro_offset_rad_s[axis]
+        return CorrectedRate(out, (clamped_t != temperature) | np.isnan(temperature))
+
+
+@dataclass(frozen=True)
+class LinearBtcModel(_OffsetModel):
+    """
+    ADIS16130 first-order bias correction: RBC = RATE + PBC + (TEMP - T3) x BTC.
+
+    PBC is minus the bias at T3 (rad/s), BTC minus the bias slope (rad/s/degC),
+    as the note's Table 6 shows (+0.12 C at a 0.04 deg/s/C slope gives -0.0048 deg/s).
+    """
+
+    pbc_rad_s: tuple
+    btc_rad_s_per_c: tuple
+    t3_c: float
+    zro_offset_rad_s: tuple = field(default=())
+
+    name = 'linear_btc'
+
+    def __post_init__(self) -> None:
+        pbc = tuple(float(v) for v in self.pbc_rad_s)
+        if not 1 <= len(pbc) <= 3:
+            msg = f'linear_btc needs PBC for 1 to 3 axes, got {len(pbc)}'
+            raise ConfigError(msg)
+        object.__setattr__(self, 'pbc_rad_s', _finite_tuple('linear_btc.pbc', pbc, len(pbc)))
+        object.__setattr__(self, 'btc_rad_s_per_c',
+                           _finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
+        if not math.isfinite(self.t3_c):
+            msg = f'linear_btc.t3_c must be finite, got {self.t3_c}'
+            raise ConfigError(msg)
+        offset = self.zro_offset_rad_s or (0.0,) * len(pbc)
+        object.__setattr__(self, 'zro_offset_rad_s',
+                           _finite_tuple('zro_offset_rad_s', offset, len(pbc)))
+
+    @property
+    def axes(self) -> int:
+        return len(self.pbc_rad_s)
+
+    def fingerprint(self) -> str:
+        return _fingerprint(self.name, {'pbc': self.pbc_rad_s, 'btc': self.btc_rad_s_per_c,
+                                        't3': self.t3_c})
+
+    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        corrected = rate + np.asarray(self.pbc_rad_s) + \
+            (temperature - self.t3_c) * np.asarray(self.btc_rad_s_per_c) - \
+            np.asarray(self.zro_offset_rad_s)
+        return CorrectedRate(corrected, np.isnan(temperature))
+
+
+@dataclass(frozen=True)
+class EepromModel:
+    """
+    AN2 method 4 on rate published by the nominal conversion.
+
+    The raw stream carries the nominal rate (rad/s) and the sensed temperature
+    (degC by the typical transfer); both map back exactly to the output units
+    (ADC codes or mV) the factory table is in. The ZRO offset is AN2's ZRO shift,
+    in output units, added to formula (4).
+    """
+
+    compensation: TableCompensation
+    transfer: SensorTransfer = SensorTransfer()
+
+    name = 'eeprom'
+
+    @property
+    def axes(self) -> int:
+        return self.compensation.axes
+
+    @property
+    def zro_offset(self) -> tuple:
+        return self.compensation.zro_shift
+
+    @property
+    def offset_unit(self) -> str:
+        return 'LSB' if self.compensation.output.value == 'digital' else 'mV'
+
+    def fingerprint(self) -> str:
+        tables = [None if t is None else [t.output.value, t.tc, t.zro, t.sf]
+                  for t in self.compensation.tables]
+        return _fingerprint(self.name, {'tables': tables,
+                                        'interpolation': self.compensation.interpolation.value,
+                                        'nominal': [self.compensation.nominal.zro,
+                                                    self.compensation.nominal.sf]})
+
+    def _to_output_units(self, rate_rad_s, temperature_c) -> tuple:
+        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        nominal = self.compensation.nominal
+        outar = np.rad2deg(rate) * nominal.sf + nominal.zro
+        mv = self.transfer.temperature_mv_from_c(temperature)
+        return outar, self.transfer.temperature_to_output(mv, nominal.output)
+
+    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+        outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
+        result = self.compensation.compensate(outar, tempout)
+        return CorrectedRate(np.deg2rad(result.rate_dps), result.temperature_clamped)
+
+    def with_zro_offset(self, offset) -> 'EepromModel':
+        return replace(self, compensation=self.compensation.with_zro_shift(offset))
+
+    def learn_zro_offset(self, rate_rad_s, temperature_c) -> np.ndarray:
+        """Return AN2's ZRO shift (output units) that zeroes readings taken at rest."""
+        outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
+        return self.compensation.learn_zro_shift(outar, tempout)
+
+    def offset_rad_s(self, temperature_c: float) -> np.ndarray:
+        """Express the ZRO shift as rate at ``temperature_c`` (for reports)."""
+        _, tempout = self._to_output_units(np.zeros((1, self.axes)), [temperature_c])
+        sf = [self.compensation.sf(a, tempout[0, a]) for a in range(self.axes)]
+        return np.deg2rad(np.asarray(self.compensation.zro_shift) / np.asarray(sf, dtype=float))

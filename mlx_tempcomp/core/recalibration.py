@@ -1,0 +1,85 @@
+"""
+Checks of a ZRO recalibration window: was the sensor at rest and the temperature steady.
+
+The window holds the rate corrected by the running model (offset included), so
+its mean is the residual the recalibration would remove.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from .errors import CalibrationError, ConfigError
+
+
+@dataclass(frozen=True)
+class RecalibrationLimits:
+    """When a window counts as 'at rest'."""
+
+    rate_noise_rad_s: float          # 1-sigma noise of one sample
+    noise_multiple: float = 3.0      # spread above multiple x noise means motion
+    max_mean_rate_rad_s: float = math.radians(2.0)
+    max_temperature_change_c: float = 0.5
+    min_samples: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ('rate_noise_rad_s', 'noise_multiple', 'max_mean_rate_rad_s',
+                     'max_temperature_change_c'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                msg = f'recalibration {name} must be positive, got {value}'
+                raise ConfigError(msg)
+        if self.min_samples < 2:
+            msg = f'recalibration min_samples must be at least 2, got {self.min_samples}'
+            raise ConfigError(msg)
+
+
+@dataclass(frozen=True)
+class WindowStatistics:
+    samples: int
+    mean_rate_rad_s: np.ndarray
+    spread_rad_s: np.ndarray
+    temperature_c: float
+    temperature_change_c: float
+
+
+def check_window(corrected_rate_rad_s, temperature_c,
+                 limits: RecalibrationLimits) -> WindowStatistics:
+    """
+    Return the window's statistics, or raise `CalibrationError` saying why it is refused.
+
+    Motion shows as a spread above ``noise_multiple`` x the sample noise on any axis,
+    or a mean rate above ``max_mean_rate_rad_s``; a drifting temperature as a change
+    (max - min) above ``max_temperature_change_c``.
+    """
+    rate = np.asarray(corrected_rate_rad_s, dtype=np.float64)
+    rate = rate[:, None] if rate.ndim == 1 else rate
+    temperature = np.asarray(temperature_c, dtype=np.float64).ravel()
+    finite = np.all(np.isfinite(rate), axis=1) & np.isfinite(temperature[:len(rate)])
+    if np.count_nonzero(finite) < limits.min_samples:
+        msg = (f'only {np.count_nonzero(finite)} valid samples in the window, '
+               f'{limits.min_samples} needed: is the sensor streaming?')
+        raise CalibrationError(msg)
+    rate = rate[finite]
+    temperature = temperature[:len(finite)][finite]
+    stats = WindowStatistics(samples=len(rate), mean_rate_rad_s=rate.mean(axis=0),
+                             spread_rad_s=rate.std(axis=0),
+                             temperature_c=float(temperature.mean()),
+                             temperature_change_c=float(np.ptp(temperature)))
+    spread_limit = limits.noise_multiple * limits.rate_noise_rad_s
+    worst = int(np.argmax(stats.spread_rad_s))
+    if stats.spread_rad_s[worst] > spread_limit:
+        msg = (f'sensor moved: rate spread {stats.spread_rad_s[worst]:.4g} rad/s on axis '
+               f'{worst} > {limits.noise_multiple:g} x noise {limits.rate_noise_rad_s:.4g}')
+        raise CalibrationError(msg)
+    worst = int(np.argmax(np.abs(stats.mean_rate_rad_s)))
+    if abs(stats.mean_rate_rad_s[worst]) > limits.max_mean_rate_rad_s:
+        msg = (f'sensor moved: mean rate {stats.mean_rate_rad_s[worst]:.4g} rad/s on axis '
+               f'{worst} exceeds {limits.max_mean_rate_rad_s:.4g}')
+        raise CalibrationError(msg)
+    if stats.temperature_change_c > limits.max_temperature_change_c:
+        msg = (f'temperature drifted {stats.temperature_change_c:.3g} C during the window '
+               f'(limit {limits.max_temperature_change_c:g} C)')
+        raise CalibrationError(msg)
+    return stats

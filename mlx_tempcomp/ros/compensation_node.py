@@ -1,0 +1,357 @@
+"""
+Compensation node: raw rate and temperature in, temperature-compensated rate out.
+
+Subscribes to ``imu/data_raw``, ``imu/temperature_raw`` (with several MLX90609
+chips and the eeprom model, ``imu/temperature_raw/<axis>``) and ``imu/eeprom``;
+pairs samples by stamp, applies the model named by ``model`` and publishes
+``imu/data`` and ``imu/temperature``. The ``imu/recalibrate_zro`` service
+(std_srvs/Trigger) learns the ZRO residual at rest and persists it.
+"""
+
+from datetime import datetime, timezone
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import UInt8MultiArray
+from std_srvs.srv import Trigger
+
+from . import messages
+from .params import (axes_of, build_model, check_choices, COMPENSATION_SPECS, declare,
+                     limits_of, ParameterError, state_file_of, transfer_of)
+from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
+from .runner import run
+from ..core.conversion import Output
+from ..core.errors import CalibrationError, TempCompError
+from ..core.pairing import StampPairer
+from ..core.recalibration import check_window
+from ..core.table import sensor_tables
+from ..sources.bag import BagError, eeprom_images_from_multiarray
+from ..state_file import read_state, StateFileError, write_state
+
+# Parameters whose change rebuilds the model.
+_MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.')
+_POLL_S = 0.05
+
+
+class _Window:
+    """Samples collected for one recalibration; its future resolves when it is full."""
+
+    def __init__(self, duration_ns: int, fingerprint: str):
+        self.duration_ns = duration_ns
+        self.fingerprint = fingerprint
+        self.start_ns = None
+        self.raw, self.temperature, self.corrected = [], [], []
+        self.future = Future()
+
+    def add(self, stamp_ns: int, raw, temperature, corrected) -> None:
+        if self.future.done():
+            return
+        if self.start_ns is None:
+            self.start_ns = stamp_ns
+        self.raw.append(raw)
+        self.temperature.append(temperature)
+        self.corrected.append(corrected)
+        if stamp_ns - self.start_ns >= self.duration_ns:
+            self.future.set_result('')
+
+
+class CompensationNode(Node):
+    """Applies the configured model to the raw stream; offers ZRO recalibration."""
+
+    def __init__(self, **kwargs):
+        super().__init__('compensation_node', **kwargs)
+        self.values = declare(self, COMPENSATION_SPECS)
+        self.axes = axes_of(self.values)
+        self.indices = messages.axis_indices(self.axes)
+        self.transfer = transfer_of(self.values)
+        self.state_path = state_file_of(self.values, self.get_name())
+        self.saved_state = self._load_state()
+        self.sensor = None
+        self.eeprom_error = ''
+        self.model = self._with_saved_offset(build_model(self.values))
+        self.last_recalibration = self.saved_state or {}
+        self.window = None
+        self.samples_out = 0
+        self.samples_waiting = 0
+        self.clamped_samples = 0
+        self.clamped_recent = False
+        self.last_input = None
+
+        per_axis = len(self.axes) > 1 and self.values['model'] == 'eeprom'
+        self.temperature_streams = tuple(f'temperature_{axis}' for axis in self.axes) \
+            if per_axis else ('temperature',)
+        self.pairer = StampPairer(('imu',) + self.temperature_streams)
+        self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
+        self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
+                                                           SENSOR_QOS)
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
+        if per_axis:
+            for axis, stream in zip(self.axes, self.temperature_streams):
+                self.create_subscription(
+                    Temperature, f'imu/temperature_raw/{axis}',
+                    lambda msg, s=stream: self.on_temperature(s, msg), SENSOR_INPUT_QOS)
+        else:
+            self.create_subscription(
+                Temperature, 'imu/temperature_raw',
+                lambda msg: self.on_temperature('temperature', msg), SENSOR_INPUT_QOS)
+        self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
+        # Its own group: while the service awaits its window, the default group (stream,
+        # timers) keeps running in the same single thread.
+        self.create_service(Trigger, 'imu/recalibrate_zro', self.recalibrate,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0, self.publish_diagnostics)
+        self.add_on_set_parameters_callback(self.validate_parameters)
+        self.add_post_set_parameters_callback(self.apply_parameters)
+
+    # State file.
+    def _load_state(self):
+        try:
+            state = read_state(self.state_path)
+        except StateFileError as err:
+            self.get_logger().error(f'{err}; starting without a saved ZRO offset')
+            return None
+        if state is not None:
+            self.get_logger().info(f'loaded ZRO state from {self.state_path}')
+        return state
+
+    def _with_saved_offset(self, model):
+        """Apply the saved offset if it was learned on this very model."""
+        state = self.saved_state
+        if model is None or not state:
+            return model
+        if state.get('model') != model.name or state.get('fingerprint') != model.fingerprint():
+            self.get_logger().warn(
+                f'saved ZRO offset in {self.state_path} was learned on another model or other '
+                'coefficients; not applied')
+            return model
+        try:
+            model = model.with_zro_offset(state['zro_offset'])
+        except (KeyError, TypeError, TempCompError) as err:
+            self.get_logger().error(f'saved ZRO offset in {self.state_path} is unusable: {err}')
+            return model
+        self.get_logger().info(f'applied saved ZRO offset {state["zro_offset"]} '
+                               f'{state.get("offset_unit", "")}')
+        return model
+
+    # Stream.
+    def on_eeprom(self, msg: UInt8MultiArray) -> None:
+        dims = [(d.label, d.size, d.stride) for d in msg.layout.dim]
+        try:
+            images = eeprom_images_from_multiarray(dims, msg.data, msg.layout.data_offset)
+            self.sensor = sensor_tables(images, Output.DIGITAL, self.transfer,
+                                        self.values['sensor.full_scale_dps'])
+            if len(self.sensor.tables) != len(self.axes):
+                msg = (f'the sensor sent {len(self.sensor.tables)} EEPROM images for '
+                       f'{len(self.axes)} axes')
+                raise ParameterError(msg)
+            if self.values['model'] == 'eeprom':
+                self.model = self._with_saved_offset(self._build(self.values))
+        except (BagError, TempCompError, ParameterError) as err:
+            self.eeprom_error = str(err)
+            self.get_logger().error(f'unusable EEPROM message: {err}')
+            return
+        self.eeprom_error = ''
+        self.get_logger().info(
+            f'factory tables received: VERSION {[f.version for f in self.sensor.fields]}, '
+            f'{self.sensor.outvoted_bits} out-voted bits')
+
+    def _build(self, values: dict):
+        if self.sensor is None:
+            return build_model(values)
+        return build_model(values, self.sensor.tables, self.sensor.full_scale_dps)
+
+    def on_imu(self, msg: Imu) -> None:
+        for stamp_ns, parts in self.pairer.add('imu', messages.stamp_to_ns(msg.header.stamp),
+                                               msg):
+            self.process(stamp_ns, parts)
+
+    def on_temperature(self, stream: str, msg: Temperature) -> None:
+        for stamp_ns, parts in self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
+                                               msg):
+            self.process(stamp_ns, parts)
+
+    def process(self, stamp_ns: int, parts: dict) -> None:
+        self.last_input = time.monotonic()
+        model = self.model
+        if model is None:
+            self.samples_waiting += 1
+            return
+        imu = parts['imu']
+        raw = messages.imu_rates(imu, self.indices)
+        temperatures = np.array([parts[s].temperature for s in self.temperature_streams])
+        corrected = model.correct(raw[None, :], temperatures[None, :])
+        rate = corrected.rate_rad_s[0]
+        if corrected.temperature_clamped.any():
+            self.clamped_samples += 1
+            self.clamped_recent = True
+        stamp = imu.header.stamp
+        frame_id = imu.header.frame_id
+        self.temperature_publisher.publish(messages.temperature_message(
+            stamp, frame_id, float(np.mean(temperatures)), parts[self.temperature_streams[0]]
+            .variance))
+        self.imu_publisher.publish(messages.imu_message(
+            stamp, frame_id, self.indices, rate,
+            messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])))
+        self.samples_out += 1
+        window = self.window
+        if window is not None:
+            window.add(stamp_ns, raw, temperatures, rate)
+
+    # Recalibration.
+    async def recalibrate(self, request, response):
+        """
+        Average the stream over the window, check it, learn and persist the ZRO offset.
+
+        A coroutine: the executor keeps running the stream while it waits.
+        """
+        response.success = False
+        if self.window is not None:
+            response.message = 'refused: a recalibration is already running'
+            return response
+        model = self.model
+        if model is None:
+            response.message = 'refused: no model yet (waiting for the EEPROM tables)'
+            return response
+        try:
+            limits = limits_of(self.values)
+        except (ParameterError, TempCompError) as err:
+            response.message = f'refused: {err}'
+            return response
+        duration_s = self.values['recalibration.duration_s']
+        window = _Window(int(duration_s * 1e9), model.fingerprint())
+        started = time.monotonic()
+        stale_s = self.values['stale_timeout_s']
+
+        def check_stale():
+            if time.monotonic() - max(self.last_input or started, started) > stale_s and \
+                    not window.future.done():
+                window.future.set_result(f'refused: no input for {stale_s:g} s, the stream '
+                                         'is stale')
+
+        self.window = window
+        stale_timer = self.create_timer(_POLL_S, check_stale)
+        try:
+            refusal = await window.future
+            response.message = refusal or self._finish_window(window, model, limits,
+                                                              duration_s)
+        finally:
+            self.window = None
+            self.destroy_timer(stale_timer)
+        response.success = not response.message.startswith(('refused', 'applied but'))
+        log = self.get_logger().info if response.success else self.get_logger().warn
+        log(f'ZRO recalibration: {response.message}')
+        return response
+
+    def _finish_window(self, window: _Window, model, limits, duration_s: float) -> str:
+        raw = np.array(window.raw)
+        temperature = np.array(window.temperature)
+        corrected = np.array(window.corrected)
+        if self.model is not model or model.fingerprint() != window.fingerprint:
+            return 'refused: the model changed during the window'
+        try:
+            stats = check_window(corrected, temperature.mean(axis=1), limits)
+        except CalibrationError as err:
+            return f'refused: {err}'
+        offset = model.learn_zro_offset(raw, temperature)
+        new_model = model.with_zro_offset(offset)
+        offset_rad_s = new_model.offset_rad_s(stats.temperature_c)
+        self.model = new_model
+        state = {'model': model.name, 'fingerprint': model.fingerprint(),
+                 'axes': list(self.axes), 'zro_offset': [float(v) for v in offset],
+                 'offset_unit': model.offset_unit,
+                 'zro_offset_rad_s': [float(v) for v in offset_rad_s],
+                 'temperature_c': stats.temperature_c, 'samples': stats.samples,
+                 'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
+        self.last_recalibration = state
+        self.saved_state = state
+        summary = ', '.join(f'{axis} {value:.6g}' for axis, value in zip(self.axes,
+                                                                         offset_rad_s))
+        text = (f'ZRO offset {summary} rad/s at {stats.temperature_c:.2f} C from '
+                f'{stats.samples} samples over {duration_s:g} s')
+        try:
+            write_state(self.state_path, state)
+        except StateFileError as err:
+            return f'applied but not saved: {text}; {err}'
+        return f'{text}; saved to {self.state_path}'
+
+    # Parameters.
+    def validate_parameters(self, parameters) -> SetParametersResult:
+        candidate = dict(self.values)
+        candidate.update({p.name: messages_value(p) for p in parameters})
+        try:
+            check_choices(COMPENSATION_SPECS, candidate)
+            if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
+                if self.window is not None:
+                    raise ParameterError('a ZRO recalibration is running; try again after it')
+                self._build(candidate)
+            if 'rate_noise_rad_s' in candidate:
+                limits_of(candidate)
+        except (ParameterError, TempCompError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def apply_parameters(self, parameters) -> None:
+        for parameter in parameters:
+            self.values[parameter.name] = messages_value(parameter)
+        if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
+            # Validated in validate_parameters; one reference swap makes it atomic.
+            self.model = self._with_saved_offset(self._build(self.values))
+            self.get_logger().info(f'model now {self.values["model"]}')
+
+    def publish_diagnostics(self) -> None:
+        model = self.model
+        age = None if self.last_input is None else time.monotonic() - self.last_input
+        recal = self.last_recalibration
+        values = {
+            'model': self.values['model'],
+            'fingerprint': '' if model is None else model.fingerprint(),
+            'zro_offset': [] if model is None else list(model.zro_offset),
+            'offset_unit': '' if model is None else model.offset_unit,
+            'samples_out': self.samples_out, 'samples_waiting': self.samples_waiting,
+            'unpaired_dropped': self.pairer.dropped,
+            'temperature_clamped_samples': self.clamped_samples,
+            'input_age_s': float('nan') if age is None else age,
+            'last_recalibration_time': recal.get('time', 'never'),
+            'last_recalibration_offset_rad_s': recal.get('zro_offset_rad_s', []),
+            'last_recalibration_temperature_c': recal.get('temperature_c', float('nan')),
+            'state_file': self.state_path,
+            'eeprom_outvoted_bits': 0 if self.sensor is None else self.sensor.outvoted_bits,
+        }
+        if age is None or age > self.values['stale_timeout_s']:
+            level, text = DiagnosticStatus.ERROR, 'stale input: no raw samples'
+        elif self.eeprom_error:
+            level, text = DiagnosticStatus.ERROR, f'EEPROM unusable: {self.eeprom_error}'
+        elif model is None:
+            level, text = DiagnosticStatus.WARN, 'waiting for the EEPROM tables'
+        elif self.clamped_recent:
+            level, text = (DiagnosticStatus.WARN,
+                           'temperature outside the calibrated range: clamped')
+        else:
+            level, text = DiagnosticStatus.OK, f'compensating ({self.values["model"]})'
+        self.clamped_recent = False
+        status = messages.diagnostic_status(f'{self.get_name()}: compensation',
+                                            self.values['model'], level, text, values)
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_publisher.publish(array)
+
+
+def messages_value(parameter):
+    """Return a parameter's value, [] for an unset array."""
+    value = parameter.value
+    return [] if value is None else value
+
+
+def main(args=None) -> int:
+    return run([CompensationNode], args, 'compensation_node')
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

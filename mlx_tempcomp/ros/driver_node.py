@@ -1,0 +1,326 @@
+"""
+Driver node: raw angular rate and temperature from a simulated or SPI MLX90609, or a bag.
+
+Publishes (REP-145): ``imu/data_raw`` (sensor_msgs/Imu, nominal conversion,
+rad/s), ``imu/temperature_raw`` (sensor_msgs/Temperature, degC; with several
+chips their mean, and each chip's on ``imu/temperature_raw/<axis>``),
+``imu/eeprom`` (std_msgs/UInt8MultiArray, transient local: the chips' EEPROM
+images, so the raw topics reproduce compensation exactly) and ``/diagnostics``.
+"""
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import UInt8MultiArray
+
+from . import messages
+from .params import (axes_of, check_choices, declare, DRIVER_SPECS, effects_of, ParameterError,
+                     transfer_of)
+from .qos import EEPROM_QOS, SENSOR_QOS
+from .runner import run
+from ..core.compensation import NominalConversion
+from ..core.conversion import Output
+from ..core.table import sensor_tables
+from ..hardware.errors import HardwareError
+from ..simulation.mlx90609 import Fault
+from ..sources.bag import ImuRecord, RawBagReader, RawTopics, TemperatureRecord
+from ..sources.mlx90609 import samples_due, SimulatedArray, SimulationConfig, spidev_array
+
+EEPROM_READ_ATTEMPTS = 3
+# Most samples published by one timer tick, so a slow machine never stalls the executor.
+MAX_SAMPLES_PER_TICK = 500
+
+
+class DriverNode(Node):
+    """Reads the configured source and publishes the raw topics."""
+
+    def __init__(self, **kwargs):
+        super().__init__('driver_node', **kwargs)
+        self.values = declare(self, DRIVER_SPECS)
+        self.axes = axes_of(self.values)
+        self.indices = messages.axis_indices(self.axes)
+        self.transfer = transfer_of(self.values)
+        self.frame_id = self.values['frame_id']
+        self.covariance = messages.rate_covariance(self.indices,
+                                                   self.values['rate_noise_rad_s'])
+        self.imu_publisher = self.create_publisher(Imu, 'imu/data_raw', SENSOR_QOS)
+        self.temperature_publisher = self.create_publisher(
+            Temperature, 'imu/temperature_raw', SENSOR_QOS)
+        self.axis_temperature_publishers = [
+            self.create_publisher(Temperature, f'imu/temperature_raw/{axis}',
+                                  SENSOR_QOS)
+            for axis in self.axes] if len(self.axes) > 1 else []
+        self.eeprom_publisher = self.create_publisher(UInt8MultiArray, 'imu/eeprom',
+                                                      EEPROM_QOS)
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        if self.values['source'] == 'bag':
+            self.stream = BagStream(self)
+        else:
+            self.stream = SensorStream(self)
+        self.create_timer(1.0, self.publish_diagnostics)
+        self.add_on_set_parameters_callback(self.validate_parameters)
+        self.add_post_set_parameters_callback(self.apply_parameters)
+
+    def validate_parameters(self, parameters) -> SetParametersResult:
+        values = {p.name: p.value for p in parameters}
+        try:
+            check_choices(DRIVER_SPECS, values)
+            if 'frame_id' in values and not values['frame_id']:
+                raise ParameterError('invalid parameter frame_id: must not be empty')
+            if 'simulation.fault' in values and not isinstance(self.stream.array,
+                                                               SimulatedArray):
+                raise ParameterError('simulation.fault applies only to the simulated source')
+        except ParameterError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def apply_parameters(self, parameters) -> None:
+        for parameter in parameters:
+            self.values[parameter.name] = parameter.value
+        self.frame_id = self.values['frame_id']
+        self.covariance = messages.rate_covariance(self.indices,
+                                                   self.values['rate_noise_rad_s'])
+        if isinstance(self.stream.array, SimulatedArray):
+            self.stream.array.fault = Fault(self.values['simulation.fault'])
+
+    def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c) -> None:
+        stamp = messages.ns_to_stamp(stamp_ns)
+        # Temperature first: a subscriber pairing by stamp then completes on the Imu.
+        for publisher, temperature in zip(self.axis_temperature_publishers, temperatures_c):
+            publisher.publish(messages.temperature_message(stamp, self.frame_id, temperature))
+        self.temperature_publisher.publish(messages.temperature_message(
+            stamp, self.frame_id, float(np.mean(temperatures_c))))
+        self.imu_publisher.publish(messages.imu_message(stamp, self.frame_id, self.indices,
+                                                        rate_rad_s, self.covariance))
+
+    def publish_diagnostics(self) -> None:
+        level, message, values = self.stream.status()
+        status = messages.diagnostic_status(f'{self.get_name()}: {self.values["source"]}',
+                                            self.stream.hardware_id, level, message, values)
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_publisher.publish(array)
+
+    def destroy_node(self):
+        self.stream.close()
+        return super().destroy_node()
+
+
+class SensorStream:
+    """An MLX90609 array, simulated or on spidev, read on a timer."""
+
+    def __init__(self, node: DriverNode):
+        self.node = node
+        values = node.values
+        if values['source'] == 'simulated':
+            config = SimulationConfig(
+                seed=values['simulation.seed'],
+                eeprom_version=values['simulation.eeprom_version'],
+                start_temperature_c=values['simulation.start_temperature_c'],
+                cycle_temperatures_c=tuple(values['simulation.cycle_temperatures_c']),
+                ramp_c_per_min=values['simulation.ramp_c_per_min'],
+                hold_s=values['simulation.hold_s'],
+                die_time_constant_s=values['simulation.die_time_constant_s'],
+                rate_dps=tuple(values['simulation.rate_dps']),
+                supply_v=values['simulation.supply_v'],
+                effects=effects_of(values))
+            self.array = SimulatedArray(config, len(node.axes))
+            self.array.fault = Fault(values['simulation.fault'])
+            self.real_time_factor = values['simulation.real_time_factor']
+            self.hardware_id = f'simulated MLX90609 x{len(node.axes)} (seed {config.seed})'
+        else:
+            chip_selects = values['spi.chip_selects']
+            if len(chip_selects) != len(node.axes):
+                msg = (f'invalid parameter spi.chip_selects: {len(chip_selects)} chip selects '
+                       f'for {len(node.axes)} axes')
+                raise ParameterError(msg)
+            self.array = spidev_array(values['spi.bus'], chip_selects, values['spi.speed_hz'],
+                                      values['spi.mode'])
+            self.real_time_factor = None
+            self.hardware_id = f'MLX90609 on /dev/spidev{values["spi.bus"]}.{chip_selects}'
+        self.tables = sensor_tables(self._read_eeproms(), Output.DIGITAL, node.transfer,
+                                    values['sensor.full_scale_dps'])
+        self.nominal = NominalConversion.for_range(self.tables.full_scale_dps, Output.DIGITAL,
+                                                   len(node.axes), node.transfer)
+        node.eeprom_publisher.publish(messages.eeprom_message(self.images))
+        self.period_s = 1.0 / values['rate_hz']
+        self.oversample = values['oversample']
+        self.published = 0
+        self.failed_reads = 0
+        self.consecutive_failures = 0
+        self.last_error = ''
+        self.start_ns = node.get_clock().now().nanoseconds
+        self.start_wall = time.monotonic()
+        tick = self.period_s if self.real_time_factor is None else \
+            max(self.period_s / self.real_time_factor, 0.002)
+        self.timer = node.create_timer(tick, self.tick)
+        node.get_logger().info(
+            f'{self.hardware_id}: EEPROM VERSION {[f.version for f in self.tables.fields]}, '
+            f'full scale {self.tables.full_scale_dps:g} deg/s, publishing at '
+            f'{1.0 / self.period_s:g} Hz')
+
+    def _read_eeproms(self) -> tuple:
+        for attempt in range(1, EEPROM_READ_ATTEMPTS + 1):
+            try:
+                self.images = self.array.read_eeproms()
+                return self.images
+            except HardwareError as err:
+                if attempt == EEPROM_READ_ATTEMPTS:
+                    msg = f'cannot read the EEPROM after {attempt} attempts: {err}'
+                    raise HardwareError(msg) from None
+                self.node.get_logger().warn(f'EEPROM read failed ({err}), retrying')
+        raise AssertionError('unreachable')
+
+    def tick(self) -> None:
+        if self.real_time_factor is None:
+            self._publish_one(self.node.get_clock().now().nanoseconds)
+            return
+        elapsed_s = (time.monotonic() - self.start_wall) * self.real_time_factor
+        for _ in range(samples_due(elapsed_s, self.period_s, self.published,
+                                   MAX_SAMPLES_PER_TICK)):
+            time_s = self.published * self.period_s
+            self.array.advance_to(time_s)
+            self._publish_one(self.start_ns + int(round(time_s * 1e9)))
+
+    def _publish_one(self, stamp_ns: int) -> None:
+        # A failed or saturated read is skipped and counted; the schedule moves on.
+        self.published += 1
+        try:
+            sample = self.array.read(self.oversample)
+        except HardwareError as err:
+            self.failed_reads += 1
+            self.consecutive_failures += 1
+            self.last_error = str(err)
+            self.node.get_logger().warn(f'read failed: {err}', throttle_duration_sec=5.0)
+            return
+        self.consecutive_failures = 0
+        if sample.saturated:
+            return
+        rate_dps = self.nominal.compensate(sample.rate_code[None, :],
+                                           sample.temperature_code[None, :]).rate_dps[0]
+        transfer = self.node.transfer
+        temperatures_c = transfer.temperature_output_to_c(sample.temperature_code,
+                                                          Output.DIGITAL)
+        self.node.publish_raw(stamp_ns, np.deg2rad(rate_dps), temperatures_c)
+
+    def status(self) -> tuple:
+        counters = self.array.counters
+        values = {'state': 'failing' if self.consecutive_failures else 'streaming',
+                  'samples_due': self.published, 'failed_reads': self.failed_reads,
+                  **counters,
+                  'eeprom_version': [f.version for f in self.tables.fields],
+                  'eeprom_outvoted_bits': self.tables.outvoted_bits,
+                  'full_scale_dps': self.tables.full_scale_dps,
+                  'last_error': self.last_error}
+        if self.consecutive_failures:
+            return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
+        if self.tables.outvoted_bits:
+            return DiagnosticStatus.WARN, (f'{self.tables.outvoted_bits} EEPROM bits '
+                                           'out-voted: worn EEPROM or bad SPI read'), values
+        if counters['saturated']:
+            return DiagnosticStatus.WARN, f'{counters["saturated"]} saturated samples', values
+        return DiagnosticStatus.OK, 'streaming', values
+
+    def close(self) -> None:
+        self.array.close()
+
+
+class BagStream:
+    """Replays the raw topics of a rosbag2 folder at the recorded rate, scaled, or at once."""
+
+    def __init__(self, node: DriverNode):
+        self.node = node
+        self.array = None
+        values = node.values
+        path = values['bag.path']
+        if not path:
+            raise ParameterError('invalid parameter bag.path: the bag source needs a path')
+        temperature_topic = values['bag.temperature_topic']
+        axis_topics = tuple(f'{temperature_topic.rstrip("/")}/{axis}' for axis in node.axes) \
+            if len(node.axes) > 1 else ()
+        self.reader = RawBagReader(path, RawTopics(imu=values['bag.imu_topic'],
+                                                   temperature=temperature_topic,
+                                                   eeprom=values['bag.eeprom_topic']),
+                                   extra_temperature_topics=axis_topics)
+        self.axis_publishers = dict(zip((t.strip('/') for t in axis_topics),
+                                        node.axis_temperature_publishers))
+        self.temperature_topic = temperature_topic.strip('/')
+        if self.reader.eeprom is not None:
+            node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
+        self.rate_factor = values['bag.rate_factor']
+        self.hardware_id = f'bag {path}'
+        self.records = self.reader.records()
+        self.next_record = next(self.records, None)
+        self.first_bag_ns = None if self.next_record is None else self.next_record[0]
+        self.start_wall = time.monotonic()
+        self.published = 0
+        self.finished = self.next_record is None
+        self.timer = node.create_timer(0.002, self.tick)
+        node.get_logger().info(f'replaying {self.reader.message_count} messages from {path} '
+                               f'at rate factor {self.rate_factor:g}')
+
+    def tick(self) -> None:
+        elapsed_ns = (time.monotonic() - self.start_wall) * 1e9 * self.rate_factor
+        for _ in range(MAX_SAMPLES_PER_TICK):
+            if self.next_record is None:
+                if not self.finished:
+                    self.finished = True
+                    self.node.get_logger().info(f'bag replay finished: {self.published} '
+                                                f'messages, {self.reader.skipped} skipped')
+                    self.timer.cancel()
+                return
+            bag_ns, topic, record = self.next_record
+            if self.rate_factor > 0.0 and bag_ns - self.first_bag_ns > elapsed_ns:
+                return
+            self._publish(topic, record)
+            self.next_record = next(self.records, None)
+
+    def _publish(self, topic: str, record) -> None:
+        stamp = messages.ns_to_stamp(record.stamp_ns) if hasattr(record, 'stamp_ns') else None
+        if isinstance(record, ImuRecord):
+            msg = Imu()
+            msg.header.stamp = stamp
+            msg.header.frame_id = record.frame_id
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = \
+                (float(v) for v in record.angular_velocity_rad_s)
+            msg.angular_velocity_covariance = [float(v) for v in
+                                               record.angular_velocity_covariance]
+            msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = \
+                (float(v) for v in record.linear_acceleration_m_s2)
+            msg.linear_acceleration_covariance = [float(v) for v in
+                                                  record.linear_acceleration_covariance]
+            msg.orientation_covariance = [float(v) for v in record.orientation_covariance]
+            self.node.imu_publisher.publish(msg)
+        elif isinstance(record, TemperatureRecord):
+            msg = messages.temperature_message(stamp, record.frame_id, record.temperature_c,
+                                               record.variance)
+            publisher = self.axis_publishers.get(topic.strip('/'))
+            if publisher is None:
+                publisher = self.node.temperature_publisher
+            publisher.publish(msg)
+        else:
+            return
+        self.published += 1
+
+    def status(self) -> tuple:
+        values = {'state': 'finished' if self.finished else 'replaying',
+                  'published': self.published, 'messages': self.reader.message_count,
+                  'skipped': self.reader.skipped, 'rate_factor': self.rate_factor}
+        if self.reader.skipped:
+            return DiagnosticStatus.WARN, f'{self.reader.skipped} bag messages skipped', values
+        return DiagnosticStatus.OK, values['state'], values
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+def main(args=None) -> int:
+    return run([DriverNode], args, 'driver_node')
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

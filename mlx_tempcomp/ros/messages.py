@@ -1,0 +1,97 @@
+"""Translation between ROS messages and the arrays the core works on."""
+
+import math
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+import numpy as np
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
+
+from ..core.eeprom import EEPROM_SIZE
+from ..core.models import AXIS_NAMES
+
+NAN = float('nan')
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def ns_to_stamp(stamp_ns: int) -> Time:
+    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def axis_indices(axes) -> tuple:
+    """Map axis names ('x', 'y', 'z') to Imu vector indices."""
+    return tuple(AXIS_NAMES.index(name) for name in axes)
+
+
+def rate_covariance(indices, noise_rad_s: float) -> list:
+    """Return the diagonal covariance: variance on measured axes, all 0 (unknown) without noise."""
+    covariance = [0.0] * 9
+    for index in indices:
+        covariance[4 * index] = noise_rad_s ** 2
+    return covariance
+
+
+def imu_message(stamp: Time, frame_id: str, indices, rate_rad_s,
+                covariance: list) -> Imu:
+    """
+    Build an Imu carrying angular rate only (REP-145: unreported fields flagged with -1).
+
+    Axes the sensor does not measure are NaN: a number there would be a silent lie.
+    """
+    msg = Imu()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.orientation_covariance[0] = -1.0
+    msg.linear_acceleration_covariance[0] = -1.0
+    vector = [NAN, NAN, NAN]
+    for index, value in zip(indices, rate_rad_s):
+        vector[index] = float(value)
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = vector
+    msg.angular_velocity_covariance = covariance
+    return msg
+
+
+def imu_rates(msg: Imu, indices) -> np.ndarray:
+    vector = (msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z)
+    return np.array([vector[i] for i in indices])
+
+
+def temperature_message(stamp: Time, frame_id: str, temperature_c: float,
+                        variance: float = 0.0) -> Temperature:
+    msg = Temperature()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.temperature = float(temperature_c)
+    msg.variance = float(variance)
+    return msg
+
+
+def eeprom_message(images) -> UInt8MultiArray:
+    """Pack all chips' EEPROM images: dimension 'axis' x dimension 'byte'."""
+    msg = UInt8MultiArray()
+    msg.layout.dim = [
+        MultiArrayDimension(label='axis', size=len(images), stride=len(images) * EEPROM_SIZE),
+        MultiArrayDimension(label='byte', size=EEPROM_SIZE, stride=EEPROM_SIZE)]
+    msg.data = b''.join(images)
+    return msg
+
+
+def diagnostic_status(name: str, hardware_id: str, level: bytes, message: str,
+                      values: dict) -> DiagnosticStatus:
+    """Build a status; ``level`` is DiagnosticStatus.OK, WARN, ERROR or STALE."""
+    status = DiagnosticStatus(name=name, hardware_id=hardware_id, message=message, level=level)
+    status.values = [KeyValue(key=key, value=_format(value)) for key, value in values.items()]
+    return status
+
+
+def _format(value) -> str:
+    if isinstance(value, float):
+        return 'nan' if math.isnan(value) else f'{value:.6g}'
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return '[' + ', '.join(_format(float(v)) if isinstance(v, (float, np.floating))
+                               else str(v) for v in value) + ']'
+    return str(value)

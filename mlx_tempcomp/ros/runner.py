@@ -1,0 +1,42 @@
+"""Start nodes the Jazzy way: build them first, spin, shut down cleanly; exit 1 on bad set-up."""
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from .params import ParameterError
+from ..core.errors import TempCompError
+from ..hardware.errors import HardwareError
+from ..sources.bag import BagError
+from ..state_file import StateFileError
+
+# What a user can get wrong at start: each becomes one fatal log line and exit code 1.
+SETUP_ERRORS = (ParameterError, TempCompError, HardwareError, BagError, StateFileError)
+
+
+def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp') -> int:
+    """Build each node with its factory, spin them all until shutdown; return the exit code."""
+    rclpy.init(args=args)
+    nodes = []
+    try:
+        for factory in node_factories:
+            nodes.append(factory())
+    except SETUP_ERRORS as err:
+        rclpy.logging.get_logger(logger_name).fatal(str(err))
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        return 1
+    # Enough threads that a blocking service call never starves the streams.
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

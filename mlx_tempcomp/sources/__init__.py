@@ -1,0 +1,1 @@
+"""Raw data sources: simulated and SPI sensors, rosbag2 replay. No rclpy."""
