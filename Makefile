@@ -22,7 +22,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	touch $@
 
 demo: venv
-	$(VENV_PY) -m mlx_tempcomp.sweep
+	$(VENV_PY) -m mlx_tempcomp.ros.demo
 
 test: venv
 	$(VENV_PY) -m pytest test $(PYTEST_ARGS)

@@ -31,8 +31,9 @@ from ..sources.bag import ImuRecord, RawBagReader, RawTopics, TemperatureRecord
 from ..sources.mlx90609 import samples_due, SimulatedArray, SimulationConfig, spidev_array
 
 EEPROM_READ_ATTEMPTS = 3
-# Most samples published by one timer tick, so a slow machine never stalls the executor.
-MAX_SAMPLES_PER_TICK = 500
+# Most samples published by one timer tick: a driver catching up after a stall sends
+# short bursts, so the executor (and subscriber queues) keep up.
+MAX_SAMPLES_PER_TICK = 20
 
 
 class DriverNode(Node):

@@ -1,0 +1,433 @@
+"""
+Compensation node latency, drops and CPU beside a pass-through relay node, over DDS.
+
+A feeder publishes Temperature then Imu per sample at the target rate,
+stamped with the send time; the node under test (the real
+``compensation_node`` executable, eeprom model, or a relay built the same way:
+same runner, same QoS, same stamp pairing, republishing both messages
+unchanged) forwards them; a receiver records when each ``imu/data`` reached
+it. Each runs in its own process, in a private localhost-only DDS domain.
+Relay and compensation alternate at each rate, because this machine is noisy.
+Targets: zero drops at 1 kHz; compensation p99 latency within 1.5x the relay's.
+
+    .venv/bin/python bench/bench_node_latency.py [--rates 1000 5700] [--duration 30]
+    .venv/bin/python bench/bench_node_latency.py --sweep [--sweep-duration 10]
+"""
+
+import argparse
+import os
+from pathlib import Path
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from mlx_tempcomp.core.pairing import StampPairer
+from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros.qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
+from mlx_tempcomp.ros.runner import run
+from mlx_tempcomp.sources.mlx90609 import SimulatedArray, SimulationConfig
+import numpy as np
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import UInt8MultiArray
+from std_srvs.srv import Trigger
+
+# Header stamp in a CDR message: after the 4-byte encapsulation header, int32 sec, uint32 ns.
+_STAMP = struct.Struct('<iI')
+_STAMP_OFFSET = 4
+# Deep enough that the receiver never drops what the node under test sent.
+_RECEIVER_QOS = QoSProfile(depth=20000, history=HistoryPolicy.KEEP_LAST,
+                           reliability=ReliabilityPolicy.BEST_EFFORT)
+NODES = ('relay', 'compensation')
+SWEEP_RATES = (1000, 1500, 2000, 2500, 3000, 3500, 4000, 5000, 5700)
+READY_TIMEOUT_S = 30.0
+DRAIN_S = 1.5
+
+
+# The baseline node.
+class RelayNode(Node):
+    """
+    Pass-through relay built like the compensation node.
+
+    Same runner, same input QoS, same StampPairer, publishes Temperature then Imu
+    on the same topics with the same QoS; also the same kinds of other entities
+    (EEPROM subscription, service, 1 Hz diagnostics timer), so the executor's
+    wait set has the same shape. Only the model and the message building differ.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__('relay_node', **kwargs)
+        self.pairer = StampPairer(('imu', 'temperature'))
+        self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
+        self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
+                                                           SENSOR_QOS)
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
+        self.create_subscription(
+            Temperature, 'imu/temperature_raw',
+            lambda msg: self.on_temperature('temperature', msg), SENSOR_INPUT_QOS)
+        self.create_subscription(UInt8MultiArray, 'imu/eeprom', lambda msg: None, EEPROM_QOS)
+        self.create_service(Trigger, 'imu/recalibrate_zro', lambda request, response: response,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0, lambda: self.diagnostics_publisher.publish(DiagnosticArray()))
+
+    def on_imu(self, msg: Imu) -> None:
+        for stamp_ns, parts in self.pairer.add('imu', messages.stamp_to_ns(msg.header.stamp),
+                                               msg):
+            self.process(stamp_ns, parts)
+
+    def on_temperature(self, stream: str, msg: Temperature) -> None:
+        for stamp_ns, parts in self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
+                                               msg):
+            self.process(stamp_ns, parts)
+
+    def process(self, stamp_ns: int, parts: dict) -> None:
+        self.temperature_publisher.publish(parts['temperature'])
+        self.imu_publisher.publish(parts['imu'])
+
+
+def relay_main() -> int:
+    return run([RelayNode], None, 'relay_node')
+
+
+# The feeder: paced raw stream.
+def _templates() -> tuple:
+    """Return serialized Temperature and Imu messages as the driver would publish them."""
+    stamp = messages.ns_to_stamp(0)
+    indices = messages.axis_indices(('z',))
+    temperature = messages.temperature_message(stamp, 'imu_link', 25.0)
+    imu = messages.imu_message(stamp, 'imu_link', indices, [0.001],
+                               messages.rate_covariance(indices, 0.0058))
+    return bytearray(serialize_message(temperature)), bytearray(serialize_message(imu))
+
+
+def _feed(publishers, buffers, rate_hz: float, duration_s: float, stamps: list,
+          last_ns: int) -> tuple:
+    """
+    Publish every sample due at ``rate_hz`` for ``duration_s``; return (elapsed, last stamp).
+
+    One loop catches up on all samples due (Python cannot wake 5700 times a
+    second on time), then sleeps until the next one is due. Each sample is
+    stamped with its own send time, strictly increasing.
+    """
+    period = 1.0 / rate_hz
+    total = int(round(rate_hz * duration_s))
+    temperature_publisher, imu_publisher = publishers
+    temperature_buffer, imu_buffer = buffers
+    sent = 0
+    start = time.perf_counter()
+    while sent < total:
+        due = min(total, int((time.perf_counter() - start) * rate_hz) + 1)
+        while sent < due:
+            stamp_ns = max(time.time_ns(), last_ns + 1)
+            last_ns = stamp_ns
+            sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+            _STAMP.pack_into(temperature_buffer, _STAMP_OFFSET, sec, nanosec)
+            _STAMP.pack_into(imu_buffer, _STAMP_OFFSET, sec, nanosec)
+            temperature_publisher.publish(bytes(temperature_buffer))
+            imu_publisher.publish(bytes(imu_buffer))
+            stamps.append(stamp_ns)
+            sent += 1
+        delay = start + sent * period - time.perf_counter()
+        if delay > 0.0:
+            time.sleep(delay)
+    return time.perf_counter() - start, last_ns
+
+
+def feeder_main(rate_hz: float, duration_s: float, warmup_s: float, out: str) -> int:
+    """Publish the EEPROM, wait for the node, feed on 'go' from stdin, save the stamps."""
+    rclpy.init()
+    node = rclpy.create_node('bench_feeder')
+    eeprom_publisher = node.create_publisher(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
+    eeprom_publisher.publish(messages.eeprom_message(
+        SimulatedArray(SimulationConfig(), 1).read_eeproms()))
+    publishers = (node.create_publisher(Temperature, 'imu/temperature_raw', SENSOR_QOS),
+                  node.create_publisher(Imu, 'imu/data_raw', SENSOR_QOS))
+    while min(p.get_subscription_count() for p in publishers) < 1:
+        time.sleep(0.01)
+    print('matched', flush=True)
+    if sys.stdin.readline().strip() != 'go':
+        return 1
+    buffers = _templates()
+    _, last_ns = _feed(publishers, buffers, rate_hz, warmup_s, [], 0)
+    stamps = []
+    print('start', flush=True)
+    elapsed, _ = _feed(publishers, buffers, rate_hz, duration_s, stamps, last_ns)
+    print(f'end {elapsed!r}', flush=True)
+    np.save(out, np.array(stamps, dtype=np.int64))
+    # Keep the EEPROM publisher (transient local) alive until told to stop.
+    sys.stdin.readline()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+# The receiver: arrival time of each compensated sample.
+def receiver_main(out: str) -> int:
+    """
+    Record (stamp, arrival, node publish time, node sequence) per imu/data until stdin closes.
+
+    Arrival and publish times are the middleware's (DDS reception and source
+    timestamps, both the system clock), so this process's own scheduling does
+    not add to the figures. Messages are taken raw in a tight loop.
+    """
+    rclpy.init()
+    node = rclpy.create_node('bench_receiver')
+    subscription = node.create_subscription(Imu, 'imu/data', lambda msg: None,
+                                            _RECEIVER_QOS, raw=True)
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    while subscription.get_publisher_count() < 1:
+        time.sleep(0.01)
+    print('ready', flush=True)
+    wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+    handle, msg_type = subscription.handle, subscription.msg_type
+    records = []
+    while not stop.is_set():
+        wait_set.clear_entities()
+        wait_set.add_subscription(handle)
+        wait_set.wait(100_000_000)
+        taken = handle.take_message(msg_type, True)
+        while taken is not None:
+            data, info = taken
+            sec, nanosec = _STAMP.unpack_from(data, _STAMP_OFFSET)
+            received = info['received_timestamp'] or time.time_ns()
+            records.append((sec * 1_000_000_000 + nanosec, received, info['source_timestamp'],
+                            info['publication_sequence_number'] or 0))
+            taken = handle.take_message(msg_type, True)
+    np.save(out, np.array(records, dtype=np.int64).reshape(-1, 4))
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+# The orchestrator.
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` (all its threads)."""
+    with open(f'/proc/{pid}/stat') as stat:
+        fields = stat.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+class _Lines:
+    """Collect a child's output lines in a thread, so its pipe never fills."""
+
+    def __init__(self, stream):
+        self.lines = []
+        self.changed = threading.Condition()
+        threading.Thread(target=self._read, args=(stream,), daemon=True).start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            with self.changed:
+                self.lines.append(line.rstrip('\n'))
+                self.changed.notify_all()
+
+    def wait_for(self, text: str, timeout_s: float) -> bool:
+        with self.changed:
+            return self.changed.wait_for(lambda: any(text in line for line in self.lines),
+                                         timeout_s)
+
+
+def _start(command, env, stdin=None):
+    return subprocess.Popen(command, env=env, stdin=stdin, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, bufsize=1)
+
+
+def _stop(process, timeout_s: float = 10.0) -> None:
+    if process.poll() is not None:
+        return
+    process.send_signal(2)  # SIGINT: rclpy shuts down cleanly, DDS releases its segments.
+    try:
+        process.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
+def _node_command(name: str, folder: str) -> list:
+    if name == 'relay':
+        return [sys.executable, str(Path(__file__).resolve()), '--relay']
+    executable = Path(sys.executable).with_name('compensation_node')
+    command = [str(executable)] if executable.exists() else \
+        [sys.executable, '-m', 'mlx_tempcomp.ros.compensation_node']
+    return command + ['--ros-args', '-p', 'model:=eeprom', '-p',
+                      f'recalibration.state_file:={folder}/zro.yaml']
+
+
+def measure(name: str, rate_hz: float, duration_s: float, warmup_s: float, env) -> dict:
+    """Run node ``name`` with a feeder and a receiver; return its figures."""
+    script = str(Path(__file__).resolve())
+    with tempfile.TemporaryDirectory(prefix='bench_node_latency_') as folder:
+        sent_file, received_file = f'{folder}/sent.npy', f'{folder}/received.npy'
+        node = _start(_node_command(name, folder), env)
+        node_lines = _Lines(node.stdout)
+        receiver = feeder = None
+        try:
+            receiver = _start([sys.executable, script, '--receiver', received_file], env,
+                              subprocess.PIPE)
+            receiver_lines = _Lines(receiver.stdout)
+            if not receiver_lines.wait_for('ready', READY_TIMEOUT_S):
+                raise RuntimeError(f'{name}: the receiver never matched the node\'s imu/data')
+            feeder = _start([sys.executable, script, '--feeder', '--rate',
+                             repr(rate_hz), '--duration', repr(duration_s), '--warmup',
+                             repr(warmup_s), '--out', sent_file], env, subprocess.PIPE)
+            feeder_lines = _Lines(feeder.stdout)
+            if not feeder_lines.wait_for('matched', READY_TIMEOUT_S):
+                raise RuntimeError(f'{name}: the feeder never matched the node\'s inputs')
+            if name == 'compensation' and \
+                    not node_lines.wait_for('factory tables received', READY_TIMEOUT_S):
+                raise RuntimeError('compensation node never built the eeprom model:\n' +
+                                   '\n'.join(node_lines.lines))
+            feeder.stdin.write('go\n')
+            feeder.stdin.flush()
+            if not feeder_lines.wait_for('start', READY_TIMEOUT_S + warmup_s):
+                raise RuntimeError(f'{name}: the feeder did not start')
+            processes = (node, feeder, receiver)
+            cpu_start = [_cpu_seconds(p.pid) for p in processes]
+            wall_start = time.perf_counter()
+            if not feeder_lines.wait_for('end', 2 * duration_s + READY_TIMEOUT_S):
+                raise RuntimeError(f'{name}: the feeder did not finish')
+            cpu_end = [_cpu_seconds(p.pid) for p in processes]
+            wall_end = time.perf_counter()
+            feed_s = float(next(line for line in feeder_lines.lines
+                                if line.startswith('end')).split()[1])
+            time.sleep(DRAIN_S)
+            if node.poll() is not None:
+                raise RuntimeError(f'{name} node died:\n' + '\n'.join(node_lines.lines))
+            receiver.stdin.close()
+            receiver.wait(READY_TIMEOUT_S)
+            feeder.stdin.write('stop\n')
+            feeder.stdin.flush()
+            feeder.wait(READY_TIMEOUT_S)
+        finally:
+            for process in (feeder, receiver, node):
+                if process is not None:
+                    _stop(process)
+        sent = np.load(sent_file)
+        records = np.load(received_file)
+    return _figures(name, rate_hz, sent, records, feed_s,
+                    [(e - s) / (wall_end - wall_start) for s, e in zip(cpu_start, cpu_end)])
+
+
+def _figures(name: str, rate_hz: float, sent, records, feed_s: float, cpu: list) -> dict:
+    mine = records[np.isin(records[:, 0], sent)]
+    stamps, index = np.unique(mine[:, 0], return_index=True)
+    mine = mine[index]
+    latency_ms = (mine[:, 1] - mine[:, 0]) / 1e6
+    at_node_ms = (mine[:, 2] - mine[:, 0]) / 1e6
+    sequence = np.sort(mine[:, 3])
+    # Gaps in the node's own publication numbers: lost between node and receiver.
+    after_node = int(np.sum(np.diff(sequence) - 1)) if len(sequence) > 1 else 0
+
+    def percentile(values, q):
+        return float(np.percentile(values, q)) if len(values) else float('nan')
+
+    return {'rate': rate_hz, 'node': name, 'sent': len(sent), 'send_rate': len(sent) / feed_s,
+            'received': len(stamps), 'drops': len(sent) - len(stamps), 'after_node': after_node,
+            'p50': percentile(latency_ms, 50), 'p99': percentile(latency_ms, 99),
+            'max': percentile(latency_ms, 100), 'node_p99': percentile(at_node_ms, 99),
+            'cpu': 100.0 * cpu[0], 'feeder_cpu': 100.0 * cpu[1], 'receiver_cpu': 100.0 * cpu[2]}
+
+
+def _print_table(results) -> None:
+    print(f'{"rate Hz":>8} {"node":<13} {"sent":>7} {"sent/s":>7} {"received":>8} '
+          f'{"drops":>6} {"p50 ms":>7} {"p99 ms":>7} {"max ms":>7} {"CPU %":>6} '
+          f'{"feeder %":>8} {"recv %":>6}')
+    for r in results:
+        print(f'{r["rate"]:>8.0f} {r["node"]:<13} {r["sent"]:>7} {r["send_rate"]:>7.0f} '
+              f'{r["received"]:>8} {r["drops"]:>6} {r["p50"]:>7.3f} {r["p99"]:>7.3f} '
+              f'{r["max"]:>7.2f} {r["cpu"]:>6.1f} {r["feeder_cpu"]:>8.1f} '
+              f'{r["receiver_cpu"]:>6.1f}')
+
+
+def _verdicts(results, rates) -> None:
+    by = {(r['rate'], r['node']): r for r in results}
+    for rate in rates:
+        relay, compensation = by[(rate, 'relay')], by[(rate, 'compensation')]
+        ratio = compensation['p99'] / relay['p99']
+        print(f'  {rate:.0f} Hz: p99 compensation / relay {ratio:.2f}x (target <= 1.50: '
+              f'{"met" if ratio <= 1.5 else "NOT met"}); compensation drops '
+              f'{compensation["drops"]}, relay drops {relay["drops"]}; p99 stamp to node '
+              f'publish: compensation {compensation["node_p99"]:.3f} ms, relay '
+              f'{relay["node_p99"]:.3f} ms')
+        lost = {n: by[(rate, n)]['after_node'] for n in NODES if by[(rate, n)]['after_node']}
+        if lost:
+            print(f'    of the drops, lost after the node (node to receiver): {lost}')
+    if 1000 in rates:
+        drops = by[(1000, 'compensation')]['drops']
+        print(f'  zero drops at 1 kHz (compensation): {"met" if drops == 0 else "NOT met"} '
+              f'({drops} dropped)')
+
+
+def _run(rates, duration_s: float, warmup_s: float, env) -> list:
+    results = []
+    for i, rate in enumerate(rates):
+        # Alternate which node goes first, so a drift of the machine favours neither.
+        for name in NODES if i % 2 == 0 else reversed(NODES):
+            print(f'  running {name} at {rate:g} Hz for {duration_s:g} s...', flush=True)
+            results.append(measure(name, rate, duration_s, warmup_s, env))
+    return results
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('--rates', type=float, nargs='+', default=[1000.0, 5700.0])
+    parser.add_argument('--duration', type=float, default=30.0, help='feed seconds per run')
+    parser.add_argument('--warmup', type=float, default=1.0,
+                        help='seconds fed at the same rate before each measured window')
+    parser.add_argument('--sweep', action='store_true',
+                        help='instead: find the highest rate with zero drops')
+    parser.add_argument('--sweep-rates', type=float, nargs='+', default=list(SWEEP_RATES))
+    parser.add_argument('--sweep-duration', type=float, default=10.0)
+    # Child roles (the benchmark starts these itself).
+    parser.add_argument('--relay', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--feeder', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--receiver', help=argparse.SUPPRESS)
+    parser.add_argument('--rate', type=float, help=argparse.SUPPRESS)
+    parser.add_argument('--out', help=argparse.SUPPRESS)
+    args, _ = parser.parse_known_args()
+    if args.relay:
+        return relay_main()
+    if args.feeder:
+        return feeder_main(args.rate, args.duration, args.warmup, args.out)
+    if args.receiver:
+        return receiver_main(args.receiver)
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(102 + os.getpid() % 100),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    env.pop('ROS_STATIC_PEERS', None)
+    rates = args.sweep_rates if args.sweep else args.rates
+    duration = args.sweep_duration if args.sweep else args.duration
+    print(f'Raw Temperature + Imu fed at {", ".join(f"{r:g}" for r in rates)} Hz for '
+          f'{duration:g} s per run (after {args.warmup:g} s warm-up), eeprom model, '
+          f'{os.cpu_count()} CPUs, domain {env["ROS_DOMAIN_ID"]}', flush=True)
+    results = _run(rates, duration, args.warmup, env)
+    print('latency = arrival of imu/data at the receiver - send time stamped by the feeder;')
+    print('CPU = node under test (all threads), feeder and receiver processes: % of one core '
+          'over the feed window')
+    _print_table(results)
+    _verdicts(results, rates)
+    if args.sweep:
+        for name in NODES:
+            sustained = None
+            for r in sorted((r for r in results if r['node'] == name), key=lambda r: r['rate']):
+                if r['drops']:
+                    break
+                sustained = r['rate']
+            print(f'  sustained (zero drops at this rate and every lower one tried), {name}: '
+                  f'{"none of those tried" if sustained is None else f"{sustained:g} Hz"}')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
