@@ -52,10 +52,20 @@ def nest(values: dict) -> dict:
     return nested
 
 
+class _QuotingDumper(yaml.SafeDumper):
+    """Quote every string: rcl reads a bare y or n as a boolean (YAML 1.1)."""
+
+
+_QuotingDumper.add_representer(
+    str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value,
+                                                       style="'"))
+
+
 def write_params(path, node_name: str, values: dict) -> str:
     """Write a ROS 2 parameter file for ``node_name``; return its path."""
     with open(path, 'w') as stream:
-        yaml.safe_dump({node_name: {'ros__parameters': nest(values)}}, stream)
+        yaml.dump({node_name: {'ros__parameters': nest(values)}}, stream,
+                  Dumper=_QuotingDumper)
     return str(path)
 
 

@@ -291,8 +291,6 @@ class CompensationNode(Node):
                 if self.window is not None:
                     raise ParameterError('a ZRO recalibration is running; try again after it')
                 self._build(candidate)
-            if 'rate_noise_rad_s' in candidate:
-                limits_of(candidate)
         except (ParameterError, TempCompError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)

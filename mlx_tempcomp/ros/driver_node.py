@@ -165,7 +165,8 @@ class SensorStream:
             f'{1.0 / self.period_s:g} Hz')
 
     def _read_eeproms(self) -> tuple:
-        for attempt in range(1, EEPROM_READ_ATTEMPTS + 1):
+        attempt = 1
+        while True:
             try:
                 self.images = self.array.read_eeproms()
                 return self.images
@@ -174,7 +175,7 @@ class SensorStream:
                     msg = f'cannot read the EEPROM after {attempt} attempts: {err}'
                     raise HardwareError(msg) from None
                 self.node.get_logger().warn(f'EEPROM read failed ({err}), retrying')
-        raise AssertionError('unreachable')
+                attempt += 1
 
     def tick(self) -> None:
         if self.real_time_factor is None:
