@@ -14,7 +14,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, Temperature
@@ -91,6 +91,9 @@ class CompensationNode(Node):
         self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
                                                            SENSOR_QOS)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # The EEPROM subscription first: when it and samples are ready together, the
+        # executor takes it first, so no sample waits for a model.
+        self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
         self.create_subscription(Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
         if per_axis:
             for axis, stream in zip(self.axes, self.temperature_streams):
@@ -101,11 +104,12 @@ class CompensationNode(Node):
             self.create_subscription(
                 Temperature, 'imu/temperature_raw',
                 lambda msg: self.on_temperature('temperature', msg), SENSOR_INPUT_QOS)
-        self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
         # Its own group: while the service awaits its window, the default group (stream,
-        # timers) keeps running in the same single thread.
+        # timers) keeps running in the same single thread. Reentrant, so a second request
+        # is taken (and refused) while the first awaits: a mutually exclusive group would
+        # hold it back and run a second recalibration afterwards.
         self.create_service(Trigger, 'imu/recalibrate_zro', self.recalibrate,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+                            callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)

@@ -8,11 +8,13 @@ chips their mean, and each chip's on ``imu/temperature_raw/<axis>``),
 images, so the raw topics reproduce compensation exactly) and ``/diagnostics``.
 """
 
+import collections
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
@@ -20,7 +22,7 @@ from std_msgs.msg import UInt8MultiArray
 from . import messages
 from .params import (axes_of, check_choices, declare, DRIVER_SPECS, effects_of, ParameterError,
                      transfer_of)
-from .qos import EEPROM_QOS, SENSOR_QOS
+from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
 from ..core.compensation import NominalConversion
 from ..core.conversion import Output
@@ -34,6 +36,11 @@ EEPROM_READ_ATTEMPTS = 3
 # Most samples published by one timer tick: a driver catching up after a stall sends
 # short bursts, so the executor (and subscriber queues) keep up.
 MAX_SAMPLES_PER_TICK = 20
+ACK_TIMEOUT = Duration(seconds=1.0)
+# A bag replayed at rate factor 0 stays this many samples ahead of its consumer; without
+# progress for PACE_TIMEOUT_S it goes on anyway (nobody may be consuming).
+PACE_WINDOW = 100
+PACE_TIMEOUT_S = 1.0
 
 
 class DriverNode(Node):
@@ -52,8 +59,7 @@ class DriverNode(Node):
         self.temperature_publisher = self.create_publisher(
             Temperature, 'imu/temperature_raw', SENSOR_QOS)
         self.axis_temperature_publishers = [
-            self.create_publisher(Temperature, f'imu/temperature_raw/{axis}',
-                                  SENSOR_QOS)
+            self.create_publisher(Temperature, f'imu/temperature_raw/{axis}', SENSOR_QOS)
             for axis in self.axes] if len(self.axes) > 1 else []
         self.eeprom_publisher = self.create_publisher(UInt8MultiArray, 'imu/eeprom',
                                                       EEPROM_QOS)
@@ -258,14 +264,28 @@ class BagStream:
         self.records = self.reader.records()
         self.next_record = next(self.records, None)
         self.first_bag_ns = None if self.next_record is None else self.next_record[0]
-        self.start_wall = time.monotonic()
+        self.start_wall = None
         self.published = 0
         self.finished = self.next_record is None
+        self.in_flight = collections.deque()
+        self.last_progress = time.monotonic()
+        self.pace_timeouts = 0
+        if self.rate_factor == 0.0:
+            node.create_subscription(Imu, values['bag.pace_topic'], self.on_consumed,
+                                     SENSOR_INPUT_QOS)
         self.timer = node.create_timer(0.002, self.tick)
-        node.get_logger().info(f'replaying {self.reader.message_count} messages from {path} '
-                               f'at rate factor {self.rate_factor:g}')
+        node.get_logger().info(f'{self.reader.message_count} messages in {path}, rate factor '
+                               f'{self.rate_factor:g}: waiting for a subscriber')
 
     def tick(self) -> None:
+        if self.start_wall is None:
+            # A replay nobody hears is lost: start with the first subscriber, once it has
+            # the EEPROM message.
+            if self.node.imu_publisher.get_subscription_count() == 0:
+                return
+            self.node.eeprom_publisher.wait_for_all_acked(ACK_TIMEOUT)
+            self.start_wall = time.monotonic()
+            self.node.get_logger().info('subscriber present: replay starts')
         elapsed_ns = (time.monotonic() - self.start_wall) * 1e9 * self.rate_factor
         for _ in range(MAX_SAMPLES_PER_TICK):
             if self.next_record is None:
@@ -278,8 +298,26 @@ class BagStream:
             bag_ns, topic, record = self.next_record
             if self.rate_factor > 0.0 and bag_ns - self.first_bag_ns > elapsed_ns:
                 return
+            if self.rate_factor == 0.0 and isinstance(record, ImuRecord) and self._ahead():
+                return
             self._publish(topic, record)
             self.next_record = next(self.records, None)
+
+    def on_consumed(self, msg: Imu) -> None:
+        stamp_ns = messages.stamp_to_ns(msg.header.stamp)
+        while self.in_flight and self.in_flight[0] <= stamp_ns:
+            self.in_flight.popleft()
+        self.last_progress = time.monotonic()
+
+    def _ahead(self) -> bool:
+        """Tell whether the replay must wait for its consumer before the next sample."""
+        if len(self.in_flight) < PACE_WINDOW:
+            return False
+        if time.monotonic() - self.last_progress < PACE_TIMEOUT_S:
+            return True
+        self.pace_timeouts += 1
+        self.in_flight.clear()
+        return False
 
     def _publish(self, topic: str, record) -> None:
         stamp = messages.ns_to_stamp(record.stamp_ns) if hasattr(record, 'stamp_ns') else None
@@ -297,6 +335,8 @@ class BagStream:
                                                   record.linear_acceleration_covariance]
             msg.orientation_covariance = [float(v) for v in record.orientation_covariance]
             self.node.imu_publisher.publish(msg)
+            if self.rate_factor == 0.0:
+                self.in_flight.append(record.stamp_ns)
         elif isinstance(record, TemperatureRecord):
             msg = messages.temperature_message(stamp, record.frame_id, record.temperature_c,
                                                record.variance)
@@ -309,9 +349,12 @@ class BagStream:
         self.published += 1
 
     def status(self) -> tuple:
-        values = {'state': 'finished' if self.finished else 'replaying',
+        state = 'finished' if self.finished else \
+            'waiting for a subscriber' if self.start_wall is None else 'replaying'
+        values = {'state': state,
                   'published': self.published, 'messages': self.reader.message_count,
-                  'skipped': self.reader.skipped, 'rate_factor': self.rate_factor}
+                  'skipped': self.reader.skipped, 'rate_factor': self.rate_factor,
+                  'pace_timeouts': self.pace_timeouts}
         if self.reader.skipped:
             return DiagnosticStatus.WARN, f'{self.reader.skipped} bag messages skipped', values
         return DiagnosticStatus.OK, values['state'], values

@@ -105,8 +105,12 @@ DRIVER_SPECS = COMMON_SPECS + (
          read_only=True, low=0, high=3),
     Spec('bag.path', '', 'rosbag2 folder (sqlite3 or mcap) to replay', read_only=True),
     Spec('bag.rate_factor', 1.0,
-         'replay speed: 1 = recorded rate, 2 = twice as fast, 0 = as fast as possible',
+         'replay speed: 1 = recorded rate, 2 = twice as fast, 0 = as fast as the consumer '
+         'takes it (paced by bag.pace_topic)',
          read_only=True, low=0.0, high=1000.0),
+    Spec('bag.pace_topic', 'imu/data',
+         'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
+         read_only=True),
     Spec('bag.imu_topic', '/imu/data_raw', 'Imu topic in the bag', read_only=True),
     Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
          read_only=True),
