@@ -1,0 +1,112 @@
+import math
+
+from mlx_tempcomp.core.compensation import table_compensation
+from mlx_tempcomp.core.conversion import Output, SensorTransfer
+from mlx_tempcomp.core.eeprom import EepromFields
+from mlx_tempcomp.core.errors import ConfigError
+from mlx_tempcomp.core.models import EepromModel, LinearBtcModel, PolynomialModel
+from mlx_tempcomp.core.table import factory_table
+import numpy as np
+import pytest
+
+FIELDS = EepromFields(range_code=15, version=2, tc_mv=(1854, 2508, 3114),
+                      ee_zro=(132, 133, 145), ee_sf=(120, 145, 133))
+
+
+def test_polynomial_model_removes_its_bias_and_scale():
+    model = PolynomialModel(bias_coefficients=((1e-3, 2e-4, -3e-6),),
+                            reference_temperature_c=25.0, temperature_scale_c=10.0,
+                            scale_coefficients=((0.01, 1e-3),))
+    temperature = np.linspace(-20.0, 60.0, 9)
+    x = (temperature - 25.0) / 10.0
+    true_rate = 0.5
+    bias = 1e-3 + 2e-4 * x - 3e-6 * x ** 2
+    raw = true_rate * (1.0 + 0.01 + 1e-3 * x) + bias
+    corrected = model.correct(raw, temperature)
+    np.testing.assert_allclose(corrected.rate_rad_s[:, 0], true_rate, atol=1e-15)
+    assert not corrected.temperature_clamped.any()
+
+
+def test_polynomial_model_clamps_outside_its_range():
+    model = PolynomialModel(bias_coefficients=((0.0, 1e-3),), temperature_min_c=0.0,
+                            temperature_max_c=50.0)
+    corrected = model.correct(np.zeros(3), np.array([-10.0, 20.0, 70.0]))
+    # Clamped to 0 and 50 C: x = -25 and +25 around the default 25 C reference.
+    np.testing.assert_allclose(corrected.rate_rad_s[:, 0], [0.025, 0.005, -0.025])
+    assert corrected.temperature_clamped[:, 0].tolist() == [True, False, True]
+
+
+def test_linear_btc_reproduces_table_6_of_the_adis16130_note():
+    # Bias slope 0.04 deg/s/C: BTC = -0.04 deg/s/C, so +0.12 C gives -0.0048 deg/s.
+    btc = math.radians(-0.04)
+    model = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(btc,), t3_c=30.0)
+    steps = np.array([0.12, 0.10, 0.02, 0.0, -0.02, -0.12])
+    corrected = model.correct(np.zeros(len(steps)), 30.0 + steps)
+    np.testing.assert_allclose(np.degrees(corrected.rate_rad_s[:, 0]),
+                               [-0.0048, -0.0040, -0.0008, 0.0, 0.0008, 0.0048], atol=1e-12)
+    with_pbc = LinearBtcModel(pbc_rad_s=(-0.01,), btc_rad_s_per_c=(btc,), t3_c=30.0)
+    np.testing.assert_allclose(with_pbc.correct([0.01], [30.0]).rate_rad_s, [[0.0]])
+
+
+@pytest.mark.parametrize('output', list(Output))
+def test_eeprom_model_on_nominal_rate_equals_table_compensation_on_codes(output):
+    transfer = SensorTransfer()
+    table = factory_table(FIELDS, output, transfer)
+    compensation = table_compensation([table], 75.0, output, transfer=transfer)
+    model = EepromModel(compensation, transfer)
+    rng = np.random.default_rng(1)
+    codes = rng.uniform(900.0, 1100.0, 200)
+    temperature_codes = rng.uniform(1000.0, 1790.0, 200)
+    if output is Output.ANALOG:
+        outar, tempout = transfer.rate_lsb_to_mv(codes), transfer.temperature_lsb_to_mv(
+            temperature_codes)
+    else:
+        outar, tempout = codes, temperature_codes
+    # What the driver publishes: nominal rate (rad/s) and the typical sensed temperature.
+    nominal = compensation.nominal
+    raw_rad_s = np.radians((outar - nominal.zro) / nominal.sf)
+    mv = tempout if output is Output.ANALOG else transfer.temperature_lsb_to_mv(tempout)
+    temperature_c = transfer.temperature_c_from_mv(mv)
+    expected = np.radians(compensation.compensate(outar, tempout).rate_dps)
+    np.testing.assert_allclose(model.correct(raw_rad_s, temperature_c).rate_rad_s[:, 0],
+                               expected, rtol=0, atol=1e-12)
+
+
+def test_learned_offsets_zero_the_rest_window_without_double_counting():
+    table = factory_table(FIELDS, Output.DIGITAL)
+    eeprom = EepromModel(table_compensation([table], 75.0, Output.DIGITAL))
+    polynomial = PolynomialModel(bias_coefficients=((1e-3, 1e-5),))
+    btc = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(1e-5,), t3_c=25.0)
+    temperature = np.full(100, 31.0)
+    raw = np.full(100, 0.004) + np.random.default_rng(0).normal(0.0, 1e-4, 100)
+    for model in (eeprom, polynomial, btc):
+        offset = model.learn_zro_offset(raw, temperature)
+        shifted = model.with_zro_offset(offset)
+        assert shifted.correct(raw, temperature).rate_rad_s.mean() == pytest.approx(0.0,
+                                                                                     abs=1e-12)
+        np.testing.assert_allclose(shifted.learn_zro_offset(raw, temperature), offset)
+        assert shifted.fingerprint() == model.fingerprint()
+        np.testing.assert_allclose(shifted.offset_rad_s(31.0),
+                                   model.correct(raw, temperature).rate_rad_s.mean(axis=0),
+                                   rtol=1e-9)
+    assert eeprom.offset_unit == 'LSB' and polynomial.offset_unit == 'rad/s'
+
+
+def test_fingerprint_changes_with_coefficients():
+    a = PolynomialModel(bias_coefficients=((1e-3, 1e-5),))
+    b = PolynomialModel(bias_coefficients=((1e-3, 2e-5),))
+    assert a.fingerprint() != b.fingerprint()
+    assert a.fingerprint() == PolynomialModel(bias_coefficients=((1e-3, 1e-5),)).fingerprint()
+
+
+def test_models_refuse_bad_coefficients():
+    with pytest.raises(ConfigError, match='bias coefficients of axis y'):
+        PolynomialModel(bias_coefficients=((1.0,), ()))
+    with pytest.raises(ConfigError, match='scale coefficients given for 1 axes, bias for 2'):
+        PolynomialModel(bias_coefficients=((1.0,), (1.0,)), scale_coefficients=((0.0,),))
+    with pytest.raises(ConfigError, match='linear_btc.btc needs 2 values'):
+        LinearBtcModel(pbc_rad_s=(0.0, 0.0), btc_rad_s_per_c=(0.0,), t3_c=25.0)
+    with pytest.raises(ConfigError, match=r'rate must have shape \(samples, 1\)'):
+        PolynomialModel(bias_coefficients=((1.0,),)).correct(np.zeros((4, 2)), np.zeros(4))
+    with pytest.raises(ConfigError, match='must be finite'):
+        PolynomialModel(bias_coefficients=((1.0,),)).with_zro_offset([math.nan])

@@ -1,0 +1,67 @@
+import math
+
+from mlx_tempcomp.core.errors import CalibrationError, ConfigError
+from mlx_tempcomp.core.pairing import StampPairer
+from mlx_tempcomp.core.recalibration import check_window, RecalibrationLimits
+import numpy as np
+import pytest
+
+LIMITS = RecalibrationLimits(rate_noise_rad_s=0.005, noise_multiple=3.0,
+                             max_mean_rate_rad_s=math.radians(2.0),
+                             max_temperature_change_c=0.5)
+
+
+def window(mean=0.001, sigma=0.005, drift_c=0.1, samples=500, axes=1, seed=0):
+    rng = np.random.default_rng(seed)
+    rate = mean + rng.normal(0.0, sigma, (samples, axes))
+    temperature = 30.0 + np.linspace(0.0, drift_c, samples)
+    return rate, temperature
+
+
+def test_window_at_rest_is_accepted():
+    stats = check_window(*window(axes=3), LIMITS)
+    assert stats.samples == 500
+    np.testing.assert_allclose(stats.mean_rate_rad_s, 0.001, atol=0.001)
+    assert stats.temperature_change_c == pytest.approx(0.1)
+
+
+def test_motion_and_drift_are_refused_with_the_reason():
+    with pytest.raises(CalibrationError, match='sensor moved: rate spread .* on axis 1'):
+        rate, temperature = window(axes=2)
+        rate[:, 1] += np.sin(np.linspace(0.0, 20.0, 500)) * 0.1
+        check_window(rate, temperature, LIMITS)
+    with pytest.raises(CalibrationError, match='sensor moved: mean rate'):
+        check_window(*window(mean=math.radians(5.0)), LIMITS)
+    with pytest.raises(CalibrationError, match='temperature drifted 2 C'):
+        check_window(*window(drift_c=2.0), LIMITS)
+    with pytest.raises(CalibrationError, match='only 5 valid samples'):
+        check_window(*window(samples=5), LIMITS)
+
+
+def test_non_finite_samples_are_skipped():
+    rate, temperature = window()
+    rate[:10] = np.nan
+    assert check_window(rate, temperature, LIMITS).samples == 490
+
+
+def test_limits_are_validated():
+    with pytest.raises(ConfigError, match='rate_noise_rad_s must be positive'):
+        RecalibrationLimits(rate_noise_rad_s=0.0)
+
+
+def test_pairer_pairs_by_stamp_and_drops_what_cannot_complete():
+    pairer = StampPairer(('imu', 'temperature'))
+    assert pairer.add('temperature', 1, 't1') == []
+    assert pairer.add('imu', 1, 'i1') == [(1, {'temperature': 't1', 'imu': 'i1'})]
+    assert pairer.add('imu', 2, 'i2') == []          # its temperature is lost
+    assert pairer.add('temperature', 3, 't3') == []
+    assert pairer.add('imu', 3, 'i3') == [(3, {'temperature': 't3', 'imu': 'i3'})]
+    assert (pairer.paired, pairer.dropped) == (2, 1)
+
+
+def test_pairer_holds_a_bounded_number_of_stamps():
+    pairer = StampPairer(('imu', 'temperature'), capacity=10)
+    for stamp in range(100):
+        pairer.add('imu', stamp, stamp)
+    assert pairer.dropped == 90
+    assert pairer.add('temperature', 99, 't') == [(99, {'imu': 99, 'temperature': 't'})]
