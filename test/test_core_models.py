@@ -4,6 +4,7 @@ from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.errors import ConfigError
+from mlx_tempcomp.core.interpolation import Interpolation
 from mlx_tempcomp.core.models import EepromModel, LinearBtcModel, PolynomialModel
 from mlx_tempcomp.core.table import factory_table
 import numpy as np
@@ -82,8 +83,8 @@ def test_learned_offsets_zero_the_rest_window_without_double_counting():
     for model in (eeprom, polynomial, btc):
         offset = model.learn_zro_offset(raw, temperature)
         shifted = model.with_zro_offset(offset)
-        assert shifted.correct(raw, temperature).rate_rad_s.mean() == pytest.approx(0.0,
-                                                                                     abs=1e-12)
+        residual = shifted.correct(raw, temperature).rate_rad_s.mean()
+        assert residual == pytest.approx(0.0, abs=1e-12)
         np.testing.assert_allclose(shifted.learn_zro_offset(raw, temperature), offset)
         assert shifted.fingerprint() == model.fingerprint()
         np.testing.assert_allclose(shifted.offset_rad_s(31.0),
@@ -110,3 +111,28 @@ def test_models_refuse_bad_coefficients():
         PolynomialModel(bias_coefficients=((1.0,),)).correct(np.zeros((4, 2)), np.zeros(4))
     with pytest.raises(ConfigError, match='must be finite'):
         PolynomialModel(bias_coefficients=((1.0,),)).with_zro_offset([math.nan])
+
+
+@pytest.mark.parametrize('interpolation', ['quadratic', 'step'])
+def test_one_sample_path_equals_the_array_path(interpolation):
+    table = factory_table(FIELDS, Output.DIGITAL)
+    tables = [table, None, table]
+    compensation = table_compensation(tables, 75.0, Output.DIGITAL,
+                                      Interpolation(interpolation), zro_shift=(0.5, 1.0, -2.0))
+    eeprom = EepromModel(compensation)
+    polynomial = PolynomialModel(bias_coefficients=((1e-3, 1e-5),) * 3,
+                                 temperature_min_c=-10.0, temperature_max_c=60.0)
+    btc = LinearBtcModel(pbc_rad_s=(1e-3,) * 3, btc_rad_s_per_c=(1e-5,) * 3, t3_c=25.0)
+    rng = np.random.default_rng(2)
+    rates = rng.normal(0.0, 0.5, (300, 3))
+    temperatures = np.column_stack([rng.uniform(-60.0, 100.0, 300)] * 3)
+    temperatures[0, :] = np.nan
+    for model in (eeprom, polynomial, btc):
+        expected = model.correct(rates, temperatures)
+        for i in range(300):
+            rate, clamped = model.correct_sample(rates[i].tolist(), temperatures[i].tolist())
+            np.testing.assert_allclose(rate, expected.rate_rad_s[i], rtol=1e-12, atol=1e-15)
+            assert clamped == bool(expected.temperature_clamped[i].any())
+        shared = model.correct_sample(rates[1].tolist(), [temperatures[1, 0]])[0]
+        np.testing.assert_allclose(shared, model.correct(rates[1:2], temperatures[1:2, 0])
+                                   .rate_rad_s[0], rtol=1e-12)

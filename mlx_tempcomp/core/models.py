@@ -61,13 +61,23 @@ def _finite_tuple(name: str, values, length: int) -> tuple:
     return values
 
 
+class _SampleCorrection:
+    """One-sample correction for the per-message path of the node."""
+
+    def correct_sample(self, rates_rad_s, temperatures_c) -> tuple:
+        """Return (corrected rad/s per axis as a list, whether the temperature was clamped)."""
+        result = self.correct(np.asarray([rates_rad_s], dtype=np.float64),
+                              np.asarray([temperatures_c], dtype=np.float64))
+        return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
+
+
 def _fingerprint(name: str, content: dict) -> str:
     text = json.dumps({'model': name, **content}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
-class _OffsetModel:
+class _OffsetModel(_SampleCorrection):
     """ZRO offset handling shared by the models whose offset is in rad/s."""
 
     offset_unit = 'rad/s'
@@ -215,7 +225,7 @@ class LinearBtcModel(_OffsetModel):
 
 
 @dataclass(frozen=True)
-class EepromModel:
+class EepromModel(_SampleCorrection):
     """
     AN2 method 4 on rate published by the nominal conversion.
 
@@ -261,6 +271,17 @@ class EepromModel:
         outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
         result = self.compensation.compensate(outar, tempout)
         return CorrectedRate(np.deg2rad(result.rate_dps), result.temperature_clamped)
+
+    def correct_sample(self, rates_rad_s, temperatures_c) -> tuple:
+        """Return (corrected rad/s per axis, clamped) for one reading, in plain floats."""
+        nominal = self.compensation.nominal
+        transfer = self.transfer
+        outar = [math.degrees(r) * nominal.sf + nominal.zro for r in rates_rad_s]
+        tempout = [float(transfer.temperature_to_output(transfer.temperature_mv_from_c(t),
+                                                        nominal.output))
+                   for t in temperatures_c]
+        rates_dps, clamped = self.compensation.compensate_sample(outar, tempout)
+        return [math.radians(r) for r in rates_dps], clamped
 
     def with_zro_offset(self, offset) -> 'EepromModel':
         return replace(self, compensation=self.compensation.with_zro_shift(offset))

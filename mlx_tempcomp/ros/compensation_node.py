@@ -82,6 +82,7 @@ class CompensationNode(Node):
         self.clamped_samples = 0
         self.clamped_recent = False
         self.last_input = None
+        self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
 
         per_axis = len(self.axes) > 1 and self.values['model'] == 'eeprom'
         self.temperature_streams = tuple(f'temperature_{axis}' for axis in self.axes) \
@@ -187,22 +188,21 @@ class CompensationNode(Node):
         if model is None:
             self.samples_waiting += 1
             return
+        # Plain floats on this per-message path: numpy's per-call overhead would dominate.
         imu = parts['imu']
         raw = messages.imu_rates(imu, self.indices)
-        temperatures = np.array([parts[s].temperature for s in self.temperature_streams])
-        corrected = model.correct(raw[None, :], temperatures[None, :])
-        rate = corrected.rate_rad_s[0]
-        if corrected.temperature_clamped.any():
+        temperatures = [parts[s].temperature for s in self.temperature_streams]
+        rate, clamped = model.correct_sample(raw, temperatures)
+        if clamped:
             self.clamped_samples += 1
             self.clamped_recent = True
         stamp = imu.header.stamp
         frame_id = imu.header.frame_id
         self.temperature_publisher.publish(messages.temperature_message(
-            stamp, frame_id, float(np.mean(temperatures)), parts[self.temperature_streams[0]]
-            .variance))
-        self.imu_publisher.publish(messages.imu_message(
-            stamp, frame_id, self.indices, rate,
-            messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])))
+            stamp, frame_id, sum(temperatures) / len(temperatures),
+            parts[self.temperature_streams[0]].variance))
+        self.imu_publisher.publish(messages.imu_message(stamp, frame_id, self.indices, rate,
+                                                        self.covariance))
         self.samples_out += 1
         window = self.window
         if window is not None:
@@ -302,6 +302,7 @@ class CompensationNode(Node):
     def apply_parameters(self, parameters) -> None:
         for parameter in parameters:
             self.values[parameter.name] = messages_value(parameter)
+        self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
         if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
             # Validated in validate_parameters; one reference swap makes it atomic.
             self.model = self._with_saved_offset(self._build(self.values))

@@ -9,10 +9,10 @@ images, so the raw topics reproduce compensation exactly) and ``/diagnostics``.
 """
 
 import collections
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -100,7 +100,7 @@ class DriverNode(Node):
         for publisher, temperature in zip(self.axis_temperature_publishers, temperatures_c):
             publisher.publish(messages.temperature_message(stamp, self.frame_id, temperature))
         self.temperature_publisher.publish(messages.temperature_message(
-            stamp, self.frame_id, float(np.mean(temperatures_c))))
+            stamp, self.frame_id, sum(temperatures_c) / len(temperatures_c)))
         self.imu_publisher.publish(messages.imu_message(stamp, self.frame_id, self.indices,
                                                         rate_rad_s, self.covariance))
 
@@ -208,12 +208,14 @@ class SensorStream:
         self.consecutive_failures = 0
         if sample.saturated:
             return
-        rate_dps = self.nominal.compensate(sample.rate_code[None, :],
-                                           sample.temperature_code[None, :]).rate_dps[0]
+        # AN2 method 1 per axis, in plain floats (this runs once per sample).
+        nominal = self.nominal
+        rates_rad_s = [math.radians((code - nominal.zro) / nominal.sf)
+                       for code in sample.rate_code]
         transfer = self.node.transfer
-        temperatures_c = transfer.temperature_output_to_c(sample.temperature_code,
-                                                          Output.DIGITAL)
-        self.node.publish_raw(stamp_ns, np.deg2rad(rate_dps), temperatures_c)
+        temperatures_c = [float(transfer.temperature_output_to_c(code, Output.DIGITAL))
+                          for code in sample.temperature_code]
+        self.node.publish_raw(stamp_ns, rates_rad_s, temperatures_c)
 
     def status(self) -> tuple:
         counters = self.array.counters

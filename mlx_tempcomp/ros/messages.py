@@ -55,9 +55,9 @@ def imu_message(stamp: Time, frame_id: str, indices, rate_rad_s,
     return msg
 
 
-def imu_rates(msg: Imu, indices) -> np.ndarray:
+def imu_rates(msg: Imu, indices) -> list:
     vector = (msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z)
-    return np.array([vector[i] for i in indices])
+    return [vector[i] for i in indices]
 
 
 def temperature_message(stamp: Time, frame_id: str, temperature_c: float,
