@@ -7,11 +7,13 @@ stamped with the send time; the node under test (the real
 same runner, same QoS, same stamp pairing, republishing both messages
 unchanged) forwards them; a receiver records when each ``imu/data`` reached
 it. Each runs in its own process, in a private localhost-only DDS domain.
-Relay and compensation alternate at each rate, because this machine is noisy.
+Relay and compensation alternate at each rate, because this machine is noisy;
+--rounds repeats the alternation and pools the figures. --sweep finds the
+highest rate each node forwards without a drop.
 Targets: zero drops at 1 kHz; compensation p99 latency within 1.5x the relay's.
 
-    .venv/bin/python bench/bench_node_latency.py [--rates 1000 5700] [--duration 30]
-    .venv/bin/python bench/bench_node_latency.py --sweep [--sweep-duration 10]
+    .venv/bin/python bench/bench_node_latency.py [--rates 1000 5700] [--duration 30] [--rounds 1]
+    .venv/bin/python bench/bench_node_latency.py --sweep [--sweep-rates ...] [--sweep-duration 10]
 """
 
 import argparse
@@ -48,7 +50,7 @@ _STAMP_OFFSET = 4
 _RECEIVER_QOS = QoSProfile(depth=20000, history=HistoryPolicy.KEEP_LAST,
                            reliability=ReliabilityPolicy.BEST_EFFORT)
 NODES = ('relay', 'compensation')
-SWEEP_RATES = (1000, 1500, 2000, 2500, 3000, 3500, 4000, 5000, 5700)
+SWEEP_RATES = (500, 750, 1000, 1250, 1500, 2000, 3000, 4000, 5700)
 READY_TIMEOUT_S = 30.0
 DRAIN_S = 1.5
 
@@ -272,38 +274,40 @@ def measure(name: str, rate_hz: float, duration_s: float, warmup_s: float, env) 
         node = _start(_node_command(name, folder), env)
         node_lines = _Lines(node.stdout)
         receiver = feeder = None
+
+        def expect(lines, text: str, what: str, timeout_s: float = READY_TIMEOUT_S) -> None:
+            if not lines.wait_for(text, timeout_s):
+                status = 'running' if node.poll() is None else f'exited {node.returncode}'
+                output = '\n'.join(node_lines.lines[-20:])
+                msg = f'{name} at {rate_hz:g} Hz: {what} (node {status}); node output:\n{output}'
+                raise RuntimeError(msg)
+
         try:
             receiver = _start([sys.executable, script, '--receiver', received_file], env,
                               subprocess.PIPE)
-            receiver_lines = _Lines(receiver.stdout)
-            if not receiver_lines.wait_for('ready', READY_TIMEOUT_S):
-                raise RuntimeError(f'{name}: the receiver never matched the node\'s imu/data')
-            feeder = _start([sys.executable, script, '--feeder', '--rate',
-                             repr(rate_hz), '--duration', repr(duration_s), '--warmup',
-                             repr(warmup_s), '--out', sent_file], env, subprocess.PIPE)
+            expect(_Lines(receiver.stdout), 'ready', 'the receiver never matched imu/data')
+            feeder = _start([sys.executable, script, '--feeder', '--rate', repr(rate_hz),
+                             '--duration', repr(duration_s), '--warmup', repr(warmup_s),
+                             '--out', sent_file], env, subprocess.PIPE)
             feeder_lines = _Lines(feeder.stdout)
-            if not feeder_lines.wait_for('matched', READY_TIMEOUT_S):
-                raise RuntimeError(f'{name}: the feeder never matched the node\'s inputs')
-            if name == 'compensation' and \
-                    not node_lines.wait_for('factory tables received', READY_TIMEOUT_S):
-                raise RuntimeError('compensation node never built the eeprom model:\n' +
-                                   '\n'.join(node_lines.lines))
+            expect(feeder_lines, 'matched', "the feeder never matched the node's inputs")
+            if name == 'compensation':
+                expect(node_lines, 'factory tables received', 'no eeprom model')
             feeder.stdin.write('go\n')
             feeder.stdin.flush()
-            if not feeder_lines.wait_for('start', READY_TIMEOUT_S + warmup_s):
-                raise RuntimeError(f'{name}: the feeder did not start')
+            expect(feeder_lines, 'start', 'the feeder did not start', READY_TIMEOUT_S + warmup_s)
             processes = (node, feeder, receiver)
             cpu_start = [_cpu_seconds(p.pid) for p in processes]
             wall_start = time.perf_counter()
-            if not feeder_lines.wait_for('end', 2 * duration_s + READY_TIMEOUT_S):
-                raise RuntimeError(f'{name}: the feeder did not finish')
+            expect(feeder_lines, 'end', 'the feeder did not finish', 2 * duration_s)
             cpu_end = [_cpu_seconds(p.pid) for p in processes]
             wall_end = time.perf_counter()
             feed_s = float(next(line for line in feeder_lines.lines
                                 if line.startswith('end')).split()[1])
             time.sleep(DRAIN_S)
             if node.poll() is not None:
-                raise RuntimeError(f'{name} node died:\n' + '\n'.join(node_lines.lines))
+                msg = f'{name} node died:\n' + '\n'.join(node_lines.lines[-20:])
+                raise RuntimeError(msg)
             receiver.stdin.close()
             receiver.wait(READY_TIMEOUT_S)
             feeder.stdin.write('stop\n')
@@ -321,62 +325,94 @@ def measure(name: str, rate_hz: float, duration_s: float, warmup_s: float, env) 
 
 def _figures(name: str, rate_hz: float, sent, records, feed_s: float, cpu: list) -> dict:
     mine = records[np.isin(records[:, 0], sent)]
-    stamps, index = np.unique(mine[:, 0], return_index=True)
+    _, index = np.unique(mine[:, 0], return_index=True)
     mine = mine[index]
-    latency_ms = (mine[:, 1] - mine[:, 0]) / 1e6
-    at_node_ms = (mine[:, 2] - mine[:, 0]) / 1e6
     sequence = np.sort(mine[:, 3])
-    # Gaps in the node's own publication numbers: lost between node and receiver.
-    after_node = int(np.sum(np.diff(sequence) - 1)) if len(sequence) > 1 else 0
+    return {'rate': rate_hz, 'node': name, 'sent': len(sent), 'feed_s': feed_s,
+            'received': len(mine), 'latency_ms': (mine[:, 1] - mine[:, 0]) / 1e6,
+            'at_node_ms': (mine[:, 2] - mine[:, 0]) / 1e6,
+            # Gaps in the node's own publication numbers: lost between node and receiver.
+            'after_node': int(np.sum(np.diff(sequence) - 1)) if len(sequence) > 1 else 0,
+            'cpu': cpu}
 
+
+def _pool(runs) -> dict:
+    """Sum counts, pool latencies and average CPU over runs of one node at one rate."""
     def percentile(values, q):
         return float(np.percentile(values, q)) if len(values) else float('nan')
 
-    return {'rate': rate_hz, 'node': name, 'sent': len(sent), 'send_rate': len(sent) / feed_s,
-            'received': len(stamps), 'drops': len(sent) - len(stamps), 'after_node': after_node,
-            'p50': percentile(latency_ms, 50), 'p99': percentile(latency_ms, 99),
-            'max': percentile(latency_ms, 100), 'node_p99': percentile(at_node_ms, 99),
-            'cpu': 100.0 * cpu[0], 'feeder_cpu': 100.0 * cpu[1], 'receiver_cpu': 100.0 * cpu[2]}
+    sent, received = sum(r['sent'] for r in runs), sum(r['received'] for r in runs)
+    feed_s = sum(r['feed_s'] for r in runs)
+    latency = np.concatenate([r['latency_ms'] for r in runs])
+    at_node = np.concatenate([r['at_node_ms'] for r in runs])
+    cpu = np.sum([np.multiply(r['cpu'], r['feed_s']) for r in runs], axis=0) / feed_s
+    return {'rate': runs[0]['rate'], 'node': runs[0]['node'], 'sent': sent,
+            'send_rate': sent / feed_s, 'received': received, 'drops': sent - received,
+            'after_node': sum(r['after_node'] for r in runs),
+            'p50': percentile(latency, 50), 'p99': percentile(latency, 99),
+            'max': percentile(latency, 100), 'node_p99': percentile(at_node, 99),
+            'cpu': 100.0 * cpu[0], 'cpu_us': 1e6 * cpu[0] * feed_s / max(received, 1),
+            'feeder_cpu': 100.0 * cpu[1], 'receiver_cpu': 100.0 * cpu[2]}
 
 
-def _print_table(results) -> None:
+def _print_table(rows) -> None:
     print(f'{"rate Hz":>8} {"node":<13} {"sent":>7} {"sent/s":>7} {"received":>8} '
           f'{"drops":>6} {"p50 ms":>7} {"p99 ms":>7} {"max ms":>7} {"CPU %":>6} '
-          f'{"feeder %":>8} {"recv %":>6}')
-    for r in results:
+          f'{"us/out":>6} {"feeder%":>7} {"recv%":>5}')
+    for r in rows:
         print(f'{r["rate"]:>8.0f} {r["node"]:<13} {r["sent"]:>7} {r["send_rate"]:>7.0f} '
               f'{r["received"]:>8} {r["drops"]:>6} {r["p50"]:>7.3f} {r["p99"]:>7.3f} '
-              f'{r["max"]:>7.2f} {r["cpu"]:>6.1f} {r["feeder_cpu"]:>8.1f} '
-              f'{r["receiver_cpu"]:>6.1f}')
+              f'{r["max"]:>7.2f} {r["cpu"]:>6.1f} {r["cpu_us"]:>6.0f} '
+              f'{r["feeder_cpu"]:>7.1f} {r["receiver_cpu"]:>5.1f}')
 
 
-def _verdicts(results, rates) -> None:
-    by = {(r['rate'], r['node']): r for r in results}
+def _verdicts(pooled, rates) -> None:
+    by = {(r['rate'], r['node']): r for r in pooled}
     for rate in rates:
         relay, compensation = by[(rate, 'relay')], by[(rate, 'compensation')]
         ratio = compensation['p99'] / relay['p99']
-        print(f'  {rate:.0f} Hz: p99 compensation / relay {ratio:.2f}x (target <= 1.50: '
-              f'{"met" if ratio <= 1.5 else "NOT met"}); compensation drops '
-              f'{compensation["drops"]}, relay drops {relay["drops"]}; p99 stamp to node '
-              f'publish: compensation {compensation["node_p99"]:.3f} ms, relay '
+        print(f'  {rate:g} Hz: p99 compensation / relay {ratio:.2f}x (target <= 1.50: '
+              f'{"met" if ratio <= 1.5 else "NOT met"}); drops compensation '
+              f'{compensation["drops"]}, relay {relay["drops"]}; p99 from stamp to the node '
+              f'publishing: compensation {compensation["node_p99"]:.3f} ms, relay '
               f'{relay["node_p99"]:.3f} ms')
+        if max(compensation['drops'], relay['drops']) > 0.01 * compensation['sent']:
+            print('    with drops the input queues are full: latency is then about queue depth '
+                  '/ rate for both, so the ratio says little')
         lost = {n: by[(rate, n)]['after_node'] for n in NODES if by[(rate, n)]['after_node']}
         if lost:
-            print(f'    of the drops, lost after the node (node to receiver): {lost}')
-    if 1000 in rates:
-        drops = by[(1000, 'compensation')]['drops']
+            print(f'    of those drops, lost between node and receiver: {lost}')
+        short = [n for n in NODES if by[(rate, n)]['send_rate'] < 0.99 * rate]
+        if short:
+            print(f'    the feeder fell short of {rate:g} Hz for {", ".join(short)}: see sent/s')
+    if 1000.0 in rates:
+        drops = by[(1000.0, 'compensation')]['drops']
         print(f'  zero drops at 1 kHz (compensation): {"met" if drops == 0 else "NOT met"} '
               f'({drops} dropped)')
 
 
-def _run(rates, duration_s: float, warmup_s: float, env) -> list:
-    results = []
-    for i, rate in enumerate(rates):
-        # Alternate which node goes first, so a drift of the machine favours neither.
-        for name in NODES if i % 2 == 0 else reversed(NODES):
-            print(f'  running {name} at {rate:g} Hz for {duration_s:g} s...', flush=True)
-            results.append(measure(name, rate, duration_s, warmup_s, env))
-    return results
+def _sustained(pooled) -> None:
+    for name in NODES:
+        sustained = None
+        for r in sorted((r for r in pooled if r['node'] == name), key=lambda r: r['rate']):
+            if r['drops']:
+                break
+            sustained = r['rate']
+        print(f'  highest rate with zero drops (and at every lower rate tried), {name}: '
+              f'{"none of those tried" if sustained is None else f"{sustained:g} Hz"}')
+
+
+def _run(rates, rounds: int, duration_s: float, warmup_s: float, env) -> list:
+    runs, turn = [], 0
+    for round_ in range(rounds):
+        for rate in rates:
+            # Alternate which node goes first, so a drift of the machine favours neither.
+            for name in NODES if turn % 2 == 0 else reversed(NODES):
+                print(f'  round {round_ + 1}/{rounds}: {name} at {rate:g} Hz for '
+                      f'{duration_s:g} s', flush=True)
+                runs.append(measure(name, rate, duration_s, warmup_s, env))
+            turn += 1
+    return runs
 
 
 def main() -> int:
@@ -389,6 +425,8 @@ def main() -> int:
                         help='instead: find the highest rate with zero drops')
     parser.add_argument('--sweep-rates', type=float, nargs='+', default=list(SWEEP_RATES))
     parser.add_argument('--sweep-duration', type=float, default=10.0)
+    parser.add_argument('--rounds', type=int, default=1,
+                        help='repeat the alternating runs; figures pool all rounds')
     # Child roles (the benchmark starts these itself).
     parser.add_argument('--relay', action='store_true', help=argparse.SUPPRESS)
     parser.add_argument('--feeder', action='store_true', help=argparse.SUPPRESS)
@@ -406,26 +444,26 @@ def main() -> int:
     env = dict(os.environ, ROS_DOMAIN_ID=str(102 + os.getpid() % 100),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     env.pop('ROS_STATIC_PEERS', None)
-    rates = args.sweep_rates if args.sweep else args.rates
+    rates = sorted(args.sweep_rates) if args.sweep else args.rates
     duration = args.sweep_duration if args.sweep else args.duration
     print(f'Raw Temperature + Imu fed at {", ".join(f"{r:g}" for r in rates)} Hz for '
           f'{duration:g} s per run (after {args.warmup:g} s warm-up), eeprom model, '
           f'{os.cpu_count()} CPUs, domain {env["ROS_DOMAIN_ID"]}', flush=True)
-    results = _run(rates, duration, args.warmup, env)
-    print('latency = arrival of imu/data at the receiver - send time stamped by the feeder;')
-    print('CPU = node under test (all threads), feeder and receiver processes: % of one core '
-          'over the feed window')
-    _print_table(results)
-    _verdicts(results, rates)
+    runs = _run(rates, args.rounds, duration, args.warmup, env)
+    print('latency: arrival of imu/data at the receiver - send time the feeder stamped')
+    print('CPU %: process of the node under test (all threads), % of one core over the feed '
+          'window; us/out: its CPU time per sample it forwarded; feeder%, recv%: the other two '
+          'processes')
+    if args.rounds > 1:
+        print('each run:')
+        _print_table([_pool([run]) for run in runs])
+        print(f'pooled over {args.rounds} rounds:')
+    pooled = [_pool([r for r in runs if (r['rate'], r['node']) == (rate, name)])
+              for rate in rates for name in NODES]
+    _print_table(pooled)
+    _verdicts(pooled, rates)
     if args.sweep:
-        for name in NODES:
-            sustained = None
-            for r in sorted((r for r in results if r['node'] == name), key=lambda r: r['rate']):
-                if r['drops']:
-                    break
-                sustained = r['rate']
-            print(f'  sustained (zero drops at this rate and every lower one tried), {name}: '
-                  f'{"none of those tried" if sustained is None else f"{sustained:g} Hz"}')
+        _sustained(pooled)
     return 0
 
 
