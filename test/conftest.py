@@ -21,3 +21,8 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if 'hardware' in item.keywords:
             item.add_marker(skip)
+
+
+# Fixtures of the ROS tests (launcher: node subprocesses, probe: an rclpy node with its own
+# context) and their helpers live in test/ros_harness.py.
+pytest_plugins = ['ros_harness']

@@ -7,32 +7,77 @@ is an rclpy node in the test process with its own Context, so each test
 starts and shuts down its own ROS instance.
 """
 
+import atexit
 from collections import defaultdict
-import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.ros.qos import EEPROM_QOS, SENSOR_INPUT_QOS
+from mlx_tempcomp.ros.qos import EEPROM_QOS
 import pytest
 from rcl_interfaces.srv import GetParameters, SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 import yaml
 
 BIN = os.path.dirname(sys.executable)
+
+# Fast DDS announces a new participant 5 times in 0.5 s, then every 3 s: a node whose
+# first announcements are missed is discovered about 3 s late, which half of the test
+# runs hit. Announcing for 3 s, then twice a second, makes discovery take well under
+# 1 s. Set before the first participant in this process; node subprocesses inherit it.
+DISCOVERY_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="mlx_tempcomp_tests" is_default_profile="true">
+    <rtps>
+      <builtin>
+        <discovery_config>
+          <initialAnnouncements>
+            <count>30</count>
+            <period><nanosec>100000000</nanosec></period>
+          </initialAnnouncements>
+          <leaseAnnouncement><sec>0</sec><nanosec>500000000</nanosec></leaseAnnouncement>
+        </discovery_config>
+      </builtin>
+    </rtps>
+  </participant>
+</profiles>
+"""
+
+
+def _use_fast_discovery() -> None:
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' in os.environ or \
+            'FASTDDS_DEFAULT_PROFILES_FILE' in os.environ:
+        return   # someone chose a profile: keep it
+    folder = tempfile.mkdtemp(prefix='mlx_tempcomp_dds_')
+    atexit.register(shutil.rmtree, folder, True)
+    path = os.path.join(folder, 'fastdds_profile.xml')
+    with open(path, 'w') as stream:
+        stream.write(DISCOVERY_PROFILE)
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = path
+    os.environ['FASTDDS_DEFAULT_PROFILES_FILE'] = path
+
+
+_use_fast_discovery()
 DRIVER_DIAGNOSTIC = 'driver_node: '            # name prefix; the source follows
 COMPENSATION_DIAGNOSTIC = 'compensation_node: compensation'
+# The probe records streams with a deep queue: on this 2-core machine it shares the CPU
+# with the nodes, and a burst must wait for it rather than overwrite older samples.
+RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)
 
 
 def executable(name: str) -> str:
@@ -63,9 +108,14 @@ _QuotingDumper.add_representer(
 
 def write_params(path, node_name: str, values: dict) -> str:
     """Write a ROS 2 parameter file for ``node_name``; return its path."""
+    return write_sections(path, {node_name: values})
+
+
+def write_sections(path, sections: dict) -> str:
+    """Write a ROS 2 parameter file with a section per node name; return its path."""
     with open(path, 'w') as stream:
-        yaml.dump({node_name: {'ros__parameters': nest(values)}}, stream,
-                  Dumper=_QuotingDumper)
+        yaml.dump({node: {'ros__parameters': nest(values)} for node, values in sections.items()},
+                  stream, Dumper=_QuotingDumper)
     return str(path)
 
 
@@ -77,6 +127,7 @@ class NodeProcess:
         self.command = command
         self.log_path = str(log_path)
         self._log = open(self.log_path, 'wb')
+        self.interrupted = False
         self.process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=self._log,
                                         stderr=subprocess.STDOUT, env=env)
 
@@ -105,11 +156,13 @@ class NodeProcess:
     def signal(self, signum: int) -> None:
         if self.running():
             self.process.send_signal(signum)
+            self.interrupted = self.interrupted or signum == signal.SIGINT
 
     def stop(self, timeout: float = 5.0) -> int:
         """Ask the node to shut down (SIGINT), kill it if it does not; return the exit code."""
         if self.running():
-            self.process.send_signal(signal.SIGINT)
+            if not self.interrupted:   # a second SIGINT could interrupt the clean-up
+                self.signal(signal.SIGINT)
             try:
                 self.process.wait(timeout)
             except subprocess.TimeoutExpired:
@@ -156,6 +209,9 @@ class Launcher:
         return self.start('compensation_node', 'compensation_node', params, label=label)
 
     def stop_all(self) -> None:
+        """Stop every process: SIGINT to all first, so they shut down side by side."""
+        for process in self.processes:
+            process.signal(signal.SIGINT)
         for process in self.processes:
             try:
                 process.stop()
@@ -178,9 +234,15 @@ def launcher(tmp_path):
 class Probe:
     """An rclpy node with its own Context that records what it receives."""
 
+    created = 0
+
     def __init__(self, name: str = 'probe'):
+        Probe.created += 1
+        name = f'{name}_{Probe.created}'   # unique: two probes may overlap in one process
         self.context = Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        # No log file in ~/.ros/log, and pytest keeps its own signal handlers.
+        rclpy.init(args=['probe', '--ros-args', '--disable-external-lib-logs'],
+                   context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -188,7 +250,7 @@ class Probe:
         self.diagnostics = defaultdict(list)   # status name -> [DiagnosticStatus]
         self._clients = {}
 
-    def subscribe(self, msg_type, topic: str, qos: QoSProfile = SENSOR_INPUT_QOS) -> list:
+    def subscribe(self, msg_type, topic: str, qos: QoSProfile = RECORD_QOS) -> list:
         """Record every message on ``topic``; return the list they go into."""
         messages_in = self.received[topic]
         self.node.create_subscription(msg_type, topic, messages_in.append, qos)
@@ -212,6 +274,19 @@ class Probe:
         self.subscribe(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
         self.subscribe_diagnostics()
 
+    def clear(self, keep=('imu/eeprom',)) -> None:
+        """Forget what was received so far (but the topics in ``keep``)."""
+        for topic, received in self.received.items():
+            if topic not in keep:
+                received.clear()
+
+    def wait_streaming(self, topics, timeout: float, logs=None) -> None:
+        """Spin until messages arrive on every topic in ``topics``, then clear them all."""
+        self.clear()
+        self.spin_until(lambda: all(self.received[t] for t in topics), timeout,
+                        f'messages on {", ".join(topics)}', logs)
+        self.clear()
+
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
@@ -229,11 +304,28 @@ class Probe:
                 raise AssertionError(text)
             self.spin_once()
 
-    def spin_for(self, seconds: float) -> None:
-        """Keep receiving for ``seconds`` (wall time)."""
-        deadline = time.monotonic() + seconds
+    def drain(self, quiet_s: float = 0.2, timeout: float = 5.0) -> None:
+        """Take what is still queued: spin until nothing arrived for ``quiet_s``."""
+        deadline = time.monotonic() + timeout
+        last_total, last_change = -1, time.monotonic()
         while time.monotonic() < deadline:
-            self.spin_once(min(0.05, max(0.0, deadline - time.monotonic())))
+            total = sum(len(r) for r in self.received.values())
+            if total != last_total:
+                last_total, last_change = total, time.monotonic()
+            elif time.monotonic() - last_change > quiet_s:
+                return
+            self.spin_once(0.02)
+
+    def wait_quiet(self, topics, quiet_s: float, timeout: float, logs=None) -> None:
+        """Spin until nothing arrived on ``topics`` for ``quiet_s`` (a stream stopped)."""
+        state = {'total': -1, 'since': time.monotonic()}
+
+        def quiet():
+            total = sum(len(self.received[t]) for t in topics)
+            if total != state['total']:
+                state['total'], state['since'] = total, time.monotonic()
+            return time.monotonic() - state['since'] > quiet_s
+        self.spin_until(quiet, timeout, f'{", ".join(topics)} to stop for {quiet_s:g} s', logs)
 
     def count(self, topic: str) -> int:
         return len(self.received[topic])
@@ -245,27 +337,35 @@ class Probe:
                         logs)
         return self.received[topic]
 
-    def last_status(self, name_prefix: str):
-        """The latest diagnostic status whose name starts with ``name_prefix``, or None."""
-        latest = None
-        for name, statuses in self.diagnostics.items():
-            if name.startswith(name_prefix) and statuses:
-                latest = statuses[-1]
-        return latest
-
     def wait_status(self, name_prefix: str, predicate, timeout: float, what: str, logs=None):
         """Spin until a new status of ``name_prefix`` satisfies ``predicate``; return it."""
-        seen = {name: len(s) for name, s in self.diagnostics.items()}
+        return self.wait_statuses({name_prefix: predicate}, timeout, what, logs)[name_prefix]
 
-        def found():
-            for name, statuses in self.diagnostics.items():
-                if not name.startswith(name_prefix):
+    def wait_statuses(self, predicates: dict, timeout: float, what: str, logs=None) -> dict:
+        """
+        Spin until, for each name prefix, a new status satisfies its predicate.
+
+        The nodes publish diagnostics once a second each; waiting for all at once
+        costs one period, not one per node. Return {prefix: the matching status}.
+        """
+        seen = {name: len(s) for name, s in self.diagnostics.items()}
+        found = {}
+
+        def all_found():
+            for prefix, predicate in predicates.items():
+                if prefix in found:
                     continue
-                for status in statuses[seen.get(name, 0):]:
-                    if predicate(status):
-                        return status
-            return None
-        return self.spin_until(found, timeout, what, logs)
+                for name, statuses in self.diagnostics.items():
+                    if name.startswith(prefix):
+                        match = next((s for s in statuses[seen.get(name, 0):] if predicate(s)),
+                                     None)
+                        if match is not None:
+                            found[prefix] = match
+                            break
+            return len(found) == len(predicates)
+        self.spin_until(all_found, timeout,
+                        f'{what} (still missing: {sorted(set(predicates) - set(found))})', logs)
+        return found
 
     def client(self, srv_type, name: str):
         key = (srv_type, name)
@@ -358,17 +458,8 @@ def rates(msg: Imu) -> list:
     return [v.x, v.y, v.z]
 
 
-def is_nan(value: float) -> bool:
-    return isinstance(value, float) and math.isnan(value)
-
-
-def base_compensation_params(state_file, **overrides) -> dict:
-    """Compensation parameters that never touch ~/.ros: the state file goes to ``state_file``."""
-    return {'recalibration.state_file': str(state_file), **overrides}
-
-
 def simulated_driver_params(**overrides) -> dict:
-    """A fast simulated driver: 100 Hz, 5 x real time."""
+    """Return parameters of a fast simulated driver: 100 Hz, 5 x real time."""
     return {'rate_hz': 100.0, 'simulation.real_time_factor': 5.0, **overrides}
 
 
@@ -377,4 +468,3 @@ def first_line_with(text: str, needle: str) -> str:
         if needle in line:
             return line
     return ''
-

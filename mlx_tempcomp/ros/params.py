@@ -81,7 +81,7 @@ SENSOR_SPECS = (
 )
 
 COMMON_SPECS = SENSOR_SPECS + (
-    Spec('axes', ['z'], "Imu axes the gyro measures, e.g. ['z'] or ['x', 'y', 'z']",
+    Spec('axes', ['z'], "Imu axes the gyro measures, e.g. ['z'] or ['x', 'y', 'z'] (quoted)",
          read_only=True),
     Spec('rate_noise_rad_s', 0.0058,
          '1-sigma rate noise of one sample in rad/s; sets the angular velocity covariance '

@@ -2,6 +2,8 @@
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.logging import get_logger
 
 from .params import ParameterError
 from ..core.errors import TempCompError
@@ -15,7 +17,12 @@ SETUP_ERRORS = (ParameterError, TempCompError, HardwareError, BagError, StateFil
 
 def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp') -> int:
     """Build each node with its factory, spin them all until shutdown; return the exit code."""
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except rclpy_implementation.RCLError as err:
+        # A --params-file rcl cannot parse (e.g. an unquoted y, a boolean in YAML 1.1).
+        get_logger(logger_name).fatal(f'cannot start: {err}')
+        return 1
     nodes = []
     try:
         for factory in node_factories:
@@ -34,6 +41,12 @@ def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp') -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: B902
+        # SIGINT/SIGTERM shut the context down from the signal handler; a callback the
+        # executor was taking then fails on its invalidated handle (RuntimeError from
+        # take_message). That is a stop, not a crash; anything else still raises.
+        if rclpy.ok():
+            raise
     finally:
         executor.shutdown()
         for node in nodes:

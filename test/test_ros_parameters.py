@@ -1,0 +1,143 @@
+"""Parameters of the nodes: bad files stop them with a clear line, runtime changes are checked."""
+
+from mlx_tempcomp.ros import messages
+import pytest
+from ros_harness import by_stamp, simulated_driver_params
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 20.0
+
+# (node, parameters, text the fatal line must hold: it names the parameter)
+INVALID = {
+    'rate_hz_not_a_number': ('driver_node', {'rate_hz': 'fast'},
+                             "invalid parameter rate_hz: Trying to set parameter 'rate_hz' to "
+                             "'fast' of type 'STRING', expecting type 'DOUBLE'"),
+    'oversample_zero': ('driver_node', {'oversample': 0},
+                        'invalid parameter oversample: Invalid parameter value (0) for parameter. '
+                        'Reason: Parameter oversample out of range. Min: 1, Max: 256'),
+    'source_usb': ('driver_node', {'source': 'usb'},
+                   "invalid parameter source: 'usb' is not one of simulated, spidev, bag"),
+    'axes_w': ('driver_node', {'axes': ['w']},
+               "invalid parameter axes: ['w'], give 1 to 3 distinct of 'x', 'y', 'z'"),
+    'model_cubic': ('compensation_node', {'model': 'cubic'},
+                    "invalid parameter model: 'cubic' is not one of eeprom, polynomial, "
+                    'linear_btc'),
+    'polynomial_without_bias': ('compensation_node', {'model': 'polynomial'},
+                                'invalid parameter polynomial.bias.z: the polynomial model '
+                                "needs coefficients for every axis in ['z']"),
+    'linear_btc_too_short': ('compensation_node',
+                             {'model': 'linear_btc', 'axes': ['x', 'z'],
+                              'linear_btc.pbc_rad_s': [0.0],
+                              'linear_btc.btc_rad_s_per_c': [0.0, 0.0]},
+                             'invalid parameter linear_btc.pbc_rad_s: needs 2 values'),
+    'stale_timeout_negative': ('compensation_node', {'stale_timeout_s': -1.0},
+                               'invalid parameter stale_timeout_s: Invalid parameter value '
+                               '(-1.0) for parameter. Reason: Parameter stale_timeout_s out of '
+                               'range'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(INVALID))
+def test_invalid_parameter_file_exits_1_naming_the_parameter(launcher, tmp_path, case):
+    node, params, expected = INVALID[case]
+    if node == 'compensation_node':
+        params = {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params}
+    process = launcher.start(node, node, params)
+    assert process.wait(20.0) == 1
+    output = process.output()
+    assert 'Traceback' not in output
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1, output
+    assert lines[0].startswith('[FATAL] [') and f'[{node}]: ' in lines[0], lines[0]
+    assert expected in lines[0], lines[0]
+    assert not (tmp_path / 'zro.yaml').exists()
+
+
+def test_parameter_file_rcl_cannot_parse_exits_1_without_traceback(launcher, tmp_path):
+    # The natural spelling of three axes: YAML 1.1 (rcl's parser) reads a bare y as true.
+    path = tmp_path / 'axes.yaml'
+    path.write_text('driver_node:\n  ros__parameters:\n    axes: [x, y, z]\n')
+    process = launcher.start('driver_node', 'driver_node',
+                             extra_args=['--params-file', str(path)])
+    assert process.wait(20.0) == 1
+    output = process.output()
+    assert 'Traceback' not in output
+    fatal = [line for line in output.splitlines() if line.startswith('[FATAL]')]
+    assert len(fatal) == 1, output
+    assert '[driver_node]: cannot start: ' in fatal[0]
+    assert f"Couldn't parse params file: '--params-file {path}'" in fatal[0]
+    assert 'line_num 3' in fatal[0]
+
+
+LINEAR_BTC = {'model': 'linear_btc', 'linear_btc.pbc_rad_s': [0.01],
+              'linear_btc.btc_rad_s_per_c': [0.0002], 'linear_btc.t3_c': 25.0}
+
+
+def linear_btc(raw_rad_s: float, temperature_c: float, pbc: float) -> float:
+    return raw_rad_s + pbc + (temperature_c - 25.0) * 0.0002
+
+
+@pytest.mark.slow
+def test_runtime_coefficient_changes_are_checked_and_applied(launcher, probe, tmp_path):
+    probe.subscribe_pipeline()
+    launcher.driver(simulated_driver_params())
+    launcher.compensation({'recalibration.state_file': str(tmp_path / 'zro.yaml'),
+                           **LINEAR_BTC})
+    probe.wait_streaming(['imu/data_raw', 'imu/data'], TIMEOUT_S, launcher)
+
+    results = probe.set_parameters('compensation_node', {'linear_btc.pbc_rad_s': [0.5, 0.5]})
+    assert [r.successful for r in results] == [False]
+    assert results[0].reason == ('invalid parameter linear_btc.pbc_rad_s: needs 1 values '
+                                 "(one per axis in ['z']), got 2")
+    values = probe.get_parameters('compensation_node', ['linear_btc.pbc_rad_s'])
+    assert values == {'linear_btc.pbc_rad_s': [0.01]}
+    # The stream goes on, with the old coefficients.
+    probe.clear()
+    probe.wait_count('imu/data', 200, TIMEOUT_S, launcher)
+
+    results = probe.set_parameters('compensation_node', {'linear_btc.pbc_rad_s': [-0.04]})
+    assert [r.successful for r in results] == [True], results[0].reason
+    changed_at = len(probe.received['imu/data'])
+    probe.wait_count('imu/data', changed_at + 300, TIMEOUT_S, launcher)
+    launcher.stop_all()
+    probe.drain()
+
+    # Every compensated sample is raw + PBC + (T - T3) x BTC with the old PBC up to one
+    # stamp and the new one from there on: the output shifts by exactly -0.05 rad/s.
+    raw = by_stamp(probe.received['imu/data_raw'])
+    temperature = by_stamp(probe.received['imu/temperature_raw'])
+    pbcs = []
+    for msg in probe.received['imu/data']:
+        stamp = messages.stamp_to_ns(msg.header.stamp)
+        if stamp not in raw or stamp not in temperature:
+            continue
+        z, t = raw[stamp].angular_velocity.z, temperature[stamp].temperature
+        for pbc in (0.01, -0.04):
+            if abs(msg.angular_velocity.z - linear_btc(z, t, pbc)) < 1e-12:
+                pbcs.append(pbc)
+                break
+        else:
+            pytest.fail(f'sample at {stamp} fits neither PBC: raw {z}, T {t}, '
+                        f'compensated {msg.angular_velocity.z}')
+    switch = pbcs.index(-0.04)
+    assert pbcs[:switch] == [0.01] * switch and pbcs[switch:] == [-0.04] * (len(pbcs) - switch)
+    assert switch >= 50 and len(pbcs) - switch >= 250
+
+
+def test_read_only_parameters_cannot_change_at_runtime(launcher, probe, tmp_path):
+    launcher.driver(simulated_driver_params())
+    launcher.compensation({'recalibration.state_file': str(tmp_path / 'zro.yaml')})
+    for node, name, value in (('driver_node', 'source', 'bag'),
+                              ('driver_node', 'rate_hz', 10.0),
+                              ('compensation_node', 'axes', ['x', 'y', 'z']),
+                              ('compensation_node', 'recalibration.state_file', '/tmp/x')):
+        before = probe.get_parameters(node, [name])
+        results = probe.set_parameters(node, {name: value})
+        assert [r.successful for r in results] == [False], f'{node} {name}'
+        assert 'read-only' in results[0].reason, results[0].reason
+        assert probe.get_parameters(node, [name]) == before
+    # A writable one goes through.
+    results = probe.set_parameters('driver_node', {'frame_id': 'gyro_link'})
+    assert [r.successful for r in results] == [True]
+    assert probe.get_parameters('driver_node', ['frame_id']) == {'frame_id': 'gyro_link'}

@@ -1,0 +1,206 @@
+"""
+ZRO recalibration of the compensation node over DDS, and its state file.
+
+The simulated driver gets a supply-voltage ZRO shift the factory table cannot
+know (5.2 V x 5 deg/s/V off 5 V = +1 deg/s): the residual a recalibration at
+rest must learn, save, and apply again after a restart.
+"""
+
+import math
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import time
+
+from mlx_tempcomp.state_file import read_state
+import numpy as np
+import pytest
+from ros_harness import (COMPENSATION_DIAGNOSTIC, parse_list, simulated_driver_params,
+                         status_values)
+from std_srvs.srv import Trigger
+
+pytestmark = pytest.mark.ros
+
+SERVICE = 'imu/recalibrate_zro'
+TIMEOUT_S = 30.0
+WINDOW_S = 2.0                    # recalibration.duration_s: 200 samples at 100 Hz
+SEED = 9
+SUPPLY_SHIFT = {'simulation.supply_v': 5.2, 'simulation.zro_supply_dps_per_v': 5.0}
+OFFSET_PATTERN = re.compile(r'ZRO offset z (\S+) rad/s at (\S+) C from (\d+) samples over '
+                            r'(\S+) s; saved to (\S+)$')
+
+
+def start(launcher, probe, driver: dict, state_file):
+    """Start the driver and a compensation node; return the latter once its data flows."""
+    probe.subscribe_pipeline()
+    launcher.driver(simulated_driver_params(**{'simulation.seed': SEED, **driver}))
+    compensation = launcher.compensation(
+        {'recalibration.state_file': str(state_file), 'recalibration.duration_s': WINDOW_S})
+    probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
+    return compensation
+
+
+def mean_rate(probe, samples: int, launcher) -> float:
+    """Mean compensated z rate (rad/s) of the next ``samples`` messages."""
+    probe.clear()
+    msgs = probe.wait_count('imu/data', samples, TIMEOUT_S, launcher)[:samples]
+    return float(np.mean([m.angular_velocity.z for m in msgs]))
+
+
+def recalibrate(probe, timeout: float = TIMEOUT_S):
+    return probe.call(Trigger, SERVICE, Trigger.Request(), timeout)
+
+
+def compensation_values(probe, launcher, predicate=lambda values: True) -> dict:
+    status = probe.wait_status(COMPENSATION_DIAGNOSTIC,
+                               lambda s: predicate(status_values(s)), TIMEOUT_S,
+                               'compensation diagnostics', launcher)
+    return status_values(status)
+
+
+@pytest.mark.slow
+def test_recalibration_at_rest_is_saved_survives_kill_9_and_is_restored(launcher, probe,
+                                                                        tmp_path):
+    state_file = tmp_path / 'state' / 'zro.yaml'
+    compensation = start(launcher, probe, SUPPLY_SHIFT, state_file)
+    before = mean_rate(probe, 500, launcher)
+    assert math.degrees(before) == pytest.approx(0.9, abs=0.2), \
+        'the supply shift leaves about +0.9 deg/s after the factory table'
+    assert not state_file.exists()
+
+    response = recalibrate(probe)
+    assert response.success, response.message
+    match = OFFSET_PATTERN.search(response.message)
+    assert match, response.message
+    offset_rad_s, samples = float(match.group(1)), int(match.group(3))
+    assert match.group(5) == str(state_file)
+    assert 190 <= samples <= 202, 'a 2 s window at 100 Hz'
+    assert offset_rad_s == pytest.approx(before, abs=0.002)
+    # SIGKILL at once: whatever the node was doing, the file it wrote must be whole.
+    compensation.kill()
+    state = read_state(str(state_file))
+    assert state['model'] == 'eeprom'
+    assert state['axes'] == ['z']
+    assert state['offset_unit'] == 'LSB'
+    assert state['samples'] == samples
+    assert state['zro_offset_rad_s'][0] == pytest.approx(offset_rad_s, rel=1e-5)
+    # 1 deg/s is 12.8 LSB at the nominal scale factor.
+    assert state['zro_offset'][0] == pytest.approx(math.degrees(offset_rad_s) * 12.8, rel=0.05)
+    assert len(state['fingerprint']) == 16
+    assert [p.name for p in tmp_path.joinpath('state').iterdir()] == ['zro.yaml']
+
+    # A fresh node with the same state file applies the offset it finds there.
+    launcher.compensation({'recalibration.state_file': str(state_file)}, label='restarted')
+    values = compensation_values(probe, launcher, lambda v: v['samples_out'] != '0')
+    assert parse_list(values['zro_offset'])[0] == pytest.approx(state['zro_offset'][0],
+                                                                rel=1e-5)
+    assert values['fingerprint'] == state['fingerprint']
+    assert values['last_recalibration_time'] == state['time']
+    after = mean_rate(probe, 500, launcher)
+    print(f'compensated mean before {math.degrees(before):.4f} deg/s, learned offset '
+          f'{math.degrees(offset_rad_s):.4f} deg/s ({state["zro_offset"][0]:.3f} LSB), '
+          f'after restart {math.degrees(after):.4f} deg/s')
+    assert abs(math.degrees(after)) < 0.15
+    assert abs(after) < abs(before) / 5.0
+    assert 'applied saved ZRO offset' in launcher.processes[-1].output()
+
+
+def test_recalibration_refused_while_rotating(launcher, probe, tmp_path):
+    state_file = tmp_path / 'zro.yaml'
+    start(launcher, probe, {'simulation.rate_dps': [5.0]}, state_file)
+    response = recalibrate(probe)
+    assert not response.success
+    assert response.message.startswith('refused: sensor moved: mean rate 0.08'), \
+        response.message     # 5 deg/s = 0.087 rad/s
+    assert 'exceeds 0.0349' in response.message
+    assert not state_file.exists()
+    values = compensation_values(probe, launcher)
+    assert values['zro_offset'] == '[0]'
+
+
+def test_recalibration_refused_while_temperature_ramps(launcher, probe, tmp_path):
+    state_file = tmp_path / 'zro.yaml'
+    # 200 C/min from -40 C to 85 C: 6.7 C within the 2 s window, for 37 s of sensor time.
+    start(launcher, probe, {'simulation.start_temperature_c': -40.0,
+                            'simulation.cycle_temperatures_c': [85.0],
+                            'simulation.ramp_c_per_min': 200.0}, state_file)
+    response = recalibrate(probe)
+    assert not response.success
+    assert re.match(r'refused: temperature drifted \d+(\.\d+)? C during the window '
+                    r'\(limit 0\.5 C\)$', response.message), response.message
+    drift = float(response.message.split()[3])
+    assert 5.5 < drift < 7.5
+    assert not state_file.exists()
+
+
+def test_second_recalibration_while_one_runs_is_refused(launcher, probe, tmp_path):
+    state_file = tmp_path / 'zro.yaml'
+    start(launcher, probe, {}, state_file)
+    # Back to back: the node takes the first, opens its window (0.4 s of wall time) and
+    # awaits it; the second arrives meanwhile.
+    first = probe.call_async(Trigger, SERVICE, Trigger.Request())
+    second = probe.call_async(Trigger, SERVICE, Trigger.Request())
+    probe.spin_until(lambda: first.done() and second.done(), TIMEOUT_S, 'both responses',
+                     launcher)
+    assert second.result().success is False
+    assert second.result().message == 'refused: a recalibration is already running'
+    assert first.result().success, first.result().message
+    assert 'ZRO offset z' in first.result().message
+    assert read_state(str(state_file))['samples'] >= 190
+
+
+WRITER = r"""
+import sys
+from mlx_tempcomp.state_file import write_state
+path = sys.argv[1]
+payloads = [{'name': name, 'zro_offset': [float(i) * scale for i in range(2000)]}
+            for name, scale in (('a', 1.0), ('b', -0.5))]
+write_state(path, payloads[0])
+print('ready', flush=True)
+i = 1
+while True:
+    write_state(path, payloads[i % 2])
+    i += 1
+"""
+
+
+def payload(name: str) -> dict:
+    scale = 1.0 if name == 'a' else -0.5
+    return {'name': name, 'zro_offset': [float(i) * scale for i in range(2000)]}
+
+
+@pytest.mark.slow
+def test_kill_9_during_state_writes_leaves_a_whole_file(tmp_path):
+    path = tmp_path / 'zro.yaml'
+    expected = {'a': payload('a'), 'b': payload('b')}
+    rng = random.Random(1234)
+    seen = set()
+    for _ in range(20):
+        writer = subprocess.Popen([sys.executable, '-c', WRITER, str(path)],
+                                  stdout=subprocess.PIPE, text=True)
+        try:
+            assert writer.stdout.readline() == 'ready\n'
+            time.sleep(rng.uniform(0.0, 0.1))
+            os.kill(writer.pid, signal.SIGKILL)
+            writer.wait(5.0)
+        finally:
+            if writer.poll() is None:
+                writer.kill()
+                writer.wait(5.0)
+            writer.stdout.close()
+        assert writer.returncode == -signal.SIGKILL
+        state = read_state(str(path))
+        assert state['name'] in expected
+        assert state == expected[state['name']]
+        seen.add(state['name'])
+    # Each kill inside a write leaves its own temporary file (a unique name) behind; the
+    # next writer and every read went on regardless.
+    kills_mid_write = len(list(tmp_path.glob('.zro.yaml.*.tmp')))
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith('.')) == \
+        ['zro.yaml']
+    print(f'{kills_mid_write} of 20 kills left a half-written temporary file')
+    assert seen == {'a', 'b'}
+    assert kills_mid_write >= 5, 'the kills must hit writes in progress'
