@@ -107,3 +107,16 @@ def test_colcon_build_installs_ros2_run_executable(tmp_path, monkeypatch):
         timeout=60)
     assert run.returncode == 0, f'{EXECUTABLE} --help failed:\n{run.stdout}\n{run.stderr}'
     assert run.stdout.strip(), f'{EXECUTABLE} --help printed nothing'
+    # The nodes resolve the same way; the installed driver starts, reads its parameters and
+    # refuses a bad one (exit 1), which needs rclpy and the whole package to import.
+    for node in ('driver_node', 'compensation_node', 'bringup'):
+        path = prefix / 'lib' / PACKAGE / node
+        assert path.is_file() and os.access(path, os.X_OK), f'{path} missing or not executable'
+    assert (prefix / 'share' / PACKAGE / 'config' / 'mlx_tempcomp.yaml').is_file()
+    assert (prefix / 'share' / PACKAGE / 'launch' / 'mlx_tempcomp.launch.py').is_file()
+    refused = subprocess.run(
+        [str(prefix / 'lib' / PACKAGE / 'driver_node'), '--ros-args', '-p', 'source:=usb'],
+        cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+        timeout=60)
+    assert refused.returncode == 1, refused.stdout + refused.stderr
+    assert 'invalid parameter source' in refused.stdout + refused.stderr
