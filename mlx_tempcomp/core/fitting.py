@@ -1,0 +1,224 @@
+"""
+Least-squares bias polynomials and their order chosen by contiguous-block cross-validation.
+
+PX4 and ArduPilot fit a fixed cubic with ``np.polyfit`` on the temperature as
+measured. Here the order is chosen from the data, and the fit runs in float64
+on x = (T - centre) / half_span of the data's temperature range, so x lies in
+[-1, 1] and orders well above 5 keep every term (the MPU-6000 note loses the
+terms above order 5 to single precision on raw temperature).
+"""
+
+from dataclasses import dataclass
+import math
+import operator
+
+import numpy as np
+
+from .errors import CalibrationError
+from .models import AXIS_NAMES, PolynomialModel
+
+MIN_SPAN_C = 1.0
+DISTINCT_DECIMALS = 2
+ONE_SE_RULE = 'one-standard-error'
+
+
+@dataclass(frozen=True)
+class OrderScore:
+    """Held-out RMS residual of one polynomial order, per block and summarised."""
+
+    order: int
+    block_rms_rad_s: tuple
+    mean_rms_rad_s: float
+    standard_error_rad_s: float
+
+
+@dataclass(frozen=True)
+class OrderSelection:
+    """Order chosen for one axis, every score it was chosen from, and the rule used."""
+
+    axis: str
+    order: int
+    scores: tuple
+    rule: str
+
+
+def contiguous_blocks(samples: int, count: int) -> tuple:
+    """Split indices 0..samples-1 into `count` contiguous, near-equal index arrays."""
+    samples = operator.index(samples)
+    count = operator.index(count)
+    if count < 2:
+        msg = f'cross-validation needs at least 2 blocks, got {count}'
+        raise CalibrationError(msg)
+    if samples < count:
+        msg = f'cannot split {samples} samples into {count} blocks'
+        raise CalibrationError(msg)
+    return tuple(np.array_split(np.arange(samples), count))
+
+
+def _fit_inputs(temperature_c, rate_rad_s) -> tuple:
+    temperature = np.asarray(temperature_c, dtype=np.float64)
+    rate = np.asarray(rate_rad_s, dtype=np.float64)
+    if rate.ndim == 1:
+        rate = rate[:, None]
+    if temperature.ndim != 1 or rate.ndim != 2 or rate.shape[0] != temperature.shape[0]:
+        msg = (f'temperature must have shape (samples,) and rate (samples,) or '
+               f'(samples, axes); got {np.shape(temperature_c)} and {np.shape(rate_rad_s)}')
+        raise CalibrationError(msg)
+    if not 1 <= rate.shape[1] <= len(AXIS_NAMES):
+        msg = f'rate must have 1 to {len(AXIS_NAMES)} axes, got {rate.shape[1]}'
+        raise CalibrationError(msg)
+    if temperature.size == 0:
+        msg = 'no samples to fit'
+        raise CalibrationError(msg)
+    bad = np.count_nonzero(~np.isfinite(temperature)) + np.count_nonzero(~np.isfinite(rate))
+    if bad:
+        msg = f'calibration data has {bad} non-finite temperature or rate values'
+        raise CalibrationError(msg)
+    return temperature, rate
+
+
+def _axis_orders(orders, axes: int) -> tuple:
+    values = (orders,) * axes if np.ndim(orders) == 0 else tuple(orders)
+    if len(values) != axes:
+        msg = f'orders needs one value per axis ({axes}), got {len(values)}'
+        raise CalibrationError(msg)
+    try:
+        values = tuple(operator.index(order) for order in values)
+    except TypeError:
+        msg = f'polynomial orders must be integers, got {orders!r}'
+        raise CalibrationError(msg) from None
+    if min(values) < 0:
+        msg = f'polynomial orders must be non-negative, got {list(values)}'
+        raise CalibrationError(msg)
+    return values
+
+
+def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
+    """
+    Fit a bias polynomial per axis by least squares in float64.
+
+    temperature_c has shape (samples,), rate_rad_s (samples,) or (samples, axes),
+    orders is one int for every axis or one per axis. The model works in
+    x = (T - centre) / half_span of the data's temperature range and clamps to
+    that range. Raise CalibrationError when the data cannot support an order.
+    """
+    temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
+    axis_orders = _axis_orders(orders, rate.shape[1])
+    highest = max(axis_orders)
+    distinct = np.unique(np.round(temperature, DISTINCT_DECIMALS)).size
+    if distinct < highest + 1:
+        msg = (f'order {highest} needs at least {highest + 1} distinct temperatures '
+               f'(rounded to 0.01 C), the data has {distinct}')
+        raise CalibrationError(msg)
+    low_c = float(np.min(temperature))
+    high_c = float(np.max(temperature))
+    span_c = high_c - low_c
+    if highest >= 1 and span_c < MIN_SPAN_C:
+        msg = (f'order {highest} needs a temperature span of at least {MIN_SPAN_C} C, '
+               f'the data spans {span_c:.3g} C ({low_c:.2f} to {high_c:.2f} C)')
+        raise CalibrationError(msg)
+    if span_c == 0.0:
+        msg = (f'all temperatures equal {low_c:.2f} C; the model needs '
+               'temperature_min_c below temperature_max_c')
+        raise CalibrationError(msg)
+    centre_c = 0.5 * (low_c + high_c)
+    half_span_c = 0.5 * span_c
+    vandermonde = np.polynomial.polynomial.polyvander((temperature - centre_c) / half_span_c,
+                                                      highest)
+    coefficients = []
+    for axis, order in enumerate(axis_orders):
+        solution, _, rank, _ = np.linalg.lstsq(vandermonde[:, :order + 1], rate[:, axis],
+                                               rcond=None)
+        if rank < order + 1:
+            msg = (f'axis {AXIS_NAMES[axis]}: the temperatures cannot determine an order '
+                   f'{order} polynomial (design matrix rank {rank})')
+            raise CalibrationError(msg)
+        coefficients.append(tuple(solution))
+    return PolynomialModel(bias_coefficients=tuple(coefficients),
+                           reference_temperature_c=centre_c, temperature_scale_c=half_span_c,
+                           temperature_min_c=low_c, temperature_max_c=high_c)
+
+
+def _held_out_rms_rad_s(temperature, rate, blocks: tuple, order: int) -> np.ndarray:
+    """Return the held-out RMS per block (rows) and axis (columns), inf if unsupported."""
+    rms = np.full((len(blocks), rate.shape[1]), math.inf)
+    for index, block in enumerate(blocks):
+        train = np.concatenate([b for i, b in enumerate(blocks) if i != index])
+        try:
+            model = fit_polynomial(temperature[train], rate[train], order)
+        except CalibrationError:
+            continue
+        residual = model.correct(rate[block], temperature[block]).rate_rad_s
+        rms[index] = np.sqrt(np.mean(np.square(residual), axis=0))
+    return rms
+
+
+def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),
+                  blocks: int = 5) -> tuple:
+    """
+    Choose the bias polynomial order per axis by contiguous-block cross-validation.
+
+    Each candidate order is fitted on all blocks but one and scored by the RMS
+    of the corrected rate (through PolynomialModel.correct, so clamping acts as
+    in the node) on the held-out block. Blocks are contiguous because
+    neighbouring samples are correlated. The chosen order is the lowest whose
+    mean held-out RMS is within one standard error of the best; orders the
+    training data cannot support score inf and are never chosen.
+    """
+    temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
+    names = AXIS_NAMES[:rate.shape[1]] if axes is None else tuple(axes)
+    if len(names) != rate.shape[1]:
+        msg = f'{len(names)} axis names given for {rate.shape[1]} rate columns'
+        raise CalibrationError(msg)
+    candidates = tuple(candidate_orders)
+    if not candidates:
+        msg = 'no candidate orders given'
+        raise CalibrationError(msg)
+    orders = sorted(set(_axis_orders(candidates, len(candidates))))
+    splits = contiguous_blocks(temperature.size, blocks)
+    block_rms = {order: _held_out_rms_rad_s(temperature, rate, splits, order)
+                 for order in orders}
+    selections = []
+    for axis, name in enumerate(names):
+        scores = tuple(_score(order, block_rms[order][:, axis]) for order in orders)
+        best = min(scores, key=lambda score: score.mean_rms_rad_s)
+        if not math.isfinite(best.mean_rms_rad_s):
+            msg = (f'axis {name}: the data cannot support any of the orders {orders} '
+                   f'in {blocks}-block cross-validation')
+            raise CalibrationError(msg)
+        threshold = best.mean_rms_rad_s + best.standard_error_rad_s
+        chosen = next(score.order for score in scores if score.mean_rms_rad_s <= threshold)
+        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS over {blocks} '
+                f'contiguous blocks is within one standard error of the best (order '
+                f'{best.order})')
+        selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
+    return tuple(selections)
+
+
+def _score(order: int, block_rms_rad_s: np.ndarray) -> OrderScore:
+    if not np.all(np.isfinite(block_rms_rad_s)):
+        return OrderScore(order, tuple(float(v) for v in block_rms_rad_s), math.inf, math.inf)
+    standard_error = np.std(block_rms_rad_s, ddof=1) / math.sqrt(block_rms_rad_s.size)
+    return OrderScore(order, tuple(float(v) for v in block_rms_rad_s),
+                      float(np.mean(block_rms_rad_s)), float(standard_error))
+
+
+def format_order_table(selections) -> str:
+    """Return a table of every order's held-out RMS per axis, the chosen order marked."""
+    header = ('axis', 'order', 'mean held-out RMS (deg/s)', 'standard error (deg/s)', 'chosen')
+    rows = []
+    for selection in selections:
+        for score in selection.scores:
+            if math.isfinite(score.mean_rms_rad_s):
+                mean_text = f'{math.degrees(score.mean_rms_rad_s):.4e}'
+                error_text = f'{math.degrees(score.standard_error_rad_s):.2e}'
+            else:
+                mean_text = 'unsupported'
+                error_text = '-'
+            rows.append((selection.axis, str(score.order), mean_text, error_text,
+                         '*' if score.order == selection.order else ''))
+    widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
+    lines = ['  '.join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip()
+             for row in (header, *rows)]
+    lines.extend(f'{selection.axis}: {selection.rule}' for selection in selections)
+    return '\n'.join(lines)

@@ -1,0 +1,150 @@
+import warnings
+
+from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.fitting import (contiguous_blocks, fit_polynomial, format_order_table,
+                                       select_orders)
+import numpy as np
+import pytest
+
+KELVIN_OFFSET_C = 273.15
+# truth in u = (T - 22.5 C) / 62.5 C, so u spans [-1, 1] over -40..85 C; rad/s
+TRUE_BIAS_RAD_S = {
+    2: (2e-3, 4e-3, 3e-3),
+    3: (2e-3, 4e-3, -1.5e-3, 2e-3),
+    5: (2e-3, 4e-3, -1.5e-3, 2e-3, 1e-3, -2e-3),
+}
+ORDER6_BIAS_RAD_S = (2e-3, 4e-3, -1.5e-3, 2e-3, 1e-3, -2e-3, 1.5e-3)
+
+
+def true_bias_rad_s(temperature_c, coefficients):
+    return np.polynomial.polynomial.polyval((temperature_c - 22.5) / 62.5, coefficients)
+
+
+def thermal_cycle_c(samples, cycles=2):
+    """Return a slow triangle -40 -> 85 -> -40 C, repeated `cycles` times."""
+    phase = np.linspace(0.0, cycles, samples, endpoint=False) % 1.0
+    return -40.0 + 125.0 * (1.0 - np.abs(2.0 * phase - 1.0))
+
+
+def simulated_rate_rad_s(temperature_c, coefficients, seed):
+    """Return bias plus 1e-4 rad/s white noise plus mild AR(1) noise (3e-5 rad/s)."""
+    rng = np.random.default_rng(seed)
+    phi = 0.99
+    drive = rng.normal(0.0, 3e-5 * np.sqrt(1.0 - phi ** 2), temperature_c.size)
+    correlated = np.zeros(temperature_c.size)
+    for i in range(1, temperature_c.size):
+        correlated[i] = phi * correlated[i - 1] + drive[i]
+    white = rng.normal(0.0, 1e-4, temperature_c.size)
+    return true_bias_rad_s(temperature_c, coefficients) + white + correlated
+
+
+@pytest.mark.parametrize('true_order', sorted(TRUE_BIAS_RAD_S))
+def test_order_selection_picks_the_true_order(true_order):
+    temperature_c = thermal_cycle_c(4000)
+    rate_rad_s = simulated_rate_rad_s(temperature_c, TRUE_BIAS_RAD_S[true_order], true_order)
+    (selection,) = select_orders(temperature_c, rate_rad_s)
+    print(f'true order {true_order}\n{format_order_table((selection,))}')
+    assert selection.order == true_order
+    assert selection.axis == 'x'
+    assert [score.order for score in selection.scores] == list(range(9))
+    assert selection.rule.startswith('one-standard-error')
+    assert all(len(score.block_rms_rad_s) == 5 for score in selection.scores)
+
+
+def test_order_selection_per_axis_and_table():
+    temperature_c = thermal_cycle_c(3000)
+    rate_rad_s = np.column_stack([simulated_rate_rad_s(temperature_c, TRUE_BIAS_RAD_S[2], 11),
+                                  simulated_rate_rad_s(temperature_c, TRUE_BIAS_RAD_S[3], 12)])
+    selections = select_orders(temperature_c, rate_rad_s, axes=('y', 'z'),
+                               candidate_orders=range(0, 6))
+    assert [(s.axis, s.order) for s in selections] == [('y', 2), ('z', 3)]
+    table = format_order_table(selections)
+    print(table)
+    chosen = [line.split()[:2] for line in table.splitlines() if line.endswith('*')]
+    assert chosen == [['y', '2'], ['z', '3']]
+    assert 'mean held-out RMS (deg/s)' in table
+
+
+def test_unsupported_orders_score_inf_and_are_never_chosen():
+    temperature_c = np.repeat(np.linspace(0.0, 30.0, 4), 50)
+    rate_rad_s = 1e-3 + 1e-4 * temperature_c
+    (selection,) = select_orders(temperature_c, rate_rad_s, candidate_orders=range(0, 5))
+    print(format_order_table((selection,)))
+    assert selection.order == 1
+    means = {score.order: score.mean_rms_rad_s for score in selection.scores}
+    assert means[4] == np.inf
+    assert 'unsupported' in format_order_table((selection,))
+
+
+def test_order6_fit_is_stable_in_float64():
+    temperature_c = np.linspace(-40.0, 85.0, 2000)
+    truth_rad_s = true_bias_rad_s(temperature_c, ORDER6_BIAS_RAD_S)
+    model = fit_polynomial(temperature_c, truth_rad_s, 6)
+    assert (model.temperature_min_c, model.temperature_max_c) == (-40.0, 85.0)
+    grid_c = np.linspace(-40.0, 85.0, 501)
+    grid_truth_rad_s = true_bias_rad_s(grid_c, ORDER6_BIAS_RAD_S)
+    ours_rad_s = -model.correct(np.zeros(grid_c.size), grid_c).rate_rad_s[:, 0]
+    scale_rad_s = np.max(np.abs(grid_truth_rad_s))
+    ours_error = np.max(np.abs(ours_rad_s - grid_truth_rad_s)) / scale_rad_s
+    assert ours_error < 1e-12
+
+    # the same data and truth with temperatures in kelvin-shifted form
+    kelvin_model = fit_polynomial(temperature_c + KELVIN_OFFSET_C, truth_rad_s, 6)
+    kelvin_rad_s = -kelvin_model.correct(np.zeros(grid_c.size),
+                                         grid_c + KELVIN_OFFSET_C).rate_rad_s[:, 0]
+    np.testing.assert_allclose(kelvin_rad_s, ours_rad_s, rtol=0.0, atol=1e-9 * scale_rad_s)
+
+    # the MPU-6000 note: single-precision polyfit and polyval on raw temperature
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', np.exceptions.RankWarning)
+        naive = np.polyfit(temperature_c.astype(np.float32), truth_rad_s.astype(np.float32), 6)
+    naive_rad_s = np.polyval(naive.astype(np.float32), grid_c.astype(np.float32))
+    naive_error = np.max(np.abs(naive_rad_s - grid_truth_rad_s)) / scale_rad_s
+    print(f'order 6 relative error: float64 scaled {ours_error:.2e}, '
+          f'float32 polyfit on raw T {naive_error:.2e}')
+    assert naive_error > 1e3 * ours_error
+
+
+def test_contiguous_blocks_cover_every_index_once_in_order():
+    for samples, count in ((10, 2), (11, 3), (1003, 5), (7, 7)):
+        blocks = contiguous_blocks(samples, count)
+        assert len(blocks) == count
+        np.testing.assert_array_equal(np.concatenate(blocks), np.arange(samples))
+        sizes = [block.size for block in blocks]
+        assert max(sizes) - min(sizes) <= 1
+        assert all(np.all(np.diff(block) == 1) for block in blocks)
+
+
+def test_error_too_narrow_span_for_the_order():
+    temperature_c = np.linspace(20.0, 20.5, 100)
+    with pytest.raises(CalibrationError, match=r'order 2 needs a temperature span of at least'):
+        fit_polynomial(temperature_c, np.zeros(100), 2)
+    constant = fit_polynomial(temperature_c, np.full(100, 1e-3), 0)
+    assert constant.bias_coefficients[0] == pytest.approx((1e-3,), rel=1e-12)
+
+
+def test_error_too_few_distinct_temperatures():
+    temperature_c = np.repeat([0.0, 10.0, 20.0], 30) + 1e-4
+    with pytest.raises(CalibrationError, match=r'order 3 needs at least 4 distinct temperatures'):
+        fit_polynomial(temperature_c, np.zeros((90, 2)), [1, 3])
+    assert fit_polynomial(temperature_c, np.zeros((90, 2)), [1, 2]).axes == 2
+
+
+def test_error_non_finite_input():
+    temperature_c = np.linspace(0.0, 40.0, 50)
+    rate_rad_s = np.zeros(50)
+    rate_rad_s[7] = np.nan
+    with pytest.raises(CalibrationError, match=r'1 non-finite temperature or rate'):
+        fit_polynomial(temperature_c, rate_rad_s, 1)
+    temperature_c[3] = np.inf
+    with pytest.raises(CalibrationError, match=r'non-finite'):
+        select_orders(temperature_c, np.zeros(50))
+
+
+def test_error_fewer_than_two_blocks():
+    with pytest.raises(CalibrationError, match=r'at least 2 blocks, got 1'):
+        contiguous_blocks(100, 1)
+    with pytest.raises(CalibrationError, match=r'at least 2 blocks, got 1'):
+        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), blocks=1)
+    with pytest.raises(CalibrationError, match=r'cannot split 3 samples into 5 blocks'):
+        contiguous_blocks(3, 5)
