@@ -1,8 +1,9 @@
 """
 The ``mlx-tempcomp`` command line.
 
-User mistakes (a missing or malformed file, an unknown VERSION) print one
-line starting with ``error:`` and exit with code 2, never a traceback.
+User mistakes (a missing or malformed file, an unknown VERSION, data that
+cannot support the fit asked for) print one line starting with ``error:``
+and exit with code 2, never a traceback.
 """
 
 import argparse
@@ -12,7 +13,13 @@ import sys
 from .core.conversion import Output
 from .core.eeprom import decode_eeprom, VOTED_FIELDS
 from .core.errors import TempCompError
+from .core.fitting import fit_polynomial, format_order_table, select_orders
 from .core.table import factory_table, TRIPLET_TEMPERATURES_C
+from .model_params import parameter_file, polynomial_parameters, write_parameter_file
+from .sources.recording import load_recording, RecordingError
+
+DEFAULT_MAX_ORDER = 8
+DEFAULT_BLOCKS = 5
 
 EXIT_USER_ERROR = 2
 
@@ -74,6 +81,59 @@ def decode_eeprom_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        msg = f'expected a non-negative integer, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def fit_command(args: argparse.Namespace) -> int:
+    try:
+        recording = load_recording(args.input, columns=args.columns, preset=args.preset,
+                                   imu_topic=args.imu_topic,
+                                   temperature_topic=args.temperature_topic)
+    except RecordingError as err:
+        raise UserError(str(err)) from None
+    try:
+        if args.order is None:
+            selections = select_orders(recording.temperature_c, recording.gyro_rad_s,
+                                       axes=recording.axes,
+                                       candidate_orders=range(args.max_order + 1),
+                                       blocks=args.blocks)
+            orders = tuple(selection.order for selection in selections)
+            print(format_order_table(selections))
+        else:
+            orders = (args.order,) * len(recording.axes)
+        model = fit_polynomial(recording.temperature_c, recording.gyro_rad_s, orders)
+    except TempCompError as err:
+        msg = f'{args.input}: {err}'
+        raise UserError(msg) from None
+    how = 'given by --order' if args.order is not None else \
+        f'chosen by {args.blocks}-block cross-validation'
+    chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
+    print(f'orders ({how}): {chosen}')
+    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
+                        if count)
+    print(f'rows used: {len(recording)}; skipped: {skipped or "none"}')
+    print(f'fitted temperature range: {model.temperature_min_c:.2f} to '
+          f'{model.temperature_max_c:.2f} C (clamped outside)')
+    content = parameter_file(args.node_name, polynomial_parameters(model, recording.axes))
+    header = (f'Bias polynomials fitted by mlx-tempcomp fit from {args.input}\n'
+              f'Use: compensation_node --ros-args --params-file {args.out}')
+    try:
+        write_parameter_file(args.out, content, header)
+    except OSError as err:
+        msg = f'cannot write {args.out}: {err.strerror}'
+        raise UserError(msg) from None
+    print(f'wrote {args.out}')
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='mlx-tempcomp',
@@ -91,6 +151,34 @@ def build_parser() -> argparse.ArgumentParser:
                         help='full scale in deg/s, overriding 5 x RANGE')
     decode.add_argument('--json', action='store_true', help='print JSON')
     decode.set_defaults(handler=decode_eeprom_command)
+    fit = commands.add_parser(
+        'fit', help='fit bias polynomials to a recording and write a parameter file',
+        description='Fit a bias polynomial per gyro axis to a recording (CSV or rosbag2 '
+                    'bag), the order chosen per axis by contiguous-block cross-validation '
+                    'with the one-standard-error rule, and write a ROS 2 parameter file '
+                    'for the compensation node.')
+    fit.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
+    columns = fit.add_mutually_exclusive_group()
+    columns.add_argument('--preset', metavar='NAME',
+                         help='column map of a known data set (CSV only)')
+    columns.add_argument('--columns', metavar='SPEC',
+                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
+    fit.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
+                     help='Imu topic of a bag (default: %(default)s)')
+    fit.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
+                     help='Temperature topic of a bag (default: %(default)s)')
+    orders = fit.add_mutually_exclusive_group()
+    orders.add_argument('--order', type=_non_negative_int, metavar='N',
+                        help='fit this order on every axis instead of choosing it')
+    orders.add_argument('--max-order', type=_non_negative_int, default=DEFAULT_MAX_ORDER,
+                        metavar='N', help='highest order tried (default: %(default)s)')
+    fit.add_argument('--blocks', type=int, default=DEFAULT_BLOCKS, metavar='N',
+                     help='contiguous cross-validation blocks (default: %(default)s)')
+    fit.add_argument('--out', required=True, metavar='PARAMS.yaml',
+                     help='parameter file to write (replaced atomically)')
+    fit.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                     help='node section of the parameter file (default: %(default)s)')
+    fit.set_defaults(handler=fit_command)
     return parser
 
 

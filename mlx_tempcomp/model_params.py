@@ -1,0 +1,87 @@
+"""
+ROS 2 parameters of the compensation node for a fitted model, free of rclpy.
+
+`polynomial_parameters` builds the ``ros__parameters`` mapping of a
+`PolynomialModel`; `parameter_file` wraps it in the section of a node and
+`write_parameter_file` writes it so that
+``compensation_node --ros-args --params-file FILE`` loads it as is. Every
+number is a Python float (rcl refuses an int for a double parameter) and
+axis names are quoted strings (YAML 1.1 reads a bare y as a boolean).
+"""
+
+import os
+from pathlib import Path
+import tempfile
+
+import yaml
+
+from .core.models import AXIS_NAMES, PolynomialModel
+
+
+class _QuotingDumper(yaml.SafeDumper):
+    """Quote every string: rcl reads a bare y or n as a boolean (YAML 1.1)."""
+
+
+_QuotingDumper.add_representer(
+    str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value,
+                                                       style="'"))
+
+
+def polynomial_parameters(model: PolynomialModel, axes) -> dict:
+    """
+    Return the compensation node's parameters for a polynomial bias model.
+
+    ``axes`` names the Imu axis of each of the model's bias polynomials, in
+    order. Scale-factor polynomials and ZRO offsets are not parameters of
+    the node, so a model holding them is refused with ValueError.
+    """
+    axes = tuple(str(axis) for axis in axes)
+    if len(axes) != len(model.bias_coefficients) or not set(axes) <= set(AXIS_NAMES) or \
+            len(set(axes)) != len(axes):
+        msg = (f'axes {list(axes)} must be {len(model.bias_coefficients)} distinct of '
+               f'{list(AXIS_NAMES)}, one per bias polynomial')
+        raise ValueError(msg)
+    if model.scale_coefficients or any(model.zro_offset_rad_s):
+        msg = 'only the bias polynomials become parameters; the model has a scale or offset'
+        raise ValueError(msg)
+    return {
+        'model': 'polynomial',
+        'axes': list(axes),
+        'polynomial': {
+            'reference_temperature_c': float(model.reference_temperature_c),
+            'temperature_scale_c': float(model.temperature_scale_c),
+            'temperature_min_c': float(model.temperature_min_c),
+            'temperature_max_c': float(model.temperature_max_c),
+            'bias': {axis: [float(c) for c in coefficients]
+                     for axis, coefficients in zip(axes, model.bias_coefficients)},
+        },
+    }
+
+
+def parameter_file(node_name: str, parameters: dict) -> dict:
+    """Wrap ``parameters`` in the section of ``node_name`` of a ROS 2 parameter file."""
+    return {node_name: {'ros__parameters': parameters}}
+
+
+def write_parameter_file(path, content: dict, header: str = '') -> None:
+    """
+    Write a ROS 2 parameter file atomically: a temporary file, then os.replace.
+
+    ``header`` lines are written as YAML comments first. A crash leaves the
+    old file, or none, never half a file.
+    """
+    path = Path(path)
+    comments = ''.join(f'# {line}\n' for line in header.splitlines())
+    text = comments + yaml.dump(content, Dumper=_QuotingDumper, sort_keys=False)
+    descriptor, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp',
+                                             dir=path.parent)
+    try:
+        with os.fdopen(descriptor, 'w') as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        os.unlink(temporary)
+        raise
