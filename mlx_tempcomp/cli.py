@@ -8,20 +8,24 @@ and exit with code 2, never a traceback.
 
 import argparse
 import json
+import math
+from pathlib import Path
 import sys
 
 from .core.conversion import Output
 from .core.eeprom import decode_eeprom, VOTED_FIELDS
 from .core.errors import TempCompError
 from .core.fitting import fit_polynomial, format_order_table, select_orders
+from .core.noise import allan_deviation
 from .core.table import factory_table, TRIPLET_TEMPERATURES_C
 from .model_params import parameter_file, polynomial_parameters, write_parameter_file
-from .sources.recording import load_recording, RecordingError
+from .sources.recording import load_recording, Recording, RecordingError
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_BLOCKS = 5
 
 EXIT_USER_ERROR = 2
+SECONDS_PER_HOUR = 3600.0
 
 
 class UserError(Exception):
@@ -92,13 +96,17 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
-def fit_command(args: argparse.Namespace) -> int:
+def _load(args: argparse.Namespace) -> Recording:
+    """Load the recording named by the options `_add_recording_options` defines."""
     try:
-        recording = load_recording(args.input, columns=args.columns, preset=args.preset,
-                                   imu_topic=args.imu_topic,
-                                   temperature_topic=args.temperature_topic)
+        return load_recording(args.input, columns=args.columns, preset=args.preset,
+                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic)
     except RecordingError as err:
         raise UserError(str(err)) from None
+
+
+def fit_command(args: argparse.Namespace) -> int:
+    recording = _load(args)
     try:
         if args.order is None:
             selections = select_orders(recording.temperature_c, recording.gyro_rad_s,
@@ -134,6 +142,82 @@ def fit_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_recording_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
+    columns = parser.add_mutually_exclusive_group()
+    columns.add_argument('--preset', metavar='NAME',
+                         help='column map of a known data set (CSV only)')
+    columns.add_argument('--columns', metavar='SPEC',
+                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
+    parser.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
+                        help='Imu topic of a bag (default: %(default)s)')
+    parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
+                        help='Temperature topic of a bag (default: %(default)s)')
+
+
+def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
+    """Write allan.json (figures and curves) and allan.png (log-log curves) into out_dir."""
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot
+
+    result = {
+        'source': source,
+        'axes': [{
+            'axis': f.axis,
+            'angle_random_walk_rad_s_rt_hz': f.angle_random_walk_rad_s_rt_hz,
+            'bias_instability_rad_s': f.bias_instability_rad_s,
+            'bias_instability_tau_s': f.bias_instability_tau_s,
+            'rate_noise_rad_s': f.rate_noise_rad_s,
+            'taus_s': f.taus_s.tolist(),
+            'adev_rad_s': f.adev_rad_s.tolist(),
+        } for f in figures],
+    }
+    figure, axes = pyplot.subplots(figsize=(7.0, 5.0))
+    for f in figures:
+        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', label=f'gyro {f.axis}')
+    axes.set_xlabel('tau (s)')
+    axes.set_ylabel('Allan deviation (rad/s)')
+    axes.set_title(f'Overlapping Allan deviation: {Path(source).name}')
+    axes.grid(True, which='both', alpha=0.3)
+    axes.legend()
+    try:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        (Path(out_dir) / 'allan.json').write_text(json.dumps(result, indent=2) + '\n')
+        figure.savefig(Path(out_dir) / 'allan.png', dpi=100)
+    except OSError as err:
+        msg = f'cannot write to {out_dir}: {err.strerror}'
+        raise UserError(msg) from None
+    finally:
+        pyplot.close(figure)
+
+
+def allan_command(args: argparse.Namespace) -> int:
+    recording = _load(args)
+    try:
+        figures = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)
+    except TempCompError as err:
+        msg = f'{args.input}: {err}'
+        raise UserError(msg) from None
+    print(f'{args.input}: {len(recording)} samples over {recording.duration_s:.1f} s')
+    print(f'{"axis":<6}{"ARW":>12}{"ARW":>14}{"bias inst.":>12}{"bias inst.":>12}'
+          f'{"at tau":>10}{"rate_noise":>12}')
+    print(f'{"":<6}{"deg/sqrt(h)":>12}{"rad/s/rt(Hz)":>14}{"deg/h":>12}{"rad/s":>12}'
+          f'{"s":>10}{"rad/s":>12}')
+    for f in figures:
+        arw_deg_rt_h = math.degrees(f.angle_random_walk_rad_s_rt_hz) * SECONDS_PER_HOUR ** 0.5
+        bias_deg_h = math.degrees(f.bias_instability_rad_s) * SECONDS_PER_HOUR
+        print(f'{f.axis:<6}{arw_deg_rt_h:>12.4g}{f.angle_random_walk_rad_s_rt_hz:>14.4g}'
+              f'{bias_deg_h:>12.4g}{f.bias_instability_rad_s:>12.4g}'
+              f'{f.bias_instability_tau_s:>10.4g}{f.rate_noise_rad_s:>12.4g}')
+    print('ARW read at tau = 1 s; bias instability = ADEV minimum / 0.664; '
+          'rate_noise is the compensation node parameter')
+    if args.out is not None:
+        _write_allan_files(args.out, args.input, figures)
+        print(f'wrote {Path(args.out) / "allan.json"} and {Path(args.out) / "allan.png"}')
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='mlx-tempcomp',
@@ -157,16 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
                     'bag), the order chosen per axis by contiguous-block cross-validation '
                     'with the one-standard-error rule, and write a ROS 2 parameter file '
                     'for the compensation node.')
-    fit.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
-    columns = fit.add_mutually_exclusive_group()
-    columns.add_argument('--preset', metavar='NAME',
-                         help='column map of a known data set (CSV only)')
-    columns.add_argument('--columns', metavar='SPEC',
-                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
-    fit.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
-                     help='Imu topic of a bag (default: %(default)s)')
-    fit.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
-                     help='Temperature topic of a bag (default: %(default)s)')
+    _add_recording_options(fit)
     orders = fit.add_mutually_exclusive_group()
     orders.add_argument('--order', type=_non_negative_int, metavar='N',
                         help='fit this order on every axis instead of choosing it')
@@ -179,6 +254,16 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--node-name', default='compensation_node', metavar='NAME',
                      help='node section of the parameter file (default: %(default)s)')
     fit.set_defaults(handler=fit_command)
+    allan = commands.add_parser(
+        'allan', help='Allan deviation and noise figures of a recording',
+        description='Compute the overlapping Allan deviation of each gyro axis of a '
+                    'recording (CSV or rosbag2 bag) at octave-spaced taus and print the '
+                    'angle random walk, bias instability and the rate_noise_rad_s '
+                    'parameter of the compensation node.')
+    _add_recording_options(allan)
+    allan.add_argument('--out', metavar='DIR',
+                       help='also write allan.json and allan.png into this folder')
+    allan.set_defaults(handler=allan_command)
     return parser
 
 

@@ -41,6 +41,7 @@ ACK_TIMEOUT = Duration(seconds=1.0)
 # progress for PACE_TIMEOUT_S it goes on anyway (nobody may be consuming).
 PACE_WINDOW = 100
 PACE_TIMEOUT_S = 1.0
+MATCH_GRACE_S = 2.0
 
 
 class DriverNode(Node):
@@ -267,6 +268,7 @@ class BagStream:
         self.next_record = next(self.records, None)
         self.first_bag_ns = None if self.next_record is None else self.next_record[0]
         self.start_wall = None
+        self.first_subscriber = None
         self.published = 0
         self.finished = self.next_record is None
         self.in_flight = collections.deque()
@@ -281,9 +283,17 @@ class BagStream:
 
     def tick(self) -> None:
         if self.start_wall is None:
-            # A replay nobody hears is lost: start with the first subscriber, once it has
-            # the EEPROM message.
+            # A replay nobody hears is lost: start with the first subscriber of the rate,
+            # once the temperature topics are matched too (or after a grace period: some
+            # consumers want the rate only) and the EEPROM message is delivered.
             if self.node.imu_publisher.get_subscription_count() == 0:
+                return
+            if self.first_subscriber is None:
+                self.first_subscriber = time.monotonic()
+            publishers = [self.node.temperature_publisher] + \
+                list(self.node.axis_temperature_publishers)
+            if any(p.get_subscription_count() == 0 for p in publishers) and \
+                    time.monotonic() - self.first_subscriber < MATCH_GRACE_S:
                 return
             self.node.eeprom_publisher.wait_for_all_acked(ACK_TIMEOUT)
             self.start_wall = time.monotonic()
