@@ -188,6 +188,3 @@ class Mlx90609:
             msg = f'EEPROM read gave 128 bytes of 0x{image[0]:02X}: bus silent or part absent'
             raise SilentBusError(msg)
         return image
-
-    def power_down_adc(self) -> None:
-        self.command(adcc_instruction(Channel.RATE, enable=False))

@@ -425,16 +425,6 @@ class RawBagReader:
         """Messages on the IMU and temperature topics, from the bag's metadata."""
         return self._message_count
 
-    @property
-    def start_time_ns(self) -> int:
-        """Bag time of the earliest message in the bag."""
-        return self._open().start_time
-
-    @property
-    def duration_ns(self) -> int:
-        """Bag time between the earliest and latest messages in the bag."""
-        return self._open().duration
-
     def _connections(self, kinds) -> list:
         return [c for c in self._open().connections
                 if c.id in self._routes and self._routes[c.id][0] in kinds]

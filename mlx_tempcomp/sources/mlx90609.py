@@ -99,10 +99,6 @@ class SimulationConfig:
                                     self.start_temperature_c, self.die_time_constant_s,
                                     self.hold_s)
 
-    @property
-    def profile_duration_s(self) -> float:
-        return self.thermal_profile().duration_s
-
     def true_rate_dps(self, axis: int) -> float:
         return self.rate_dps[axis] if len(self.rate_dps) > 1 else self.rate_dps[0]
 
@@ -143,9 +139,6 @@ class SimulatedArray(Mlx90609Array):
     def advance_to(self, time_s: float) -> None:
         """Let simulated time pass up to ``time_s`` (never backwards)."""
         self.clock.advance(time_s - self.clock.now_s)
-
-    def true_temperature_c(self) -> float:
-        return self.devices[0].physics.state.die_c
 
 
 def samples_due(elapsed_s: float, period_s: float, published: int,
