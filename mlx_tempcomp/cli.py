@@ -3,7 +3,8 @@ The ``mlx-tempcomp`` command line.
 
 User mistakes (a missing or malformed file, an unknown VERSION, data that
 cannot support the fit asked for) print one line starting with ``error:``
-and exit with code 2, never a traceback.
+and exit with code 2, never a traceback. Subcommands beyond decode-eeprom,
+fit and allan live in `mlx_tempcomp.toolkit`, one module each.
 """
 
 import argparse
@@ -19,17 +20,16 @@ from .core.fitting import fit_polynomial, format_order_table, select_orders
 from .core.noise import allan_deviation
 from .core.table import factory_table, TRIPLET_TEMPERATURES_C
 from .model_params import parameter_file, polynomial_parameters, write_parameter_file
-from .sources.recording import load_recording, Recording, RecordingError
+from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, load, non_negative_int,
+                             UserError)
+
+# Each adds its subcommand with add_parser(commands).
+_COMMAND_MODULES = ()
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_BLOCKS = 5
 
-EXIT_USER_ERROR = 2
 SECONDS_PER_HOUR = 3600.0
-
-
-class UserError(Exception):
-    """A mistake in what the user asked for; reported in one line, exit code 2."""
 
 
 def _read_image(path: str) -> bytes:
@@ -85,28 +85,8 @@ def decode_eeprom_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        msg = f'expected a non-negative integer, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _load(args: argparse.Namespace) -> Recording:
-    """Load the recording named by the options `_add_recording_options` defines."""
-    try:
-        return load_recording(args.input, columns=args.columns, preset=args.preset,
-                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic)
-    except RecordingError as err:
-        raise UserError(str(err)) from None
-
-
 def fit_command(args: argparse.Namespace) -> int:
-    recording = _load(args)
+    recording = load(args)
     try:
         if args.order is None:
             selections = select_orders(recording.temperature_c, recording.gyro_rad_s,
@@ -140,19 +120,6 @@ def fit_command(args: argparse.Namespace) -> int:
         raise UserError(msg) from None
     print(f'wrote {args.out}')
     return 0
-
-
-def _add_recording_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
-    columns = parser.add_mutually_exclusive_group()
-    columns.add_argument('--preset', metavar='NAME',
-                         help='column map of a known data set (CSV only)')
-    columns.add_argument('--columns', metavar='SPEC',
-                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
-    parser.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
-                        help='Imu topic of a bag (default: %(default)s)')
-    parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
-                        help='Temperature topic of a bag (default: %(default)s)')
 
 
 def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
@@ -193,7 +160,7 @@ def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
 
 
 def allan_command(args: argparse.Namespace) -> int:
-    recording = _load(args)
+    recording = load(args)
     try:
         figures = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)
     except TempCompError as err:
@@ -241,11 +208,11 @@ def build_parser() -> argparse.ArgumentParser:
                     'bag), the order chosen per axis by contiguous-block cross-validation '
                     'with the one-standard-error rule, and write a ROS 2 parameter file '
                     'for the compensation node.')
-    _add_recording_options(fit)
+    add_recording_options(fit)
     orders = fit.add_mutually_exclusive_group()
-    orders.add_argument('--order', type=_non_negative_int, metavar='N',
+    orders.add_argument('--order', type=non_negative_int, metavar='N',
                         help='fit this order on every axis instead of choosing it')
-    orders.add_argument('--max-order', type=_non_negative_int, default=DEFAULT_MAX_ORDER,
+    orders.add_argument('--max-order', type=non_negative_int, default=DEFAULT_MAX_ORDER,
                         metavar='N', help='highest order tried (default: %(default)s)')
     fit.add_argument('--blocks', type=int, default=DEFAULT_BLOCKS, metavar='N',
                      help='contiguous cross-validation blocks (default: %(default)s)')
@@ -260,10 +227,12 @@ def build_parser() -> argparse.ArgumentParser:
                     'recording (CSV or rosbag2 bag) at octave-spaced taus and print the '
                     'angle random walk, bias instability and the rate_noise_rad_s '
                     'parameter of the compensation node.')
-    _add_recording_options(allan)
+    add_recording_options(allan)
     allan.add_argument('--out', metavar='DIR',
                        help='also write allan.json and allan.png into this folder')
     allan.set_defaults(handler=allan_command)
+    for module in _COMMAND_MODULES:
+        module.add_parser(commands)
     return parser
 
 

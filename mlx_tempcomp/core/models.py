@@ -64,11 +64,26 @@ def _finite_tuple(name: str, values, length: int) -> tuple:
 class _SampleCorrection:
     """One-sample correction for the per-message path of the node."""
 
+    def stream(self) -> '_StatelessStream':
+        """Return the sample-by-sample runner the node uses; this model keeps no state."""
+        return _StatelessStream(self)
+
     def correct_sample(self, rates_rad_s, temperatures_c) -> tuple:
         """Return (corrected rad/s per axis as a list, whether the temperature was clamped)."""
         result = self.correct(np.asarray([rates_rad_s], dtype=np.float64),
                               np.asarray([temperatures_c], dtype=np.float64))
         return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
+
+
+class _StatelessStream:
+    """The `EffectStream` interface for a model without state: extra inputs are unused."""
+
+    def __init__(self, model: _SampleCorrection):
+        self.model = model
+
+    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
+                       acceleration_m_s2=None) -> tuple:
+        return self.model.correct_sample(rates_rad_s, temperatures_c)
 
 
 def _fingerprint(name: str, content: dict) -> str:

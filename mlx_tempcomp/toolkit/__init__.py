@@ -1,0 +1,1 @@
+"""Subcommands of the ``mlx-tempcomp`` command line, one module each."""

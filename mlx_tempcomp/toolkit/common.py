@@ -1,0 +1,52 @@
+"""
+What the ``mlx-tempcomp`` subcommands share: the user-error type and recording options.
+
+User mistakes (a missing or malformed file, data that cannot support what was
+asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
+``error:`` and exits with code 2, never a traceback.
+"""
+
+import argparse
+
+from ..sources.recording import load_recording, Recording, RecordingError
+
+EXIT_USER_ERROR = 2
+
+
+class UserError(Exception):
+    """A mistake in what the user asked for; reported in one line, exit code 2."""
+
+
+def non_negative_int(text: str) -> int:
+    """Parse a non-negative integer option (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        msg = f'expected a non-negative integer, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def add_recording_options(parser: argparse.ArgumentParser) -> None:
+    """Add the input recording argument and how to read it (CSV columns, bag topics)."""
+    parser.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
+    columns = parser.add_mutually_exclusive_group()
+    columns.add_argument('--preset', metavar='NAME',
+                         help='column map of a known data set (CSV only)')
+    columns.add_argument('--columns', metavar='SPEC',
+                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
+    parser.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
+                        help='Imu topic of a bag (default: %(default)s)')
+    parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
+                        help='Temperature topic of a bag (default: %(default)s)')
+
+
+def load(args: argparse.Namespace) -> Recording:
+    """Load the recording named by the options `add_recording_options` defines."""
+    try:
+        return load_recording(args.input, columns=args.columns, preset=args.preset,
+                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic)
+    except RecordingError as err:
+        raise UserError(str(err)) from None
