@@ -15,7 +15,9 @@ import tempfile
 
 import yaml
 
-from .core.models import AXIS_NAMES, PolynomialModel
+from .core.chain import ChainModel
+from .core.effects import EffectModel
+from .core.models import AXIS_NAMES, LinearBtcModel, PolynomialModel
 
 
 class _QuotingDumper(yaml.SafeDumper):
@@ -56,6 +58,49 @@ def polynomial_parameters(model: PolynomialModel, axes) -> dict:
                      for axis, coefficients in zip(axes, model.bias_coefficients)},
         },
     }
+
+
+def _check_axes(axes, count: int) -> tuple:
+    axes = tuple(str(axis) for axis in axes)
+    if len(axes) != count or not set(axes) <= set(AXIS_NAMES) or len(set(axes)) != len(axes):
+        msg = f'axes {list(axes)} must be {count} distinct of {list(AXIS_NAMES)}'
+        raise ValueError(msg)
+    return axes
+
+
+def _nested(flat: dict) -> dict:
+    """Turn ``{'a.b': v}`` into ``{'a': {'b': v}}``, as rcl reads parameter files."""
+    tree = {}
+    for key, value in flat.items():
+        *parents, leaf = key.split('.')
+        node = tree
+        for parent in parents:
+            node = node.setdefault(parent, {})
+        node[leaf] = value
+    return tree
+
+
+def effect_parameters(model: EffectModel, axes) -> dict:
+    """Return the compensation node's parameters for an effects model (ZRO offset excluded)."""
+    axes = _check_axes(axes, model.axes)
+    return {'model': 'effects', 'axes': list(axes),
+            'effects': _nested(model.to_parameters(axes))}
+
+
+def linear_btc_parameters(model: LinearBtcModel, axes) -> dict:
+    """Return the compensation node's parameters for the ADIS16130 linear BTC/PBC model."""
+    axes = _check_axes(axes, model.axes)
+    return {'model': 'linear_btc', 'axes': list(axes),
+            'linear_btc': {'pbc_rad_s': [float(v) for v in model.pbc_rad_s],
+                           'btc_rad_s_per_c': [float(v) for v in model.btc_rad_s_per_c],
+                           't3_c': float(model.t3_c)}}
+
+
+def chain_parameters(model: ChainModel) -> dict:
+    """Return the compensation node's parameters for the seed-004 chain (axes x, y, z)."""
+    flat = {key: [float(v) for v in value] if isinstance(value, (list, tuple)) else float(value)
+            for key, value in model.chain.to_parameters().items()}
+    return {'model': 'chain', 'axes': list(AXIS_NAMES), 'chain': _nested(flat)}
 
 
 def parameter_file(node_name: str, parameters: dict) -> dict:

@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import AXIS_NAMES
+from .models import _fingerprint, _OffsetModel, AXIS_NAMES, CorrectedRate
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 
@@ -214,6 +214,61 @@ class CalibrationChain:
             msg = f'chain parameter misalignment needs 9 values (3 x 3), got {matrix.size}'
             raise ConfigError(msg)
         return cls(misalignment=matrix.reshape(3, 3), **fields)
+
+
+@dataclass(frozen=True)
+class ChainModel(_OffsetModel):
+    """
+    A `CalibrationChain` as a compensation model: 3 axes, needs the second temperature.
+
+    The chain's output minus the ZRO offset learned at rest; no temperature is clamped.
+    """
+
+    chain: CalibrationChain
+    zro_offset_rad_s: tuple = (0.0, 0.0, 0.0)
+
+    name = 'chain'
+    axes = 3
+    needs_time = False
+    needs_temperature_2 = True
+    needs_acceleration = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'zro_offset_rad_s', _vector('zro_offset_rad_s',
+                                                             self.zro_offset_rad_s))
+
+    def fingerprint(self) -> str:
+        return _fingerprint(self.name, self.chain.to_parameters())
+
+    def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
+                acceleration_m_s2=None) -> CorrectedRate:
+        """Correct a batch; ``temperature_2_c`` (samples,) is required."""
+        if temperature_2_c is None:
+            raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
+        temperature = np.asarray(temperature_c, dtype=np.float64)
+        if temperature.ndim == 2:
+            temperature = temperature.mean(axis=1)
+        corrected = self.chain.correct(rate_rad_s, temperature, temperature_2_c)
+        return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s),
+                             np.zeros(corrected.shape, dtype=bool))
+
+    def stream(self) -> '_ChainStream':
+        """Return the sample-by-sample runner; the chain keeps no state."""
+        return _ChainStream(self)
+
+
+class _ChainStream:
+    def __init__(self, model: ChainModel):
+        self.model = model
+
+    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
+                       acceleration_m_s2=None) -> tuple:
+        if temperature_2_c is None:
+            raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
+        temperature = sum(temperatures_c) / len(temperatures_c)
+        result = self.model.correct([rates_rad_s], [temperature],
+                                    temperature_2_c=[temperature_2_c])
+        return result.rate_rad_s[0].tolist(), False
 
 
 @dataclass(frozen=True)
