@@ -10,26 +10,59 @@ fit and allan live in `mlx_tempcomp.toolkit`, one module each.
 import argparse
 import json
 import math
+import os
 from pathlib import Path
 import sys
 
+import numpy as np
+
+from .core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from .core.conversion import Output
 from .core.eeprom import decode_eeprom, VOTED_FIELDS
 from .core.errors import TempCompError
-from .core.fitting import fit_polynomial, format_order_table, select_orders
+from .core.fitting import (fit_linear_btc, fit_polynomial, format_btc_table, format_order_table,
+                           relative_polynomial, select_orders, table_step_c)
+from .core.models import AXIS_NAMES
 from .core.noise import allan_deviation
 from .core.table import factory_table, TRIPLET_TEMPERATURES_C
-from .model_params import parameter_file, polynomial_parameters, write_parameter_file
+from .model_params import (chain_parameters, linear_btc_parameters, parameter_file,
+                           polynomial_parameters, write_parameter_file)
+from .toolkit import adis_bias, convert, diagnose, evaluate, simulate
 from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, load, non_negative_int,
                              UserError)
 
 # Each adds its subcommand with add_parser(commands).
-_COMMAND_MODULES = ()
+_COMMAND_MODULES = (adis_bias, convert, diagnose, evaluate, simulate)
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_BLOCKS = 5
+DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order
+BTC_TABLE_ROWS = 6
 
 SECONDS_PER_HOUR = 3600.0
+# 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
+EXIT_BROKEN_PIPE = 141
+
+
+def _finite_float(text: str) -> float:
+    """Parse a finite number option (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        msg = f'expected a finite number, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _positive_float(text: str) -> float:
+    """Parse a positive finite number option (argparse type)."""
+    value = _finite_float(text)
+    if value <= 0.0:
+        msg = f'expected a positive number, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
 
 
 def _read_image(path: str) -> bytes:
@@ -85,40 +118,211 @@ def decode_eeprom_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rate_error(recording) -> tuple:
+    """Return the rate error the bias is fitted to and how it was formed."""
+    if recording.reference_rad_s is None:
+        return recording.gyro_rad_s, 'gyro rate (no reference: assumed at rest)'
+    return recording.gyro_rad_s - recording.reference_rad_s, \
+        'gyro rate minus the reference rate (ref columns)'
+
+
+def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
+    """Choose the orders (or take --order), fit, print the orders; return the model."""
+    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
+    if args.order is None:
+        max_order = DEFAULT_MAX_ORDER if args.max_order is None else args.max_order
+        selections = select_orders(recording.temperature_c, rate_rad_s, axes=recording.axes,
+                                   candidate_orders=range(max_order + 1), blocks=blocks)
+        orders = tuple(selection.order for selection in selections)
+        print(format_order_table(selections))
+    else:
+        orders = (args.order,) * len(recording.axes)
+    model = fit_polynomial(recording.temperature_c, rate_rad_s, orders)
+    how = 'given by --order' if args.order is not None else \
+        f'chosen by {blocks}-block cross-validation'
+    chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
+    print(f'orders ({how}): {chosen}')
+    return model
+
+
+def _print_range(model) -> None:
+    print(f'fitted temperature range: {model.temperature_min_c:.2f} to '
+          f'{model.temperature_max_c:.2f} C (clamped outside)')
+
+
+def _fit_polynomial_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    print(f'model polynomial: bias(T) fitted to the {formed}')
+    model = _fit_polynomial_bias(args, recording, rate_rad_s)
+    _print_range(model)
+    return (polynomial_parameters(model, recording.axes),
+            f'Bias polynomials fitted by mlx-tempcomp fit from {args.input}')
+
+
+def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    if args.true_temperature is None:
+        true_c, how = float(np.mean(recording.temperature_c)), 'mean temperature of the data'
+    else:
+        true_c, how = args.true_temperature, 'given by --true-temperature'
+    print(f'model relative (seed 002): rate - (p(T) - p(T_true)), p fitted to the {formed}')
+    fitted = _fit_polynomial_bias(args, recording, rate_rad_s)
+    model = relative_polynomial(fitted, true_c)
+    _print_range(model)
+    print(f'T_true = {true_c:.2f} C ({how})')
+    x = (true_c - fitted.reference_temperature_c) / fitted.temperature_scale_c
+    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, c):.4e}'
+                        for axis, c in zip(recording.axes, fitted.bias_coefficients))
+    print(f'p(T_true) taken off the constant terms (rad/s): {removed}')
+    print("written as model 'polynomial' whose bias is zero at T_true; the compensation "
+          'node runs it unchanged')
+    return (polynomial_parameters(model, recording.axes),
+            f'Relative bias correction rate - (p(T) - p({true_c:.2f} C)) (seed 002), written '
+            f'as polynomials,\nfitted by mlx-tempcomp fit from {args.input}')
+
+
+def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    model = fit_linear_btc(recording.temperature_c, rate_rad_s, args.t3)
+    how = 'given by --t3' if args.t3 is not None else 'mean temperature of the data'
+    print('model linear_btc (ADIS16130 AN-1042): RBC = RATE + PBC + (TEMP - T3) x BTC, '
+          f'line fitted to the {formed}')
+    print(f'T3 = {model.t3_c:.2f} C ({how})')
+    corrected = model.correct(rate_rad_s, recording.temperature_c).rate_rad_s
+    rms = np.sqrt(np.mean(np.square(corrected), axis=0))
+    print(f'{"axis":<6}{"bias slope":>16}{"BTC":>16}{"PBC":>14}{"RMS after":>14}')
+    print(f'{"":<6}{"deg/s/C":>16}{"rad/s/C":>16}{"rad/s":>14}{"rad/s":>14}')
+    for i, axis in enumerate(recording.axes):
+        btc = model.btc_rad_s_per_c[i]
+        print(f'{axis:<6}{math.degrees(-btc):>16.6g}{btc:>16.6g}{model.pbc_rad_s[i]:>14.6g}'
+              f'{rms[i]:>14.4g}')
+    if args.table_step is None:
+        extent_c = max(abs(float(np.min(recording.temperature_c)) - model.t3_c),
+                       abs(float(np.max(recording.temperature_c)) - model.t3_c))
+        step_c = table_step_c(extent_c, BTC_TABLE_ROWS)
+    else:
+        step_c = args.table_step
+    print('correction factors (TEMP - T3) x BTC, as Table 6 of the note:')
+    print(format_btc_table(model, recording.axes, step_c, BTC_TABLE_ROWS))
+    return (linear_btc_parameters(model, recording.axes),
+            f'ADIS16130 linear BTC/PBC correction fitted by mlx-tempcomp fit from {args.input}')
+
+
+def _missing_chain_columns(recording) -> list:
+    missing = [f'gyro_{axis}' for axis in AXIS_NAMES if axis not in recording.axes]
+    if recording.reference_rad_s is None:
+        missing += [f'ref_{axis}' for axis in AXIS_NAMES]
+    else:
+        missing += [f'ref_{axis}' for axis in AXIS_NAMES if axis not in recording.axes]
+    if recording.temperature_2_c is None:
+        missing.append('temperature_2')
+    return missing
+
+
+def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
+    missing = _missing_chain_columns(recording)
+    if missing:
+        msg = (f'{args.input}: --model chain needs the columns gyro_x|y|z, ref_x|y|z and '
+               f'temperature_2; missing {", ".join(missing)}')
+        raise UserError(msg)
+    reference = recording.reference_rad_s
+    plateau_id = find_plateaus(reference, recording.temperature_c, recording.temperature_2_c)
+    on_plateau = plateau_id >= 0
+    if not on_plateau.any():
+        msg = (f'{args.input}: no plateau: the reference rate and temperatures never hold '
+               'steady for 10 samples')
+        raise UserError(msg)
+    if args.full_scale_dps is None:
+        full_scale_rad_s = float(np.max(np.abs(reference)))
+        how = 'largest reference rate'
+        if full_scale_rad_s == 0.0:
+            msg = f'{args.input}: the reference rate is zero throughout; the chain needs rates'
+            raise UserError(msg)
+    else:
+        full_scale_rad_s, how = math.radians(args.full_scale_dps), 'given by --full-scale-dps'
+
+    def reference_temperature(value, column, option):
+        if value is not None:
+            return value, f'given by {option}'
+        return float(np.mean(column[on_plateau])), 'mean over the plateaus'
+
+    temperature_c, how_t = reference_temperature(args.reference_temperature,
+                                                 recording.temperature_c,
+                                                 '--reference-temperature')
+    temperature_2_c, how_t2 = reference_temperature(args.reference_temperature_2,
+                                                    recording.temperature_2_c,
+                                                    '--reference-temperature-2')
+    settings = ChainSettings(
+        full_scale_rad_s=full_scale_rad_s, reference_temperature_c=temperature_c,
+        reference_temperature_2_c=temperature_2_c,
+        nonlinearity_order=DEFAULT_CHAIN_ORDER if args.order is None else args.order)
+    result = fit_chain(reference, recording.gyro_rad_s, recording.temperature_c,
+                       recording.temperature_2_c, plateau_id, settings)
+    chain = result.chain
+    print('model chain (seed 004): nonlinearity, offset(T), sensitivity K(rate) C(rate), '
+          'offset(T2), misalignment')
+    print(f'plateaus found: {int(plateau_id.max(initial=-1)) + 1} '
+          f'({np.count_nonzero(on_plateau)} of {len(recording)} rows)')
+    print(f'full scale: {math.degrees(full_scale_rad_s):.6g} deg/s ({how}); nonlinearity '
+          f'order {settings.nonlinearity_order}')
+    print(f'reference temperatures asked: T {temperature_c:.2f} C ({how_t}), '
+          f'T2 {temperature_2_c:.2f} C ({how_t2})')
+    print(f'reference temperatures of the chain (mean of the nonlinearity plateaus): '
+          f'T {chain.reference_temperature_c:.2f} C, T2 {chain.reference_temperature_2_c:.2f} C')
+    print(f'{"axis":<6}{"offset":>12}{"dOffset/dT":>14}{"offset_2":>12}{"dOffset_2/dT2":>15}'
+          f'{"misalignment row":>34}')
+    print(f'{"":<6}{"rad/s":>12}{"rad/s/C":>14}{"rad/s":>12}{"rad/s/C":>15}')
+    for i, axis in enumerate(AXIS_NAMES):
+        row = ' '.join(f'{v:+.6f}' for v in chain.misalignment[i])
+        print(f'{axis:<6}{chain.offset_rad_s[i]:>12.4e}'
+              f'{chain.offset_gradient_rad_s_per_c[i]:>14.4e}{chain.offset_2_rad_s[i]:>12.4e}'
+              f'{chain.offset_2_gradient_rad_s_per_c[i]:>15.4e}  {row}')
+    print(f'error (output - reference) after each stage on the trimmed calibration plateaus '
+          f'({result.stage_errors[0].samples} samples per axis):')
+    print(format_stage_table(result.stage_errors))
+    return (chain_parameters(ChainModel(chain)),
+            f'Seed-004 calibration chain fitted by mlx-tempcomp fit from {args.input}\n'
+            'The node needs the second temperature (temperature_2) for the offset_2 stage')
+
+
+_FIT_MODELS = {
+    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks')),
+    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'true_temperature')),
+    'linear_btc': (_fit_linear_btc_model, ('t3', 'table_step')),
+    'chain': (_fit_chain_model, ('order', 'full_scale_dps', 'reference_temperature',
+                                 'reference_temperature_2')),
+}
+
+# Options of some models only: refused with another instead of silently ignored.
+_FIT_MODEL_OPTIONS = tuple(dict.fromkeys(name for _, names in _FIT_MODELS.values()
+                                         for name in names))
+
+
 def fit_command(args: argparse.Namespace) -> int:
+    fit, allowed = _FIT_MODELS[args.model]
+    given = [name for name in _FIT_MODEL_OPTIONS
+             if getattr(args, name) is not None and name not in allowed]
+    if given:
+        options = ', '.join('--' + name.replace('_', '-') for name in given)
+        msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
+        raise UserError(msg)
     recording = load(args)
     try:
-        if args.order is None:
-            selections = select_orders(recording.temperature_c, recording.gyro_rad_s,
-                                       axes=recording.axes,
-                                       candidate_orders=range(args.max_order + 1),
-                                       blocks=args.blocks)
-            orders = tuple(selection.order for selection in selections)
-            print(format_order_table(selections))
-        else:
-            orders = (args.order,) * len(recording.axes)
-        model = fit_polynomial(recording.temperature_c, recording.gyro_rad_s, orders)
+        parameters, header = fit(args, recording)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
-    how = 'given by --order' if args.order is not None else \
-        f'chosen by {args.blocks}-block cross-validation'
-    chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
-    print(f'orders ({how}): {chosen}')
     skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
                         if count)
     print(f'rows used: {len(recording)}; skipped: {skipped or "none"}')
-    print(f'fitted temperature range: {model.temperature_min_c:.2f} to '
-          f'{model.temperature_max_c:.2f} C (clamped outside)')
-    content = parameter_file(args.node_name, polynomial_parameters(model, recording.axes))
-    header = (f'Bias polynomials fitted by mlx-tempcomp fit from {args.input}\n'
-              f'Use: compensation_node --ros-args --params-file {args.out}')
+    content = parameter_file(args.node_name, parameters)
+    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
     try:
         write_parameter_file(args.out, content, header)
     except OSError as err:
         msg = f'cannot write {args.out}: {err.strerror}'
         raise UserError(msg) from None
-    print(f'wrote {args.out}')
+    print(f'wrote {args.out} (model {parameters["model"]})')
     return 0
 
 
@@ -203,19 +407,44 @@ def build_parser() -> argparse.ArgumentParser:
     decode.add_argument('--json', action='store_true', help='print JSON')
     decode.set_defaults(handler=decode_eeprom_command)
     fit = commands.add_parser(
-        'fit', help='fit bias polynomials to a recording and write a parameter file',
-        description='Fit a bias polynomial per gyro axis to a recording (CSV or rosbag2 '
-                    'bag), the order chosen per axis by contiguous-block cross-validation '
-                    'with the one-standard-error rule, and write a ROS 2 parameter file '
-                    'for the compensation node.')
+        'fit', help='fit a compensation model to a recording and write a parameter file',
+        description='Fit a compensation model to a recording (CSV or rosbag2 bag) and write '
+                    'a ROS 2 parameter file the compensation node loads. polynomial: a bias '
+                    'polynomial per axis, the order chosen by contiguous-block '
+                    'cross-validation with the one-standard-error rule; relative: the same '
+                    'polynomial made zero at a true temperature (seed 002); linear_btc: the '
+                    'ADIS16130 line, BTC and PBC at T3; chain: the seed-004 calibration chain '
+                    '(needs ref_x|y|z and temperature_2). The bias is fitted to gyro minus '
+                    'ref when the recording has a reference, else to gyro (at rest).')
     add_recording_options(fit)
+    fit.add_argument('--model', choices=tuple(_FIT_MODELS), default='polynomial',
+                     help='model to fit (default: %(default)s)')
     orders = fit.add_mutually_exclusive_group()
     orders.add_argument('--order', type=non_negative_int, metavar='N',
-                        help='fit this order on every axis instead of choosing it')
-    orders.add_argument('--max-order', type=non_negative_int, default=DEFAULT_MAX_ORDER,
-                        metavar='N', help='highest order tried (default: %(default)s)')
-    fit.add_argument('--blocks', type=int, default=DEFAULT_BLOCKS, metavar='N',
-                     help='contiguous cross-validation blocks (default: %(default)s)')
+                        help='polynomial, relative: fit this order on every axis instead of '
+                             'choosing it; chain: nonlinearity order (default '
+                             f'{DEFAULT_CHAIN_ORDER})')
+    orders.add_argument('--max-order', type=non_negative_int, metavar='N',
+                        help=f'highest order tried (default: {DEFAULT_MAX_ORDER})')
+    fit.add_argument('--blocks', type=int, metavar='N',
+                     help=f'contiguous cross-validation blocks (default: {DEFAULT_BLOCKS})')
+    fit.add_argument('--true-temperature', type=_finite_float, metavar='C',
+                     help='relative: temperature at which no bias is introduced '
+                          '(default: the mean temperature of the data)')
+    fit.add_argument('--t3', type=_finite_float, metavar='C',
+                     help='linear_btc: T3, where PBC holds (default: the mean temperature of '
+                          'the data)')
+    fit.add_argument('--table-step', type=_positive_float, metavar='C',
+                     help='linear_btc: temperature step of the printed correction table '
+                          '(default: a 1-2-5 step covering the data in 6 rows each side)')
+    fit.add_argument('--full-scale-dps', type=_positive_float, metavar='DPS',
+                     help='chain: full scale in deg/s (default: the largest reference rate)')
+    fit.add_argument('--reference-temperature', type=_finite_float, metavar='C',
+                     help='chain: temperature of the nonlinearity fit (default: the mean '
+                          'temperature over the plateaus)')
+    fit.add_argument('--reference-temperature-2', type=_finite_float, metavar='C',
+                     help='chain: second temperature of stages 1-3 (default: the mean '
+                          'second temperature over the plateaus)')
     fit.add_argument('--out', required=True, metavar='PARAMS.yaml',
                      help='parameter file to write (replaced atomically)')
     fit.add_argument('--node-name', default='compensation_node', metavar='NAME',
@@ -243,6 +472,10 @@ def main(argv=None) -> int:
     except UserError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:
+        # The reader went away (e.g. `| head`): stop quietly, as Unix tools do.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == '__main__':

@@ -1,13 +1,19 @@
-"""The ``mlx-tempcomp fit`` command: orders, coefficients, and the parameter file in the node."""
+"""``mlx-tempcomp fit``: every model, what it prints, and the parameter file the node loads."""
 
+import math
 from pathlib import Path
 
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.models import PolynomialModel
+from mlx_tempcomp.core.chain import ChainModel, ChainSettings, fit_chain, STAGE_NAMES
+from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros.params import build_model, COMPENSATION_SPECS
 from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
+from mlx_tempcomp.simulation.turntable import simulate_turntable
 import numpy as np
+from numpy.polynomial.polynomial import polyval
 import pytest
+from rclpy.parameter import Parameter
 from ros_harness import by_stamp
 from sensor_msgs.msg import Imu, Temperature
 import yaml
@@ -187,3 +193,234 @@ def test_bad_column_spec_is_a_user_error(tmp_path, capsys):
     code = main(['fit', sweep_csv(tmp_path), '--columns', 'bogus=gz', '--out',
                  str(tmp_path / 'p.yaml')])
     assert_user_error(code, capsys, 'bogus')
+
+
+def node_values(path, node_name='compensation_node'):
+    """
+    Give the compensation node's parameter values with the file's loaded over the defaults.
+
+    Every key of the file must be a declared parameter of the node, floats where the
+    declared type is a double (rcl refuses ints there), as rcl would require.
+    """
+    with open(path) as stream:
+        tree = yaml.safe_load(stream)[node_name]['ros__parameters']
+    flat = {}
+
+    def walk(prefix, node):
+        for key, value in node.items():
+            if isinstance(value, dict):
+                walk(f'{prefix}{key}.', value)
+            else:
+                flat[prefix + key] = value
+
+    walk('', tree)
+    specs = {spec.name: spec for spec in COMPENSATION_SPECS}
+    assert set(flat) <= set(specs), f'undeclared: {sorted(set(flat) - set(specs))}'
+    for name, value in flat.items():
+        default = specs[name].default
+        if default in (Parameter.Type.DOUBLE, Parameter.Type.DOUBLE_ARRAY) or \
+                isinstance(default, float):
+            assert all(isinstance(v, float) for v in np.ravel(value)), name
+    values = {name: [] if isinstance(spec.default, Parameter.Type) else spec.default
+              for name, spec in specs.items()}
+    values.update(flat)
+    return values
+
+
+def write_csv(path, columns):
+    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
+               header=','.join(columns), comments='', fmt='%.17g')
+    return str(path)
+
+
+def test_polynomial_on_turntable_data_fits_gyro_minus_reference(tmp_path, capsys):
+    temperature_c = np.linspace(-20.0, 60.0, 400)
+    reference = np.where(np.arange(400) % 50 < 25, 0.5, -0.3)
+    bias = 0.01 + 2e-4 * (temperature_c - 20.0)
+    path = write_csv(tmp_path / 'table.csv', {
+        'time': np.arange(400) * 0.1, 'temperature': temperature_c,
+        'gyro_z': reference + bias, 'ref_z': reference})
+    out_path = tmp_path / 'p.yaml'
+    assert main(['fit', path, '--order', '1', '--out', str(out_path)]) == 0
+    assert 'fitted to the gyro rate minus the reference rate' in capsys.readouterr().out
+    model = build_model(node_values(out_path))
+    residual = model.correct((reference + bias)[:, None], temperature_c).rate_rad_s[:, 0]
+    np.testing.assert_allclose(residual, reference, rtol=0.0, atol=1e-12)
+
+
+def test_relative_model_is_the_seed_002_correction(tmp_path, capsys):
+    path = sweep_csv(tmp_path)
+    out_path = tmp_path / 'relative.yaml'
+    assert main(['fit', path, '--model', 'relative', '--order', '3', '--true-temperature',
+                 '30', '--out', str(out_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'T_true = 30.00 C (given by --true-temperature)' in out
+    assert "written as model 'polynomial' whose bias is zero at T_true" in out
+    values = node_values(out_path)
+    assert values['model'] == 'polynomial'
+    model = build_model(values)
+    data = np.loadtxt(path, delimiter=',', skiprows=1)
+    temperature_c, rate_rad_s = data[:, 1], data[:, 2:]
+    corrected = model.correct(rate_rad_s, temperature_c).rate_rad_s
+    for axis in range(2):
+        # The seed's own formula, p fitted on the measured temperature (float64).
+        p = np.polyfit(temperature_c, rate_rad_s[:, axis], 3)
+        expected = rate_rad_s[:, axis] - (np.polyval(p, temperature_c) - np.polyval(p, 30.0))
+        np.testing.assert_allclose(corrected[:, axis], expected, rtol=0.0, atol=1e-12)
+
+
+def test_relative_true_temperature_defaults_to_the_mean(tmp_path, capsys):
+    path = sweep_csv(tmp_path)
+    out_path = tmp_path / 'relative.yaml'
+    assert main(['fit', path, '--model', 'relative', '--out', str(out_path)]) == 0
+    out = capsys.readouterr().out
+    mean_c = np.mean(np.loadtxt(path, delimiter=',', skiprows=1)[:, 1])
+    assert f'T_true = {mean_c:.2f} C (mean temperature of the data)' in out
+    assert 'orders (chosen by 5-block cross-validation): x 3, z 2' in out
+    model = build_model(node_values(out_path))
+    np.testing.assert_allclose(model.correct([[0.1, -0.2]], [mean_c]).rate_rad_s,
+                               [[0.1, -0.2]], rtol=0.0, atol=1e-15)
+
+
+def test_relative_true_temperature_outside_the_data_is_a_user_error(tmp_path, capsys):
+    code = main(['fit', sweep_csv(tmp_path), '--model', 'relative', '--true-temperature',
+                 '90', '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, 'true temperature 90 C is outside the fitted range')
+    assert not (tmp_path / 'p.yaml').exists()
+
+
+def test_linear_btc_recovers_the_slope_and_prints_table_6(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    temperature_c = 25.0 + 10.0 * np.sin(np.linspace(0.0, 4.0 * np.pi, 3000))
+    slope_rad_s_per_c = math.radians(0.04)   # the bias slope of the note's Table 6
+    gyro_z = 0.02 + slope_rad_s_per_c * (temperature_c - 25.0) + \
+        rng.normal(0.0, NOISE_RAD_S, 3000)
+    path = write_csv(tmp_path / 'btc.csv', {'time': np.arange(3000) * 0.01,
+                                            'temperature': temperature_c, 'gyro_z': gyro_z})
+    out_path = tmp_path / 'btc.yaml'
+    assert main(['fit', path, '--model', 'linear_btc', '--t3', '25', '--table-step', '0.02',
+                 '--out', str(out_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'T3 = 25.00 C (given by --t3)' in out
+    rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
+            if line.split() and line.split()[0] in ('+0.12', '0', '-0.12')}
+    assert set(rows) == {'+0.12', '0', '-0.12'} and rows['0'] == ['0']
+    # Slope error: noise / (sqrt(3000) x 7.1 C) = 5e-6 rad/s/C; BTC is minus the slope.
+    tolerance_rad_s_per_c = 2.5e-5
+    for offset, correction_dps in (('+0.12', -0.0048), ('-0.12', 0.0048)):
+        assert float(rows[offset][0]) == pytest.approx(
+            correction_dps, abs=0.12 * math.degrees(tolerance_rad_s_per_c))
+    model = build_model(node_values(out_path))
+    assert isinstance(model, LinearBtcModel)
+    assert model.btc_rad_s_per_c[0] == pytest.approx(-slope_rad_s_per_c,
+                                                     abs=tolerance_rad_s_per_c)
+    assert model.pbc_rad_s[0] == pytest.approx(-0.02, abs=2e-4)
+    corrected = model.correct(gyro_z, temperature_c).rate_rad_s
+    assert np.std(corrected) == pytest.approx(NOISE_RAD_S, rel=0.1)
+
+
+@pytest.fixture(scope='module')
+def turntable():
+    return simulate_turntable(seed=4)
+
+
+def turntable_csv(path, session, drop=()):
+    columns = {'time': session.time_s, 'temperature': session.temperature_c,
+               'temperature_2': session.temperature_2_c}
+    columns.update((f'gyro_{a}', session.measured_rad_s[:, i]) for i, a in enumerate('xyz'))
+    columns.update((f'ref_{a}', session.reference_rad_s[:, i]) for i, a in enumerate('xyz'))
+    return write_csv(path, {k: v for k, v in columns.items() if k not in drop})
+
+
+def test_chain_fit_from_csv_recovers_the_truth(tmp_path, capsys, turntable):
+    out_path = tmp_path / 'chain.yaml'
+    assert main(['fit', turntable_csv(tmp_path / 'table.csv', turntable), '--model', 'chain',
+                 '--out', str(out_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'full scale: 300 deg/s (largest reference rate); nonlinearity order 5' in out
+    assert 'T 20.00 C (mean over the plateaus), T2 25.03 C (mean over the plateaus)' in out
+    rms = {}
+    for line in out.splitlines():
+        fields = line.split()
+        if len(fields) == 9 and fields[1] == 'all':
+            rms[fields[0]] = float(fields[8])
+    assert list(rms) == list(STAGE_NAMES)
+    assert all(after < before for before, after in zip(rms.values(), list(rms.values())[1:]))
+    values = node_values(out_path)
+    model = build_model(values)
+    assert isinstance(model, ChainModel)
+    chain, truth = model.chain, turntable.truth.chain()
+    # Tolerances of test_core_chain.py (same seed and protocol); see its noise budget.
+    x = np.linspace(-1.0, 1.0, 201)
+    for axis in range(3):
+        assert np.max(np.abs(polyval(x, chain.nonlinearity_rad_s[axis]) -
+                             polyval(x, truth.nonlinearity_rad_s[axis]))) < 8e-4
+        assert np.max(np.abs(polyval(x, chain.sensitivity_slope_rad_s_per_c[axis]) -
+                             polyval(x, truth.sensitivity_slope_rad_s_per_c[axis]))) < 1.2e-5
+    np.testing.assert_allclose(chain.offset_gradient_rad_s_per_c,
+                               truth.offset_gradient_rad_s_per_c, rtol=0.0, atol=1.2e-5)
+    np.testing.assert_allclose(chain.offset_2_gradient_rad_s_per_c,
+                               truth.offset_2_gradient_rad_s_per_c, rtol=0.0, atol=3e-5)
+    np.testing.assert_allclose(chain.misalignment, truth.misalignment, rtol=0.0, atol=2.5e-5)
+    # The file holds exactly the chain fit_chain gives with the documented defaults.
+    on = turntable.plateau_id >= 0
+    expected = fit_chain(turntable.reference_rad_s, turntable.measured_rad_s,
+                         turntable.temperature_c, turntable.temperature_2_c,
+                         turntable.plateau_id, ChainSettings(
+                             full_scale_rad_s=np.max(np.abs(turntable.reference_rad_s)),
+                             reference_temperature_c=np.mean(turntable.temperature_c[on]),
+                             reference_temperature_2_c=np.mean(
+                                 turntable.temperature_2_c[on]))).chain
+    assert chain == expected
+
+
+@pytest.mark.parametrize('drop, needle', [
+    (('temperature_2',), 'missing temperature_2'),
+    (('ref_x', 'ref_y', 'ref_z'), 'missing ref_x, ref_y, ref_z'),
+    (('gyro_y', 'ref_y', 'temperature_2'), 'missing gyro_y, ref_y, temperature_2'),
+])
+def test_chain_missing_columns_are_a_user_error(tmp_path, capsys, turntable, drop, needle):
+    path = turntable_csv(tmp_path / 'table.csv', turntable, drop)
+    code = main(['fit', path, '--model', 'chain', '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, '--model chain needs the columns gyro_x|y|z, ref_x|y|z '
+                                    f'and temperature_2; {needle}')
+    assert not (tmp_path / 'p.yaml').exists()
+
+
+def test_chain_data_that_cannot_support_a_stage_is_a_user_error(tmp_path, capsys, turntable):
+    code = main(['fit', turntable_csv(tmp_path / 'table.csv', turntable), '--model', 'chain',
+                 '--reference-temperature', '30', '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, 'nonlinearity of axis x: 0 rate levels within 2 C of 30 C')
+
+
+@pytest.mark.parametrize('args, needle', [
+    (['--t3', '20'], '--t3 does not apply to --model polynomial'),
+    (['--model', 'linear_btc', '--order', '2'], '--order does not apply to --model linear_btc'),
+    (['--model', 'chain', '--max-order', '3', '--blocks', '4'],
+     '--max-order, --blocks do not apply to --model chain'),
+    (['--model', 'relative', '--full-scale-dps', '300'],
+     '--full-scale-dps does not apply to --model relative'),
+])
+def test_options_of_another_model_are_a_user_error(tmp_path, capsys, args, needle):
+    code = main(['fit', sweep_csv(tmp_path), *args, '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, needle)
+
+
+def test_linear_btc_narrow_span_is_a_user_error(tmp_path, capsys):
+    path = tmp_path / 'narrow.csv'
+    rows = [f'{i * 0.1},{25.0 + i * 0.005},{0.001 * i}' for i in range(100)]
+    path.write_text('time,temperature,gyro_z\n' + '\n'.join(rows) + '\n')
+    code = main(['fit', str(path), '--model', 'linear_btc', '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, 'a bias slope needs a temperature span of at least 1.0 C')
+
+
+def test_chain_without_plateaus_is_a_user_error(tmp_path, capsys):
+    ramp = np.linspace(-1.0, 1.0, 200)
+    columns = {'time': np.arange(200) * 0.1, 'temperature': np.full(200, 20.0),
+               'temperature_2': np.full(200, 25.0)}
+    columns.update((f'gyro_{a}', ramp) for a in 'xyz')
+    columns.update((f'ref_{a}', ramp) for a in 'xyz')
+    code = main(['fit', write_csv(tmp_path / 'ramp.csv', columns), '--model', 'chain',
+                 '--out', str(tmp_path / 'p.yaml')])
+    assert_user_error(code, capsys, 'no plateau: the reference rate and temperatures never '
+                                    'hold steady for 10 samples')

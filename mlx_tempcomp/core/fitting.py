@@ -1,21 +1,25 @@
 """
-Least-squares bias polynomials and their order chosen by contiguous-block cross-validation.
+Least-squares bias models of temperature, the polynomial order chosen by cross-validation.
 
 PX4 and ArduPilot fit a fixed cubic with ``np.polyfit`` on the temperature as
 measured. Here the order is chosen from the data, and the fit runs in float64
 on x = (T - centre) / half_span of the data's temperature range, so x lies in
 [-1, 1] and orders well above 5 keep every term (the MPU-6000 note loses the
 terms above order 5 to single precision on raw temperature).
+
+Besides the plain polynomial: `relative_polynomial`, the MPU-6000 note's
+correction rate - (p(T) - p(T_true)), and `fit_linear_btc`, the ADIS16130
+note's first-order RBC = RATE + PBC + (TEMP - T3) x BTC.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 import operator
 
 import numpy as np
 
 from .errors import CalibrationError
-from .models import AXIS_NAMES, PolynomialModel
+from .models import AXIS_NAMES, LinearBtcModel, PolynomialModel
 
 MIN_SPAN_C = 1.0
 DISTINCT_DECIMALS = 2
@@ -222,3 +226,85 @@ def format_order_table(selections) -> str:
              for row in (header, *rows)]
     lines.extend(f'{selection.axis}: {selection.rule}' for selection in selections)
     return '\n'.join(lines)
+
+
+def relative_polynomial(model: PolynomialModel, true_temperature_c: float) -> PolynomialModel:
+    """
+    Shift each bias polynomial so that it is zero at ``true_temperature_c`` (seed 002).
+
+    The MPU-6000 note corrects gyro - (p(T) - p(T_true)), T_true being the
+    temperature at which no bias is introduced. That is a polynomial model whose
+    constant term is lowered by p(T_true), so the compensation node runs it as
+    it runs any polynomial. Raise CalibrationError when T_true lies outside the
+    fitted temperature range (p would be extrapolated there).
+    """
+    true_c = float(true_temperature_c)
+    if not model.temperature_min_c <= true_c <= model.temperature_max_c:
+        msg = (f'true temperature {true_c:g} C is outside the fitted range '
+               f'{model.temperature_min_c:.2f} to {model.temperature_max_c:.2f} C, '
+               'where the polynomial would be extrapolated')
+        raise CalibrationError(msg)
+    x = (true_c - model.reference_temperature_c) / model.temperature_scale_c
+    shifted = tuple((c[0] - np.polynomial.polynomial.polyval(x, c),) + c[1:]
+                    for c in model.bias_coefficients)
+    return replace(model, bias_coefficients=shifted)
+
+
+def fit_linear_btc(temperature_c, rate_rad_s, t3_c=None) -> LinearBtcModel:
+    """
+    Fit the ADIS16130 note's first-order bias correction per axis by least squares.
+
+    The line bias(T) = B3 + slope (T - T3) is fitted in float64 on
+    (T - T3) / half_span; BTC = -slope and PBC = -B3, the signs of the note's
+    Table 6 (RBC = RATE + PBC + (TEMP - T3) x BTC). T3 defaults to the mean
+    temperature of the data. Raise CalibrationError when the temperatures
+    span less than MIN_SPAN_C.
+    """
+    temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
+    t3 = float(np.mean(temperature)) if t3_c is None else float(t3_c)
+    if not math.isfinite(t3):
+        msg = f'T3 must be finite, got {t3}'
+        raise CalibrationError(msg)
+    low_c = float(np.min(temperature))
+    high_c = float(np.max(temperature))
+    if high_c - low_c < MIN_SPAN_C:
+        msg = (f'a bias slope needs a temperature span of at least {MIN_SPAN_C} C, the data '
+               f'spans {high_c - low_c:.3g} C ({low_c:.2f} to {high_c:.2f} C)')
+        raise CalibrationError(msg)
+    half_span_c = 0.5 * (high_c - low_c)
+    design = np.polynomial.polynomial.polyvander((temperature - t3) / half_span_c, 1)
+    solution = np.linalg.lstsq(design, rate, rcond=None)[0]
+    return LinearBtcModel(pbc_rad_s=tuple(-solution[0]),
+                          btc_rad_s_per_c=tuple(-solution[1] / half_span_c), t3_c=t3)
+
+
+def table_step_c(extent_c: float, rows_each_side: int) -> float:
+    """Return the smallest 1, 2 or 5 x 10^k step that reaches ``extent_c`` in so many rows."""
+    if not (math.isfinite(extent_c) and extent_c > 0.0) or rows_each_side < 1:
+        msg = f'a table needs a positive extent and rows, got {extent_c} C, {rows_each_side}'
+        raise CalibrationError(msg)
+    raw = extent_c / rows_each_side
+    decade = 10.0 ** math.floor(math.log10(raw))
+    return next(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= raw * (1 - 1e-12))
+
+
+def format_btc_table(model: LinearBtcModel, axes, step_c: float, rows_each_side: int = 6) -> str:
+    """
+    Return the ADIS16130 note's Table 6 for the model: (TEMP - T3) and (TEMP - T3) x BTC.
+
+    Rows run from +rows_each_side to -rows_each_side steps of ``step_c``; the
+    columns after the first give the correction in deg/s per axis, as the note
+    prints it.
+    """
+    def text(value: float, digits: int) -> str:
+        return '0' if value == 0.0 else f'{value:+.{digits}g}'
+
+    header = ('TEMP - T3 (C)', *(f'{axis} (deg/s)' for axis in axes))
+    rows = []
+    for k in range(rows_each_side, -rows_each_side - 1, -1):
+        offset_c = k * step_c
+        rows.append((text(offset_c, 6), *(text(math.degrees(offset_c * btc), 4)
+                                          for btc in model.btc_rad_s_per_c)))
+    widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
+    return '\n'.join('  '.join(cell.rjust(width) for cell, width in zip(row, widths))
+                     for row in (header, *rows))

@@ -2,9 +2,11 @@
 Compensation node: raw rate and temperature in, temperature-compensated rate out.
 
 Subscribes to ``imu/data_raw``, ``imu/temperature_raw`` (with several MLX90609
-chips and the eeprom model, ``imu/temperature_raw/<axis>``) and ``imu/eeprom``;
-pairs samples by stamp, applies the model named by ``model`` and publishes
-``imu/data`` and ``imu/temperature``. The ``imu/recalibrate_zro`` service
+chips and the eeprom model, ``imu/temperature_raw/<axis>``), ``imu/eeprom`` and,
+while the model needs a second temperature, ``imu/temperature_2_raw``; pairs
+samples by stamp, runs them through the stream of the model named by ``model``
+(which keeps the state of stateful effects) and publishes ``imu/data`` and
+``imu/temperature``. The ``imu/recalibrate_zro`` service
 (std_srvs/Trigger) learns the ZRO residual at rest and persists it.
 """
 
@@ -26,7 +28,9 @@ from .params import (axes_of, build_model, check_choices, COMPENSATION_SPECS, de
                      limits_of, ParameterError, state_file_of, transfer_of)
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
+from ..core.chain import ChainModel
 from ..core.conversion import Output
+from ..core.effects import EffectModel
 from ..core.errors import CalibrationError, TempCompError
 from ..core.pairing import StampPairer
 from ..core.recalibration import check_window
@@ -35,7 +39,8 @@ from ..sources.bag import BagError, eeprom_images_from_multiarray
 from ..state_file import read_state, StateFileError, write_state
 
 # Parameters whose change rebuilds the model.
-_MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.')
+_MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
+_TEMPERATURE_2 = 'temperature_2'
 _POLL_S = 0.05
 
 
@@ -74,13 +79,17 @@ class CompensationNode(Node):
         self.saved_state = self._load_state()
         self.sensor = None
         self.eeprom_error = ''
-        self.model = self._with_saved_offset(build_model(self.values))
+        model = self._with_saved_offset(build_model(self.values))
+        self.model = None
+        self.stream = None
         self.last_recalibration = self.saved_state or {}
         self.window = None
         self.samples_out = 0
         self.samples_waiting = 0
         self.clamped_samples = 0
         self.clamped_recent = False
+        self.no_acceleration_samples = 0
+        self.no_acceleration_recent = False
         self.last_input = None
         self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
 
@@ -88,6 +97,8 @@ class CompensationNode(Node):
         self.temperature_streams = tuple(f'temperature_{axis}' for axis in self.axes) \
             if per_axis else ('temperature',)
         self.pairer = StampPairer(('imu',) + self.temperature_streams)
+        self.dropped_before = 0   # by pairers replaced on a model change
+        self.temperature_2_subscription = None
         self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
         self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
                                                            SENSOR_QOS)
@@ -114,6 +125,7 @@ class CompensationNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
+        self._use(model)
 
     # State file.
     def _load_state(self):
@@ -145,6 +157,30 @@ class CompensationNode(Node):
                                f'{state.get("offset_unit", "")}')
         return model
 
+    def _use(self, model) -> None:
+        """
+        Run ``model`` from the next sample on.
+
+        The stream keeps its state (temperature slope history, hysteresis play)
+        when only the ZRO offset differs: same model, same fingerprint.
+        """
+        old, stream = self.model, self.stream
+        if model is not None and old is not None and stream is not None and \
+                old.name == model.name and old.fingerprint() == model.fingerprint():
+            stream.model = model
+        else:
+            self.stream = None if model is None else model.stream()
+        self.model = model
+        needs_2 = getattr(model, 'needs_temperature_2', False)
+        if needs_2 != (_TEMPERATURE_2 in self.pairer.streams):
+            if needs_2 and self.temperature_2_subscription is None:
+                self.temperature_2_subscription = self.create_subscription(
+                    Temperature, 'imu/temperature_2_raw',
+                    lambda msg: self.on_temperature(_TEMPERATURE_2, msg), SENSOR_INPUT_QOS)
+            self.dropped_before += self.pairer.dropped
+            streams = ('imu',) + self.temperature_streams + ((_TEMPERATURE_2,) if needs_2 else ())
+            self.pairer = StampPairer(streams)
+
     # Stream.
     def on_eeprom(self, msg: UInt8MultiArray) -> None:
         dims = [(d.label, d.size, d.stride) for d in msg.layout.dim]
@@ -157,7 +193,7 @@ class CompensationNode(Node):
                        f'{len(self.axes)} axes')
                 raise ParameterError(msg)
             if self.values['model'] == 'eeprom':
-                self.model = self._with_saved_offset(self._build(self.values))
+                self._use(self._with_saved_offset(self._build(self.values)))
         except (BagError, TempCompError, ParameterError) as err:
             self.eeprom_error = str(err)
             self.get_logger().error(f'unusable EEPROM message: {err}')
@@ -178,21 +214,36 @@ class CompensationNode(Node):
             self.process(stamp_ns, parts)
 
     def on_temperature(self, stream: str, msg: Temperature) -> None:
+        if stream not in self.pairer.streams:
+            return   # the second temperature, subscribed for an earlier model
         for stamp_ns, parts in self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
                                                msg):
             self.process(stamp_ns, parts)
 
     def process(self, stamp_ns: int, parts: dict) -> None:
         self.last_input = time.monotonic()
-        model = self.model
-        if model is None:
+        stream = self.stream
+        if stream is None:
             self.samples_waiting += 1
             return
-        # Plain floats on this per-message path: numpy's per-call overhead would dominate.
+        model = stream.model
         imu = parts['imu']
+        acceleration = None
+        if getattr(model, 'needs_acceleration', False):
+            # REP-145: covariance[0] = -1 says the message has no acceleration.
+            if imu.linear_acceleration_covariance[0] == -1.0:
+                self.no_acceleration_samples += 1
+                self.no_acceleration_recent = True
+                return
+            vector = imu.linear_acceleration
+            acceleration = (vector.x, vector.y, vector.z)
+        temperature_2 = parts[_TEMPERATURE_2].temperature \
+            if getattr(model, 'needs_temperature_2', False) else None
+        # Plain floats on this per-message path: numpy's per-call overhead would dominate.
         raw = messages.imu_rates(imu, self.indices)
         temperatures = [parts[s].temperature for s in self.temperature_streams]
-        rate, clamped = model.correct_sample(raw, temperatures)
+        rate, clamped = stream.correct_sample(raw, temperatures, stamp_ns / 1e9, temperature_2,
+                                              acceleration)
         if clamped:
             self.clamped_samples += 1
             self.clamped_recent = True
@@ -263,10 +314,15 @@ class CompensationNode(Node):
             stats = check_window(corrected, temperature.mean(axis=1), limits)
         except CalibrationError as err:
             return f'refused: {err}'
-        offset = model.learn_zro_offset(raw, temperature)
+        if isinstance(model, (EffectModel, ChainModel)):
+            # Their learn_zro_offset cannot replay the stream's state (or lacks its inputs):
+            # the residual still left is the window's mean published rate.
+            offset = np.asarray(model.zro_offset_rad_s) + corrected.mean(axis=0)
+        else:
+            offset = model.learn_zro_offset(raw, temperature)
         new_model = model.with_zro_offset(offset)
         offset_rad_s = new_model.offset_rad_s(stats.temperature_c)
-        self.model = new_model
+        self._use(new_model)
         state = {'model': model.name, 'fingerprint': model.fingerprint(),
                  'axes': list(self.axes), 'zro_offset': [float(v) for v in offset],
                  'offset_unit': model.offset_unit,
@@ -304,8 +360,8 @@ class CompensationNode(Node):
             self.values[parameter.name] = messages_value(parameter)
         self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
         if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
-            # Validated in validate_parameters; one reference swap makes it atomic.
-            self.model = self._with_saved_offset(self._build(self.values))
+            # Validated in validate_parameters; swapped between two samples.
+            self._use(self._with_saved_offset(self._build(self.values)))
             self.get_logger().info(f'model now {self.values["model"]}')
 
     def publish_diagnostics(self) -> None:
@@ -318,8 +374,9 @@ class CompensationNode(Node):
             'zro_offset': [] if model is None else list(model.zro_offset),
             'offset_unit': '' if model is None else model.offset_unit,
             'samples_out': self.samples_out, 'samples_waiting': self.samples_waiting,
-            'unpaired_dropped': self.pairer.dropped,
+            'unpaired_dropped': self.dropped_before + self.pairer.dropped,
             'temperature_clamped_samples': self.clamped_samples,
+            'no_acceleration_samples': self.no_acceleration_samples,
             'input_age_s': float('nan') if age is None else age,
             'last_recalibration_time': recal.get('time', 'never'),
             'last_recalibration_offset_rad_s': recal.get('zro_offset_rad_s', []),
@@ -331,6 +388,11 @@ class CompensationNode(Node):
             level, text = DiagnosticStatus.ERROR, 'stale input: no raw samples'
         elif self.eeprom_error:
             level, text = DiagnosticStatus.ERROR, f'EEPROM unusable: {self.eeprom_error}'
+        elif self.no_acceleration_recent:
+            level, text = (DiagnosticStatus.ERROR,
+                           f'the {self.values["model"]} model needs acceleration but Imu '
+                           'messages carry none (linear_acceleration_covariance[0] = -1): '
+                           f'{self.no_acceleration_samples} samples not compensated')
         elif model is None:
             level, text = DiagnosticStatus.WARN, 'waiting for the EEPROM tables'
         elif self.clamped_recent:
@@ -339,6 +401,7 @@ class CompensationNode(Node):
         else:
             level, text = DiagnosticStatus.OK, f'compensating ({self.values["model"]})'
         self.clamped_recent = False
+        self.no_acceleration_recent = False
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',
                                             self.values['model'], level, text, values)
         array = DiagnosticArray(status=[status])

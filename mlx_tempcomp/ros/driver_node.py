@@ -1,11 +1,17 @@
 """
-Driver node: raw angular rate and temperature from a simulated or SPI MLX90609, or a bag.
+Driver node: raw rate and temperature from a simulated or SPI gyro, or a bag.
+
+``device`` picks the part: ``mlx90609`` (default), ``adis16130`` or
+``mpu6000`` (the last two in `mlx_tempcomp.ros.devices`: no EEPROM topic, one
+temperature; the MPU adds linear acceleration).
 
 Publishes (REP-145): ``imu/data_raw`` (sensor_msgs/Imu, nominal conversion,
 rad/s), ``imu/temperature_raw`` (sensor_msgs/Temperature, degC; with several
 chips their mean, and each chip's on ``imu/temperature_raw/<axis>``),
 ``imu/eeprom`` (std_msgs/UInt8MultiArray, transient local: the chips' EEPROM
-images, so the raw topics reproduce compensation exactly) and ``/diagnostics``.
+images, so the raw topics reproduce compensation exactly) and ``/diagnostics``;
+a bag with a second temperature (``bag.temperature_2_topic``) also gives
+``imu/temperature_2_raw``.
 """
 
 import collections
@@ -20,6 +26,7 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 
 from . import messages
+from .devices import AdisStream, DeviceStream, MpuStream
 from .params import (axes_of, check_choices, declare, DRIVER_SPECS, effects_of, ParameterError,
                      transfer_of)
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
@@ -29,7 +36,7 @@ from ..core.conversion import Output
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
 from ..simulation.mlx90609 import Fault
-from ..sources.bag import ImuRecord, RawBagReader, RawTopics, TemperatureRecord
+from ..sources.bag import absolute_topic, ImuRecord, RawBagReader, RawTopics, TemperatureRecord
 from ..sources.mlx90609 import samples_due, SimulatedArray, SimulationConfig, spidev_array
 
 EEPROM_READ_ATTEMPTS = 3
@@ -42,6 +49,7 @@ ACK_TIMEOUT = Duration(seconds=1.0)
 PACE_WINDOW = 100
 PACE_TIMEOUT_S = 1.0
 MATCH_GRACE_S = 2.0
+MLX90609_SPEED_HZ = 500_000
 
 
 class DriverNode(Node):
@@ -50,6 +58,7 @@ class DriverNode(Node):
     def __init__(self, **kwargs):
         super().__init__('driver_node', **kwargs)
         self.values = declare(self, DRIVER_SPECS)
+        self.device = self.values['device']
         self.axes = axes_of(self.values)
         self.indices = messages.axis_indices(self.axes)
         self.transfer = transfer_of(self.values)
@@ -59,14 +68,20 @@ class DriverNode(Node):
         self.imu_publisher = self.create_publisher(Imu, 'imu/data_raw', SENSOR_QOS)
         self.temperature_publisher = self.create_publisher(
             Temperature, 'imu/temperature_raw', SENSOR_QOS)
+        # One temperature per chip, and the EEPROM, are MLX90609 things (a bag may hold them).
+        mlx = self.device == 'mlx90609' or self.values['source'] == 'bag'
         self.axis_temperature_publishers = [
             self.create_publisher(Temperature, f'imu/temperature_raw/{axis}', SENSOR_QOS)
-            for axis in self.axes] if len(self.axes) > 1 else []
+            for axis in self.axes] if len(self.axes) > 1 and mlx else []
         self.eeprom_publisher = self.create_publisher(UInt8MultiArray, 'imu/eeprom',
-                                                      EEPROM_QOS)
+                                                      EEPROM_QOS) if mlx else None
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         if self.values['source'] == 'bag':
             self.stream = BagStream(self)
+        elif self.device == 'adis16130':
+            self.stream = AdisStream(self)
+        elif self.device == 'mpu6000':
+            self.stream = MpuStream(self)
         else:
             self.stream = SensorStream(self)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -79,9 +94,11 @@ class DriverNode(Node):
             check_choices(DRIVER_SPECS, values)
             if 'frame_id' in values and not values['frame_id']:
                 raise ParameterError('invalid parameter frame_id: must not be empty')
-            if 'simulation.fault' in values and not isinstance(self.stream.array,
-                                                               SimulatedArray):
-                raise ParameterError('simulation.fault applies only to the simulated source')
+            if 'simulation.fault' in values:
+                if isinstance(self.stream, DeviceStream):
+                    self.stream.check_fault(values['simulation.fault'])
+                elif not isinstance(self.stream.array, SimulatedArray):
+                    raise ParameterError('simulation.fault applies only to the simulated source')
         except ParameterError as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
@@ -92,18 +109,23 @@ class DriverNode(Node):
         self.frame_id = self.values['frame_id']
         self.covariance = messages.rate_covariance(self.indices,
                                                    self.values['rate_noise_rad_s'])
-        if isinstance(self.stream.array, SimulatedArray):
+        if isinstance(self.stream, DeviceStream):
+            if self.stream.simulated:
+                self.stream.set_fault(self.values['simulation.fault'])
+        elif isinstance(self.stream.array, SimulatedArray):
             self.stream.array.fault = Fault(self.values['simulation.fault'])
 
-    def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c) -> None:
+    def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c, acceleration_m_s2=None,
+                    acceleration_covariance=None) -> None:
         stamp = messages.ns_to_stamp(stamp_ns)
         # Temperature first: a subscriber pairing by stamp then completes on the Imu.
         for publisher, temperature in zip(self.axis_temperature_publishers, temperatures_c):
             publisher.publish(messages.temperature_message(stamp, self.frame_id, temperature))
         self.temperature_publisher.publish(messages.temperature_message(
             stamp, self.frame_id, sum(temperatures_c) / len(temperatures_c)))
-        self.imu_publisher.publish(messages.imu_message(stamp, self.frame_id, self.indices,
-                                                        rate_rad_s, self.covariance))
+        self.imu_publisher.publish(messages.imu_message(
+            stamp, self.frame_id, self.indices, rate_rad_s, self.covariance, acceleration_m_s2,
+            acceleration_covariance))
 
     def publish_diagnostics(self) -> None:
         level, message, values = self.stream.status()
@@ -146,7 +168,8 @@ class SensorStream:
                 msg = (f'invalid parameter spi.chip_selects: {len(chip_selects)} chip selects '
                        f'for {len(node.axes)} axes')
                 raise ParameterError(msg)
-            self.array = spidev_array(values['spi.bus'], chip_selects, values['spi.speed_hz'],
+            self.array = spidev_array(values['spi.bus'], chip_selects,
+                                      values['spi.speed_hz'] or MLX90609_SPEED_HZ,
                                       values['spi.mode'])
             self.real_time_factor = None
             self.hardware_id = f'MLX90609 on /dev/spidev{values["spi.bus"]}.{chip_selects}'
@@ -253,12 +276,29 @@ class BagStream:
         temperature_topic = values['bag.temperature_topic']
         axis_topics = tuple(f'{temperature_topic.rstrip("/")}/{axis}' for axis in node.axes) \
             if len(node.axes) > 1 else ()
+        temperature_2_topic = values['bag.temperature_2_topic']
+        extra_topics = axis_topics + ((temperature_2_topic,) if temperature_2_topic else ())
+        if temperature_2_topic and absolute_topic(temperature_2_topic) in \
+                {absolute_topic(t) for t in (temperature_topic,) + axis_topics}:
+            msg = (f'invalid parameter bag.temperature_2_topic: {temperature_2_topic} is '
+                   'already the temperature topic')
+            raise ParameterError(msg)
         self.reader = RawBagReader(path, RawTopics(imu=values['bag.imu_topic'],
                                                    temperature=temperature_topic,
                                                    eeprom=values['bag.eeprom_topic']),
-                                   extra_temperature_topics=axis_topics)
-        self.axis_publishers = dict(zip((t.strip('/') for t in axis_topics),
-                                        node.axis_temperature_publishers))
+                                   extra_temperature_topics=extra_topics)
+        # Topic (without slashes) -> publisher; the main temperature topic is the default.
+        self.publishers = dict(zip((t.strip('/') for t in axis_topics),
+                                   node.axis_temperature_publishers))
+        if temperature_2_topic:
+            if absolute_topic(temperature_2_topic) not in \
+                    {absolute_topic(t) for t in self.reader.bag_topics}:
+                self.reader.close()
+                msg = (f'invalid parameter bag.temperature_2_topic: no topic '
+                       f'{absolute_topic(temperature_2_topic)} in {path}')
+                raise ParameterError(msg)
+            self.publishers[temperature_2_topic.strip('/')] = node.create_publisher(
+                Temperature, 'imu/temperature_2_raw', SENSOR_QOS)
         self.temperature_topic = temperature_topic.strip('/')
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
@@ -290,8 +330,7 @@ class BagStream:
                 return
             if self.first_subscriber is None:
                 self.first_subscriber = time.monotonic()
-            publishers = [self.node.temperature_publisher] + \
-                list(self.node.axis_temperature_publishers)
+            publishers = [self.node.temperature_publisher] + list(self.publishers.values())
             if any(p.get_subscription_count() == 0 for p in publishers) and \
                     time.monotonic() - self.first_subscriber < MATCH_GRACE_S:
                 return
@@ -352,7 +391,7 @@ class BagStream:
         elif isinstance(record, TemperatureRecord):
             msg = messages.temperature_message(stamp, record.frame_id, record.temperature_c,
                                                record.variance)
-            publisher = self.axis_publishers.get(topic.strip('/'))
+            publisher = self.publishers.get(topic.strip('/'))
             if publisher is None:
                 publisher = self.node.temperature_publisher
             publisher.publish(msg)

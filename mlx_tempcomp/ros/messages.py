@@ -36,23 +36,36 @@ def rate_covariance(indices, noise_rad_s: float) -> list:
 
 
 def imu_message(stamp: Time, frame_id: str, indices, rate_rad_s,
-                covariance: list) -> Imu:
+                covariance: list, acceleration_m_s2=None,
+                acceleration_covariance: list = None) -> Imu:
     """
-    Build an Imu carrying angular rate only (REP-145: unreported fields flagged with -1).
+    Build an Imu carrying angular rate (REP-145: unreported fields flagged with -1).
 
     Axes the sensor does not measure are NaN: a number there would be a silent lie.
+    Without ``acceleration_m_s2`` (x, y, z) the linear acceleration is flagged
+    unreported; with it, ``acceleration_covariance`` goes along.
     """
     msg = Imu()
     msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     msg.orientation_covariance[0] = -1.0
-    msg.linear_acceleration_covariance[0] = -1.0
+    if acceleration_m_s2 is None:
+        msg.linear_acceleration_covariance[0] = -1.0
+    else:
+        msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = \
+            (float(v) for v in acceleration_m_s2)
+        msg.linear_acceleration_covariance = acceleration_covariance
     vector = [NAN, NAN, NAN]
     for index, value in zip(indices, rate_rad_s):
         vector[index] = float(value)
     msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = vector
     msg.angular_velocity_covariance = covariance
     return msg
+
+
+def acceleration_covariance(noise_m_s2: float) -> list:
+    """Return the diagonal covariance of a 3-axis accelerometer (all 0 = unknown)."""
+    return rate_covariance((0, 1, 2), noise_m_s2)
 
 
 def imu_rates(msg: Imu, indices) -> list:

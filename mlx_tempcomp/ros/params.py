@@ -17,8 +17,10 @@ from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterVal
                               ParameterUninitializedException)
 from rclpy.parameter import Parameter
 
+from ..core.chain import CalibrationChain, ChainModel
 from ..core.compensation import table_compensation
 from ..core.conversion import Output, SensorTransfer
+from ..core.effects import AxisTerms, EffectModel
 from ..core.errors import ConfigError
 from ..core.interpolation import Interpolation
 from ..core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
@@ -88,7 +90,11 @@ COMMON_SPECS = SENSOR_SPECS + (
          '(0 = unknown)', low=0.0, high=10.0),
 )
 
+DEVICES = ('mlx90609', 'adis16130', 'mpu6000')
+
 DRIVER_SPECS = COMMON_SPECS + (
+    Spec('device', 'mlx90609', 'sensor read by the simulated and spidev sources', read_only=True,
+         choices=DEVICES),
     Spec('source', 'simulated', 'where raw data comes from', read_only=True,
          choices=('simulated', 'spidev', 'bag')),
     Spec('frame_id', 'imu_link', 'frame_id of published messages (REP-145)'),
@@ -99,8 +105,10 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('spi.bus', 0, 'spidev bus number', read_only=True, low=0, high=255),
     Spec('spi.chip_selects', [0], 'spidev chip select per axis, same order as axes',
          read_only=True),
-    Spec('spi.speed_hz', 500000, 'SPI clock in Hz (maximum UNCONFIRMED)', read_only=True,
-         low=1000, high=20000000),
+    Spec('spi.speed_hz', 0,
+         'SPI clock in Hz; 0 = the device default (MLX90609 500 kHz, its maximum UNCONFIRMED; '
+         'ADIS16130 1 MHz; MPU-6000/6500 1 MHz, the limit for configuration registers)',
+         read_only=True, low=0, high=20000000),
     Spec('spi.mode', 3, 'SPI mode (0 or 3 work: data latched on the rising edge)',
          read_only=True, low=0, high=3),
     Spec('bag.path', '', 'rosbag2 folder (sqlite3 or mcap) to replay', read_only=True),
@@ -115,6 +123,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
          read_only=True),
     Spec('bag.eeprom_topic', '/imu/eeprom', 'EEPROM topic in the bag', read_only=True),
+    Spec('bag.temperature_2_topic', '',
+         "second-temperature topic in the bag, replayed as imu/temperature_2_raw ('' = none)",
+         read_only=True),
     Spec('simulation.seed', 0, 'seed of the simulated chips and their noise', read_only=True,
          low=0, high=2**31 - 1),
     Spec('simulation.real_time_factor', 1.0,
@@ -141,13 +152,130 @@ DRIVER_SPECS = COMMON_SPECS + (
          read_only=True, low=-100.0, high=100.0),
     Spec('simulation.zro_supply_dps_per_v', 0.0, 'effect: ZRO shift per volt off 5 V',
          read_only=True, low=-1000.0, high=1000.0),
-    Spec('simulation.fault', 'none', 'SPI fault of the simulated chips (settable at runtime)',
-         choices=tuple(f.value for f in Fault)),
+    Spec('simulation.fault', 'none',
+         'SPI fault of the simulated chips (settable at runtime; adis16130 and mpu6000: none, '
+         'silent_high, silent_low)', choices=tuple(f.value for f in Fault)),
+    Spec('simulation.bias_dps', 0.0, 'adis16130: bias at 25 C in deg/s', read_only=True,
+         low=-1000.0, high=1000.0),
+    Spec('simulation.bias_dps_per_c', 0.0,
+         'adis16130: bias temperature slope in deg/s/C (mpu6000: drawn from the seed)',
+         read_only=True, low=-100.0, high=100.0),
+    Spec('adis16130.resolution_bits', 24, 'conversion resolution, 24 or 16 (MODE b1)',
+         read_only=True, low=16, high=24),
+    Spec('adis16130.verify_registers', True,
+         'read the start-up registers back (read-back UNCONFIRMED on real parts)',
+         read_only=True),
+    Spec('adis16130.bias_procedure.average_s', 10.0, 'window of each point (the note: 10 s)',
+         low=0.01, high=3600.0),
+    Spec('adis16130.bias_procedure.self_heat_s', 600.0,
+         'wait between the points while the part warms itself (the note: 600 s)',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.settle_s', 2400.0,
+         'wait before the PBC window, the rest record included (the note: 2400 s)',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.pbc_s', 150.0,
+         'PBC window (the note: 150 s); 0 = the averaging time the rest record advises',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.allan_record_s', 1200.0,
+         'rest record at the end of the settle wait for the Allan deviation (0 = none: no '
+         'noise figures, motion check against rate_noise_rad_s)', low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.min_temperature_change_c', 0.5,
+         'smallest T2 - T1 a BTC is computed from', low=0.001, high=100.0),
+    Spec('adis16130.bias_procedure.output_file', '',
+         "linear_btc parameter file ('' = ~/.ros/mlx_tempcomp/<node name>_linear_btc.yaml)"),
+    Spec('adis16130.bias_procedure.node_name', 'compensation_node',
+         'node section of the parameter file'),
+    Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000 (or 6050 register map) or MPU-6500',
+         read_only=True, choices=('mpu6000', 'mpu6500')),
+    Spec('mpu6000.gyro_full_scale_dps', 250, 'gyro range: 250, 500, 1000 or 2000 deg/s',
+         read_only=True, low=250, high=2000),
+    Spec('mpu6000.accel_full_scale_g', 2, 'accelerometer range: 2, 4, 8 or 16 g',
+         read_only=True, low=2, high=16),
+    Spec('mpu6000.dlpf_config', 3, 'DLPF_CFG (CONFIG bits 2..0)', read_only=True, low=0,
+         high=6),
+    Spec('mpu6000.sample_rate_divider', 0, 'SMPLRT_DIV', read_only=True, low=0, high=255),
+    Spec('mpu6000.accel_noise_m_s2', 0.049,
+         '1-sigma accelerometer noise of one sample in m/s^2 (datasheet 400 ug/sqrt(Hz) at '
+         '100 Hz: 0.005 g); sets the linear acceleration covariance (0 = unknown)',
+         low=0.0, high=100.0),
+    Spec('mpu6000.offsets_file', '',
+         "offset register state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_offsets.yaml)",
+         read_only=True),
+    Spec('mpu6000.calibration.duration_s', 1.0,
+         'averaging window of imu/calibrate_offsets (sensor time; the note: 200 samples)',
+         low=0.01, high=3600.0),
+    Spec('mpu6000.calibration.noise_multiple', 3.0,
+         'a gyro rate spread above this x rate_noise_rad_s means the board moves',
+         low=0.1, high=1000.0),
 )
+
+_EFFECT_DESCRIPTIONS = {
+    'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
+    'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
+    'temperature_min_c': 'effective temperatures below are clamped',
+    'temperature_max_c': 'effective temperatures above are clamped',
+    'temperature_rate_window_s': 'thermal lag: dT/dt is the slope over this window (s)',
+    'time_reference_s': 'time drift is zero at this stamp (s)',
+    'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
+    'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2',
+    'thermal_lag_s': 'axis {axis}: thermal lag, T_eff = T + lag x dT/dt',
+    'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play operator',
+    'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state',
+    'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since time_reference_s',
+    'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
+    'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, rad/s',
+    'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, z acceleration',
+    'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)',
+    'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)',
+    'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)',
+    'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
+    'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s',
+}
+_CHAIN_DESCRIPTIONS = {
+    'full_scale_rad_s': 'full scale; the polynomials run in x = rate / full scale',
+    'reference_temperature_c': 'Tref of dT = T - Tref',
+    'reference_temperature_2_c': 'T2ref of dT2 = T2 - T2ref',
+    'nonlinearity_rad_s': 'stage 1, axis {axis}: measured -> reference rate P(x), rad/s',
+    'offset_rad_s': 'stage 2: offset b of x, y, z, rad/s',
+    'offset_gradient_rad_s_per_c': 'stage 2: offset gradient g of x, y, z, rad/s/C',
+    'sensitivity_slope_rad_s_per_c': 'stage 3, axis {axis}: K(x), rad/s per degC',
+    'sensitivity_intercept_rad_s': 'stage 3, axis {axis}: C(x), rad/s',
+    'offset_2_rad_s': 'stage 4: offset d of x, y, z, rad/s',
+    'offset_2_gradient_rad_s_per_c': 'stage 4: gradient h of x, y, z, rad/s per degC of T2',
+    'misalignment': 'stage 5: 3 x 3 matrix M row by row, rate = M @ y4',
+}
+
+
+def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bool) -> tuple:
+    """Give a Spec per key of a model's ``to_parameters``; lists become arrays."""
+    specs = []
+    for key, value in parameters.items():
+        name, _, axis = key.partition('.')
+        if isinstance(value, list):
+            default = Parameter.Type.DOUBLE_ARRAY
+        else:
+            default = Parameter.Type.DOUBLE if required else float(value)
+        specs.append(Spec(prefix + key, default, descriptions[name].format(axis=axis)))
+    return tuple(specs)
+
+
+# Scalars default to the model's own defaults; unset lists mean an absent effect.
+EFFECT_SPECS = _model_specs(
+    'effects.', EffectModel((AxisTerms(bias=(0.0,)),) * 3).to_parameters(AXIS_NAMES),
+    _EFFECT_DESCRIPTIONS, required=False)
+# A chain has no neutral default: every parameter must be given.
+_ZEROS, _POLYNOMIALS = (0.0, 0.0, 0.0), ((0.0,),) * 3
+CHAIN_SPECS = _model_specs('chain.', CalibrationChain(
+    full_scale_rad_s=1.0, reference_temperature_c=25.0, reference_temperature_2_c=25.0,
+    nonlinearity_rad_s=_POLYNOMIALS, offset_rad_s=_ZEROS, offset_gradient_rad_s_per_c=_ZEROS,
+    sensitivity_slope_rad_s_per_c=_POLYNOMIALS, sensitivity_intercept_rad_s=_POLYNOMIALS,
+    offset_2_rad_s=_ZEROS, offset_2_gradient_rad_s_per_c=_ZEROS,
+    misalignment=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))).to_parameters(),
+    _CHAIN_DESCRIPTIONS, required=True)
 
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model',
-         choices=('eeprom', 'polynomial', 'linear_btc')),
+         choices=('eeprom', 'polynomial', 'linear_btc', 'effects', 'chain')),
     Spec('eeprom.interpolation', 'quadratic', 'interpolation of the factory table',
          choices=tuple(m.value for m in Interpolation)),
     Spec('polynomial.reference_temperature_c', 25.0, 'Tref of x = (T - Tref) / scale',
@@ -169,6 +297,7 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('linear_btc.btc_rad_s_per_c', Parameter.Type.DOUBLE_ARRAY, 'BTC per axis, rad/s/C'),
     Spec('linear_btc.t3_c', 25.0, 'T3, the temperature of the PBC measurement',
          low=-100.0, high=200.0),
+) + EFFECT_SPECS + CHAIN_SPECS + (
     Spec('recalibration.duration_s', 5.0, 'averaging window (sensor time)', low=0.05,
          high=3600.0),
     Spec('recalibration.noise_multiple', 3.0, 'rate spread above this x noise means motion',
@@ -299,6 +428,10 @@ def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: fl
                     raise ParameterError(msg)
             return LinearBtcModel(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
                                   t3_c=values['linear_btc.t3_c'])
+        if name == 'effects':
+            return _effect_model(values, axes)
+        if name == 'chain':
+            return _chain_model(values, axes)
         interpolation = Interpolation.parse(values['eeprom.interpolation'])
         if tables is None:
             return None
@@ -313,3 +446,31 @@ def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: fl
     except ConfigError as err:
         msg = f'invalid {name} model parameters: {err}'
         raise ParameterError(msg) from None
+
+
+def _model_parameters(values: dict, prefix: str, specs) -> dict:
+    """Give a model's parameters without ``prefix``; unset ones are left out."""
+    return {spec.name[len(prefix):]: values[spec.name] for spec in specs
+            if values[spec.name] != []}
+
+
+def _effect_model(values: dict, axes: tuple) -> EffectModel:
+    for axis in axes:
+        if not values[f'effects.bias.{axis}']:
+            msg = (f'invalid parameter effects.bias.{axis}: the effects model needs a bias '
+                   f'polynomial for every axis in {list(axes)}')
+            raise ParameterError(msg)
+    return EffectModel.from_parameters(_model_parameters(values, 'effects.', EFFECT_SPECS), axes)
+
+
+def _chain_model(values: dict, axes: tuple) -> ChainModel:
+    if axes != AXIS_NAMES:
+        msg = f"invalid parameter axes: the chain model needs ['x', 'y', 'z'], got {list(axes)}"
+        raise ParameterError(msg)
+    missing = [spec.name for spec in CHAIN_SPECS if values[spec.name] == []]
+    if missing:
+        msg = (f'invalid parameter {missing[0]}: unset; the chain model needs every chain.* '
+               f'parameter ({len(missing)} unset)')
+        raise ParameterError(msg)
+    return ChainModel(CalibrationChain.from_parameters(
+        _model_parameters(values, 'chain.', CHAIN_SPECS)))

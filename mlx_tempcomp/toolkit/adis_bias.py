@@ -1,0 +1,362 @@
+"""
+The ``mlx-tempcomp adis-bias`` command: AN-1042's ADIS16130 bias procedure, guided.
+
+It reads the part (over spidev, or the simulated part through the same SPI
+frames), feeds every sample to `BiasProcedure` and says what each phase does:
+10 s -> (T1, B1), the self-heating wait, 10 s -> (T2, B2) and BTC, the
+settle wait whose end is a rest record for the Allan deviation, the PBC
+window -> PBC and T3. It prints the note's Table 6 for the result, the noise
+figures and averaging times, and writes the ``linear_btc`` parameter file of
+the compensation node with ``rate_noise_rad_s`` from the rest record.
+Nothing is written before the end; Ctrl-C exits with 130.
+"""
+
+import argparse
+import math
+import sys
+import time
+
+from .common import non_negative_int, UserError
+from .progress import add_progress_option, Progress
+from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
+                                   MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
+                                   NOTE_AVERAGE_S, NOTE_PBC_S,
+                                   NOTE_SELF_HEAT_S, NOTE_SETTLE_S, Phase, ProcedureSettings,
+                                   RECORD_FRACTION)
+from ..core.errors import TempCompError
+from ..core.fitting import format_btc_table, table_step_c
+from ..core.noise import allan_deviation, MIN_SAMPLES
+from ..hardware.errors import HardwareError
+from ..model_params import linear_btc_parameters, parameter_file, write_parameter_file
+from ..simulation.adis16130 import Adis16130Truth, self_heating_profile
+from ..sources.adis16130 import (AXES, DEFAULT_SPEED_HZ, SimulatedSensor, SimulationConfig,
+                                 spidev_sensor)
+
+EXIT_INTERRUPTED = 130
+DEFAULT_RATE_HZ = 500.0
+DEFAULT_ALLAN_RECORD_S = 1200.0
+DEFAULT_SLOPE_DPS_PER_C = 0.04     # the note's Table 6 example
+DEFAULT_RISE_C = 5.0               # self_heating_profile's default (UNCONFIRMED)
+WAIT_READ_S = 1.0                  # one sample a second keeps a paced wait responsive
+TABLE_ROWS = 6
+SECONDS_PER_HOUR = 3600.0
+
+_SIMULATED_ONLY = ('seed', 'bias_slope_dps_per_c', 'self_heat_rise_c', 'time_scale')
+_SPIDEV_ONLY = ('bus', 'cs', 'speed_hz')
+
+_PHASE_TEXT = {
+    Phase.POINT_1: 'averaging RATE and TEMP for {:g} s -> T1, B1',
+    Phase.SELF_HEAT: 'waiting {:g} s while the part warms itself',
+    Phase.POINT_2: 'averaging RATE and TEMP for {:g} s -> T2, B2',
+    Phase.SETTLE: 'waiting {:g} s for the part to settle',
+    Phase.REST_RECORD: 'recording {:g} s at rest (end of the settle wait) for the Allan '
+                       'deviation',
+    Phase.PBC: 'averaging RATE for {:g} s -> PBC = -mean, T3 = mean TEMP',
+}
+
+
+def _number(kind: str):
+    """Return an argparse type for finite numbers that are positive or (``kind`` >=0) not."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = value > 0.0 if kind == '>0' else value >= 0.0
+        if not (math.isfinite(value) and ok):
+            msg = f'expected a number {kind}, got {text!r}'
+            raise argparse.ArgumentTypeError(msg)
+        return value
+    return parse
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        msg = f'expected a finite number, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _dps(rad_s: float) -> str:
+    return f'{math.degrees(rad_s):+.6f} deg/s ({rad_s:+.4e} rad/s)'
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    wrong = _SPIDEV_ONLY if args.source == 'simulated' else _SIMULATED_ONLY
+    given = ['--' + name.replace('_', '-') for name in wrong if getattr(args, name) is not None]
+    if given:
+        msg = f'{", ".join(given)} {"does" if len(given) == 1 else "do"} not apply to ' \
+              f'--source {args.source}'
+        raise UserError(msg)
+    windows = [('--average-s', args.average_s), ('--pbc-s', args.pbc_s or NOTE_PBC_S)]
+    for option, seconds in windows:
+        if seconds * args.rate_hz < MIN_WINDOW_SAMPLES:
+            msg = (f'{option} {seconds:g} at --rate-hz {args.rate_hz:g} gives fewer than '
+                   f'{MIN_WINDOW_SAMPLES} samples')
+            raise UserError(msg)
+    if 0.0 < args.allan_record_s * args.rate_hz < MIN_SAMPLES:
+        msg = (f'--allan-record-s {args.allan_record_s:g} at --rate-hz {args.rate_hz:g} gives '
+               f'fewer than the {MIN_SAMPLES} samples an Allan deviation needs (0 skips it)')
+        raise UserError(msg)
+
+
+def _open_sensor(args: argparse.Namespace):
+    """Start the part; give the sensor and a description of it."""
+    try:
+        if args.source == 'spidev':
+            bus = 0 if args.bus is None else args.bus
+            cs = 0 if args.cs is None else args.cs
+            speed_hz = DEFAULT_SPEED_HZ if args.speed_hz is None else args.speed_hz
+            sensor = spidev_sensor(bus, cs, speed_hz=speed_hz, resolution_bits=args.bits)
+            return sensor, f'/dev/spidev{bus}.{cs} at {speed_hz} Hz SCLK'
+        slope = DEFAULT_SLOPE_DPS_PER_C if args.bias_slope_dps_per_c is None \
+            else args.bias_slope_dps_per_c
+        rise_c = DEFAULT_RISE_C if args.self_heat_rise_c is None else args.self_heat_rise_c
+        seed = 0 if args.seed is None else args.seed
+        config = SimulationConfig(seed=seed, resolution_bits=args.bits,
+                                  truth=Adis16130Truth(bias_dps_per_c=slope),
+                                  thermal=self_heating_profile(rise_c=rise_c))
+        return SimulatedSensor(config), (f'the simulated part (seed {seed}, bias slope '
+                                         f'{slope:g} deg/s/C, self-heating {rise_c:g} C)')
+    except HardwareError as err:
+        raise UserError(f'ADIS16130: {err}') from None
+
+
+def _noise_figures(time_s, rate_rad_s):
+    return allan_deviation(time_s, rate_rad_s.reshape(-1, 1), AXES)[0]
+
+
+class _Pacer:
+    """Move the sensor's clock to each target; with a time scale, hold the wall clock back."""
+
+    def __init__(self, sensor, time_scale):
+        self.clock = sensor.clock
+        self.time_scale = time_scale
+        self._wall_start = time.monotonic()
+        self._sensor_start = self.clock.now_s
+
+    def to(self, target_s: float) -> None:
+        self.clock.advance(target_s - self.clock.now_s)
+        if self.time_scale is not None:
+            wall_s = (target_s - self._sensor_start) / self.time_scale
+            time.sleep(max(wall_s - (time.monotonic() - self._wall_start), 0.0))
+
+
+def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
+    figures = procedure.noise
+    arw_deg_rt_h = math.degrees(figures.angle_random_walk_rad_s_rt_hz) * SECONDS_PER_HOUR ** 0.5
+    print(f'  noise of the rest record: ARW {arw_deg_rt_h:.4g} deg/sqrt(h) '
+          f'({figures.angle_random_walk_rad_s_rt_hz:.4g} rad/s/rt(Hz)), bias instability '
+          f'{math.degrees(figures.bias_instability_rad_s):.4g} deg/s at tau '
+          f'{figures.bias_instability_tau_s:.4g} s, rate_noise_rad_s '
+          f'{figures.rate_noise_rad_s:.4g}')
+    record_s = procedure.settings.allan_record_s
+    advised_s = averaging_time_s(figures, NOTE_PBC_S, record_s)
+    floor_rad_s, _ = adev_at_rad_s(figures, figures.bias_instability_tau_s)
+    trusted_s = [tau for tau in figures.taus_s if tau <= record_s / RECORD_FRACTION * 1.000001]
+    reached = bool(trusted_s) and figures.bias_instability_tau_s < max(trusted_s)
+    print(f'  Allan minimum {math.degrees(floor_rad_s):.4g} deg/s at tau '
+          f'{figures.bias_instability_tau_s:.4g} s'
+          + ('' if reached else ' (the curve still falls at a tenth of the record: a longer '
+             '--allan-record-s may find a longer one)'))
+    print(f'  averaging time advised: {advised_s:g} s (the Allan minimum, at least the '
+          f'{NOTE_PBC_S:g} s of the note, at most a tenth of the record)')
+    print(f'  {"window":<10}{"note (s)":>10}{"used (s)":>10}{"expected bias 1-sigma":>26}')
+    rows = (('point 1/2', NOTE_AVERAGE_S, args.average_s),
+            ('PBC', NOTE_PBC_S, procedure.phase_duration_s(Phase.PBC)))
+    for name, note_s, used_s in rows:
+        adev_rad_s, inside = adev_at_rad_s(figures, used_s)
+        mark = '' if inside else ' (extrapolated)'
+        print(f'  {name:<10}{note_s:>10g}{used_s:>10g}'
+              f'{math.degrees(adev_rad_s):>16.4g} deg/s{mark}')
+
+
+def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
+    if phase is Phase.POINT_1:
+        p = procedure.point_1
+        print(f'  T1 = {p.temperature_c:.4f} C, B1 = {_dps(p.bias_rad_s)}, {p.samples} samples')
+    elif phase is Phase.POINT_2:
+        p = procedure.point_2
+        print(f'  T2 = {p.temperature_c:.4f} C, B2 = {_dps(p.bias_rad_s)}, {p.samples} samples')
+        btc = procedure.btc_rad_s_per_c
+        print(f'  BTC = -(B2 - B1) / (T2 - T1) = {math.degrees(btc):+.6f} deg/s/C '
+              f'({btc:+.4e} rad/s/C)')
+    elif phase is Phase.REST_RECORD:
+        _print_noise(procedure, args)
+        print(f'  motion check: window rate spread at most '
+              f'{procedure.settings.motion_noise_multiple:g} x rate_noise_rad_s; points 1 and '
+              '2 passed')
+    elif phase is Phase.PBC:
+        r = procedure.result
+        print(f'  PBC = -mean = {_dps(r.pbc_rad_s)}, T3 = {r.t3_c:.4f} C, '
+              f'{r.pbc_point.samples} samples')
+
+
+def _run(sensor, procedure: BiasProcedure, args: argparse.Namespace) -> None:
+    """Read and feed samples until the procedure is done, announcing each phase."""
+    pacer = _Pacer(sensor, args.time_scale)
+    jump_waits = args.source == 'simulated' and args.time_scale is None
+    period_s = 1.0 / args.rate_hz
+    phase = None
+    progress = None
+    next_s = sensor.clock.now_s
+    try:
+        while procedure.phase is not Phase.DONE:
+            sample = sensor.read()
+            procedure.add(sample.time_s, sample.rate_rad_s[0], sample.temperature_c[0])
+            if procedure.phase is not phase:
+                if progress is not None:
+                    progress.update(1000)
+                    progress.close()
+                    _announce_close(procedure, phase, args)
+                phase = procedure.phase
+                if phase is Phase.DONE:
+                    break
+                print(f'phase {phase.value}: '
+                      + _PHASE_TEXT[phase].format(procedure.phase_duration_s(phase)))
+                progress = Progress(1000, f'  {phase.value}', args.progress or None)
+            progress.update(int(1000 * procedure.progress))
+            if phase.is_wait:
+                end_s = procedure.phase_end_s
+                next_s = end_s if jump_waits else min(end_s, sample.time_s + WAIT_READ_S)
+            else:
+                next_s += period_s
+            pacer.to(next_s)
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def adis_bias_command(args: argparse.Namespace) -> int:
+    _check_options(args)
+    try:
+        settings = ProcedureSettings(
+            average_s=args.average_s, self_heat_s=args.self_heat_s, settle_s=args.settle_s,
+            pbc_s=args.pbc_s, allan_record_s=args.allan_record_s,
+            min_temperature_change_c=args.min_temperature_change_c)
+    except TempCompError as err:
+        raise UserError(str(err)) from None
+    procedure = BiasProcedure(settings, _noise_figures if args.allan_record_s > 0 else None)
+    try:
+        sensor, described = _open_sensor(args)
+        try:
+            print(f'ADIS16130 bias procedure (AN-1042) on {described}, {args.bits}-bit, '
+                  f'{args.rate_hz:g} Hz', flush=True)
+            print('keep the part still on a fixed platform with a steady 5 V supply until the '
+                  'end; Ctrl-C stops, nothing is written before the end')
+            if args.allan_record_s == 0:
+                print('no rest record (--allan-record-s 0): no noise figures, no motion check, '
+                      'rate_noise_rad_s not written')
+            _run(sensor, procedure, args)
+        finally:
+            sensor.close()
+    except KeyboardInterrupt:
+        print('interrupted: nothing written', file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except TempCompError as err:
+        raise UserError(str(err)) from None
+    except HardwareError as err:
+        raise UserError(f'ADIS16130: {err}') from None
+    _report_and_write(procedure, args)
+    return 0
+
+
+def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> None:
+    result = procedure.result
+    model = result.model
+    p1, p2 = result.point_1, result.point_2
+    print('result: RBC = RATE + PBC + (TEMP - T3) x BTC')
+    print(f'  T1 = {p1.temperature_c:.4f} C   B1 = {_dps(p1.bias_rad_s)}')
+    print(f'  T2 = {p2.temperature_c:.4f} C   B2 = {_dps(p2.bias_rad_s)}')
+    btc = result.btc_rad_s_per_c
+    uncertainty = result.btc_uncertainty_rad_s_per_c
+    spread = '' if uncertainty is None else \
+        f' +- {math.degrees(uncertainty):.2g} deg/s/C expected (1 sigma)'
+    print(f'  BTC = {math.degrees(btc):+.6f} deg/s/C ({btc:+.4e} rad/s/C){spread}; '
+          f'bias slope {math.degrees(-btc):+.6f} deg/s/C')
+    print(f'  PBC = {_dps(result.pbc_rad_s)}   T3 = {result.t3_c:.4f} C')
+    skipped = ', '.join(f'{reason} {count}' for reason, count in procedure.skipped.items()
+                        if count)
+    print(f'  samples skipped: {skipped or "none"}')
+    extent_c = max(abs(p1.temperature_c - result.t3_c), abs(p2.temperature_c - result.t3_c))
+    print('correction factors (TEMP - T3) x BTC, as Table 6 of the note:')
+    print(format_btc_table(model, AXES, table_step_c(extent_c, TABLE_ROWS), TABLE_ROWS))
+    parameters = linear_btc_parameters(model, AXES)
+    if result.noise is not None:
+        parameters['rate_noise_rad_s'] = float(result.noise.rate_noise_rad_s)
+    header = (f'ADIS16130 bias procedure (AN-1042) by mlx-tempcomp adis-bias, source '
+              f'{args.source}: T1 {p1.temperature_c:.4f} C, T2 {p2.temperature_c:.4f} C, '
+              f'T3 {result.t3_c:.4f} C\n'
+              f'Use: compensation_node --ros-args --params-file {args.out}')
+    try:
+        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
+    except OSError as err:
+        msg = f'cannot write {args.out}: {err.strerror}'
+        raise UserError(msg) from None
+    noise = '' if result.noise is None else \
+        f', rate_noise_rad_s {parameters["rate_noise_rad_s"]:.4g}'
+    print(f'wrote {args.out} (model linear_btc{noise})')
+
+
+def add_parser(commands) -> None:
+    """Add the ``adis-bias`` subcommand."""
+    parser = commands.add_parser(
+        'adis-bias', help="run the ADIS16130 note's bias procedure and write linear_btc "
+                          'parameters',
+        description="Run AN-1042's ADIS16130 bias procedure step by step on the part (spidev) "
+                    'or the simulated part: 10 s of RATE and TEMP -> (T1, B1); wait for '
+                    'self-heating; again -> (T2, B2) and BTC = -(B2 - B1) / (T2 - T1); wait '
+                    'for the part to settle, the end of the wait being a rest record whose '
+                    'Allan deviation gives the noise figures and the advised averaging time; '
+                    'average RATE -> PBC = -mean, T3. Prints Table 6 of the note for the '
+                    'result and writes the linear_btc parameter file with rate_noise_rad_s. '
+                    'A window whose rate spread exceeds twice the rest noise is refused.')
+    parser.add_argument('--source', required=True, choices=('simulated', 'spidev'),
+                        help='read the part over spidev, or the simulated part')
+    parser.add_argument('--bus', type=non_negative_int, metavar='N',
+                        help='spidev: SPI bus (default 0)')
+    parser.add_argument('--cs', type=non_negative_int, metavar='N',
+                        help='spidev: chip select (default 0)')
+    parser.add_argument('--speed-hz', type=non_negative_int, metavar='HZ',
+                        help=f'spidev: SCLK in Hz (default {DEFAULT_SPEED_HZ})')
+    parser.add_argument('--bits', type=int, choices=(24, 16), default=24,
+                        help='conversion resolution (default: %(default)s)')
+    parser.add_argument('--rate-hz', type=_number('>0'), default=DEFAULT_RATE_HZ, metavar='HZ',
+                        help='sample rate of the averaging windows (default: %(default)g; the '
+                             'note reads at 5700)')
+    parser.add_argument('--average-s', type=_number('>0'), default=NOTE_AVERAGE_S,
+                        metavar='S', help='window of each point (default: %(default)g)')
+    parser.add_argument('--self-heat-s', type=_number('>=0'), default=NOTE_SELF_HEAT_S,
+                        metavar='S', help='wait between the points (default: %(default)g)')
+    parser.add_argument('--settle-s', type=_number('>=0'), default=NOTE_SETTLE_S, metavar='S',
+                        help='wait before the PBC window, the rest record included '
+                             '(default: %(default)g)')
+    parser.add_argument('--pbc-s', type=_number('>0'), metavar='S',
+                        help='PBC window (default: the averaging time the rest record advises, '
+                             f'at least the {NOTE_PBC_S:g} of the note)')
+    parser.add_argument('--allan-record-s', type=_number('>=0'), default=DEFAULT_ALLAN_RECORD_S,
+                        metavar='S', help='rest record for the Allan deviation at the end of '
+                                          'the settle wait; 0 skips it (default: %(default)g)')
+    parser.add_argument('--min-temperature-change-c', type=_number('>0'),
+                        default=MIN_TEMPERATURE_CHANGE_C, metavar='C',
+                        help='smallest T2 - T1 a BTC is computed from (default: %(default)g)')
+    parser.add_argument('--seed', type=non_negative_int, metavar='N',
+                        help='simulated: noise seed (default 0)')
+    parser.add_argument('--bias-slope-dps-per-c', type=_finite, metavar='DPS_PER_C',
+                        help=f'simulated: true bias slope (default {DEFAULT_SLOPE_DPS_PER_C})')
+    parser.add_argument('--self-heat-rise-c', type=_number('>=0'), metavar='C',
+                        help=f'simulated: how much the part warms itself (default '
+                             f'{DEFAULT_RISE_C:g})')
+    parser.add_argument('--time-scale', type=_number('>0'), metavar='FACTOR',
+                        help='simulated: simulated seconds per wall second (default: as fast '
+                             'as possible)')
+    parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
+                        help='parameter file to write at the end (replaced atomically)')
+    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                        help='node section of the parameter file (default: %(default)s)')
+    add_progress_option(parser)
+    parser.set_defaults(handler=adis_bias_command)

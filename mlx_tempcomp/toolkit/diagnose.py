@@ -1,0 +1,403 @@
+"""
+``mlx-tempcomp diagnose``: the closed loop, its report, plots and a parameter file.
+
+Runs `mlx_tempcomp.core.diagnosis.diagnose` on a recording and writes into
+``--out DIR``: report.md, report.json (per axis the ordered steps with their
+held-out error before and after, the rejected and skipped candidates),
+residual_vs_temperature.png, residual_vs_time.png, error_per_step.png and
+params.yaml, which compensation_node loads.
+"""
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from .common import add_recording_options, load, non_negative_int, UserError
+from .progress import add_progress_option, Progress
+from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
+from ..core.errors import TempCompError
+from ..model_params import effect_parameters, parameter_file, write_parameter_file
+
+PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png')
+# Plots draw at most this many bins per axis (every k-th bin beyond).
+MAX_PLOT_POINTS = 20000
+METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
+          '{average} on held-out rows, rad/s; averaging keeps white noise from hiding the '
+          'bias')
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value < 1.0:
+        msg = f'expected a number in [0, 1), got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0.0):
+        msg = f'expected a non-negative number, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def add_parser(commands) -> None:
+    """Add the ``diagnose`` subcommand."""
+    defaults = DiagnosisSettings()
+    parser = commands.add_parser(
+        'diagnose', help='find the effects a temperature polynomial misses, add them, report',
+        description='Fit a temperature polynomial (order by cross-validation), then test '
+                    'each effect it lacks (thermal lag, hysteresis, time drift, bias step, '
+                    'second temperature, acceleration, scale factor, rate nonlinearity, '
+                    'cross-axis) on held-out blocks and add the best significant one, until '
+                    'none helps. Writes report.md, report.json, PNG plots and params.yaml '
+                    'for the compensation node into --out.')
+    add_recording_options(parser)
+    parser.add_argument('--out', required=True, metavar='DIR',
+                        help='folder for the report, plots and parameter file (created)')
+    parser.add_argument('--folds', type=non_negative_int, default=defaults.folds, metavar='N',
+                        help='cross-validation folds (default: %(default)s)')
+    parser.add_argument('--blocks', type=non_negative_int, default=defaults.blocks,
+                        metavar='N', help='contiguous blocks dealt round-robin to the folds '
+                                          '(default: %(default)s)')
+    parser.add_argument('--average-s', type=_non_negative, default=defaults.average_s,
+                        metavar='S', help='bin length the residual is averaged over, 0 per '
+                                          'sample (default: %(default)s)')
+    parser.add_argument('--max-order', type=non_negative_int, default=defaults.max_order,
+                        metavar='N', help='highest polynomial order tried (default: '
+                                          '%(default)s)')
+    parser.add_argument('--min-gain', type=_fraction, default=defaults.min_gain, metavar='F',
+                        help='smallest relative held-out RMS reduction that adds an effect '
+                             '(default: %(default)s)')
+    parser.add_argument('--test-fraction', type=_fraction, default=defaults.test_fraction,
+                        metavar='F', help='keep the last F of the record as a final test set '
+                                          '(default: %(default)s)')
+    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                        help='node section of params.yaml (default: %(default)s)')
+    add_progress_option(parser)
+    parser.set_defaults(handler=diagnose_command)
+
+
+class _Bars:
+    """One progress bar per phase the diagnosis reports."""
+
+    def __init__(self, enabled):
+        self.enabled = enabled
+        self.bar = None
+        self.label = None
+
+    def __call__(self, done: int, total: int, label: str) -> None:
+        if label != self.label:
+            self.close()
+            self.bar = Progress(total, f'diagnose: {label}', self.enabled)
+            self.label = label
+        self.bar.total = max(int(total), 1)
+        self.bar.update(done)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar = None
+
+
+def diagnose_command(args: argparse.Namespace) -> int:
+    recording = load(args)
+    bars = _Bars(True if args.progress else None)
+    try:
+        settings = DiagnosisSettings(
+            folds=args.folds, blocks=args.blocks, average_s=args.average_s,
+            max_order=args.max_order, min_gain=args.min_gain,
+            test_fraction=args.test_fraction)
+        diagnosis = run_diagnosis(recording, settings, progress=bars)
+    except TempCompError as err:
+        msg = f'{args.input}: {err}'
+        raise UserError(msg) from None
+    finally:
+        bars.close()
+    out = Path(args.out)
+    report = _report(args.input, recording, diagnosis)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
+        (out / 'report.md').write_text(_markdown(report))
+        _plots(out, diagnosis)
+        content = parameter_file(args.node_name, effect_parameters(diagnosis.model,
+                                                                   diagnosis.axes))
+        header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {args.input}\n'
+                  f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
+        write_parameter_file(out / 'params.yaml', content, header)
+    except OSError as err:
+        msg = f'cannot write to {out}: {err.strerror}'
+        raise UserError(msg) from None
+    print(_summary(report))
+    print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
+    return 0
+
+
+def _number(value):
+    return float(value) if math.isfinite(value) else None
+
+
+def _error(error) -> dict:
+    return {'rms': _number(error.rms_rad_s), 'peak': _number(error.peak_rad_s),
+            'fold_rms': [_number(v) for v in error.fold_rms_rad_s]}
+
+
+def _plain(value):
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, float):
+        return _number(value)
+    return value
+
+
+def _report(source: str, recording, diagnosis) -> dict:
+    """Return the content of report.json (all errors in rad/s)."""
+    settings = diagnosis.settings
+    average = f'{settings.average_s:g} s' if settings.average_s else 'one sample'
+    skipped = [{'effect': effect, 'reason': reason} for effect, reason in diagnosis.skipped]
+    axes = {}
+    for axis in diagnosis.per_axis:
+        axes[axis.axis] = {
+            'steps': [{'effect': s.effect, 'parameters': _plain(dict(s.parameters)),
+                       'rms_before': _number(s.before.rms_rad_s),
+                       'rms_after': _number(s.after.rms_rad_s),
+                       'peak_before': _number(s.before.peak_rad_s),
+                       'peak_after': _number(s.after.peak_rad_s),
+                       'round': s.round_number,
+                       'held_out_gain': None if s.held_out_gain is None else
+                       _number(s.held_out_gain)} for s in axis.steps],
+            'rejected': [{'effect': c.effect, 'round': c.round_number,
+                          'parameters': _plain(dict(c.parameters)),
+                          'held_out_gain': _number(c.held_out_gain),
+                          'mean_fold_improvement': _number(c.fold_improvement_rad_s),
+                          'fold_improvement_standard_error':
+                              _number(c.fold_improvement_se_rad_s),
+                          'reason': c.reason} for c in axis.rejected],
+            'skipped': skipped,
+            'polynomial_order': axis.order,
+            'order_scores': [{'order': s.order, 'mean_fold_rms': _number(s.mean_rms_rad_s),
+                              'standard_error': _number(s.standard_error_rad_s),
+                              'fold_rms': [_number(v) for v in s.block_rms_rad_s]}
+                             for s in axis.order_scores],
+        }
+    comparison = {scope: {method: {name: _error(error) for name, error in
+                                   zip(diagnosis.axes, errors)}
+                          for method, errors in methods.items()}
+                  for scope, methods in diagnosis.comparison.items()}
+    return {
+        'source': source,
+        'unit': 'rad/s',
+        'metric': METRIC.format(average=average),
+        'truth': diagnosis.truth,
+        'rows': {'diagnosed': diagnosis.rows, 'test': diagnosis.test_rows,
+                 'bins': diagnosis.bins,
+                 'skipped_while_loading': dict(recording.skipped)},
+        'settings': {'folds': settings.folds, 'blocks': settings.blocks,
+                     'average_s': settings.average_s, 'max_order': settings.max_order,
+                     'min_gain': settings.min_gain, 'significance': settings.significance,
+                     'test_fraction': settings.test_fraction,
+                     'temperature_rate_window_s': settings.rate_window_s},
+        'axes': axes,
+        'skipped': skipped,
+        'comparison': comparison,
+    }
+
+
+def _e(value) -> str:
+    return '-' if value is None else f'{value:.3e}'
+
+
+def _table(header: tuple, rows: list) -> list:
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    lines.extend('| ' + ' | '.join(str(cell) for cell in row) + ' |' for row in rows)
+    return lines
+
+
+def _parameter_text(parameters: dict) -> str:
+    def show(value):
+        if isinstance(value, list):
+            return '[' + ', '.join(show(v) for v in value) + ']'
+        if isinstance(value, float):
+            return f'{value:.4g}'
+        return str(value)
+    return ', '.join(f'{key} {show(value)}' for key, value in parameters.items())
+
+
+_METHOD_TEXT = {'none': 'no compensation', 'px4_cubic': 'PX4-style cubic in raw T',
+                'temperature_polynomial': 'temperature polynomial (step 0)',
+                'diagnosed': 'diagnosed model'}
+
+
+def _comparison_lines(report: dict) -> list:
+    lines = []
+    names = list(report['axes'])
+    header = ('method', *(f'{a} RMS' for a in names), *(f'{a} peak' for a in names))
+    scopes = {'cross_validation': 'Fold cross-validation over the diagnosed part',
+              'test': 'Test set (the last --test-fraction of the record, never seen by '
+                      'the diagnosis)'}
+    for scope, methods in report['comparison'].items():
+        lines += ['', f'### {scopes[scope]}', '']
+        rows = [(_METHOD_TEXT[m], *(_e(methods[m][a]['rms']) for a in names),
+                 *(_e(methods[m][a]['peak']) for a in names)) for m in METHODS]
+        lines += _table(header, rows)
+    lines += ['', 'The cubic in cross-validation is least squares of T^0..T^3 (raw '
+                  'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
+                  '3) on every row of the diagnosed part, as the PX4 script does.']
+    return lines
+
+
+def _markdown(report: dict) -> str:
+    rows = report['rows']
+    settings = report['settings']
+    lines = [f'# Diagnosis of {report["source"]}', '',
+             f'- rows diagnosed: {rows["diagnosed"]} ({rows["bins"]} bins); test rows: '
+             f'{rows["test"]}; skipped while loading: '
+             + (', '.join(f'{k} {v}' for k, v in rows['skipped_while_loading'].items() if v)
+                or 'none'),
+             f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
+             f'- held-out scheme: {settings["blocks"]} contiguous blocks dealt round-robin '
+             f'to {settings["folds"]} folds; stateful inputs (temperature slope over '
+             f'{settings["temperature_rate_window_s"]:g} s, play state) are computed over the '
+             'whole record before rows are split.',
+             f'- an effect is added when its relative held-out RMS reduction is at least '
+             f'{settings["min_gain"]:g} and its mean per-fold improvement exceeds '
+             f'{settings["significance"]:g} standard errors; the significant candidate with '
+             'the largest gain wins the round; the polynomial order is then chosen again.',
+             '- step errors come from EffectModel.correct (the code the node runs) on fold '
+             'models; all values in rad/s.', '']
+    if report['skipped']:
+        lines += ['## Skipped candidates', '']
+        lines += [f'- {s["effect"]}: {s["reason"]}' for s in report['skipped']]
+        lines.append('')
+    for name, axis in report['axes'].items():
+        lines += [f'## Axis {name}', '', '### Steps', '']
+        lines += _table(('round', 'effect', 'parameters', 'RMS before', 'RMS after',
+                         'peak before', 'peak after'),
+                        [(s['round'], s['effect'],
+                          _parameter_text({k: v for k, v in s['parameters'].items()
+                                           if k != 'bias_rad_s'}),
+                          _e(s['rms_before']), _e(s['rms_after']), _e(s['peak_before']),
+                          _e(s['peak_after'])) for s in axis['steps']])
+        lines += ['', '### Candidates rejected', '']
+        lines += _table(('round', 'effect', 'held-out gain', 'why'),
+                        [(c['round'], c['effect'], f'{c["held_out_gain"]:.3f}'
+                          if c['held_out_gain'] is not None else '-', c['reason'])
+                         for c in axis['rejected']]) if axis['rejected'] else ['none']
+        lines += ['', '### Polynomial order (step 0, one-standard-error rule)', '']
+        lines += _table(('order', 'mean fold RMS', 'standard error', 'chosen'),
+                        [(s['order'], _e(s['mean_fold_rms']), _e(s['standard_error']),
+                          '*' if s['order'] == axis['steps'][0]['parameters']['order'] else '')
+                         for s in axis['order_scores']])
+        lines.append('')
+    lines += ['## Comparison']
+    lines += _comparison_lines(report)
+    lines += ['', '## Plots', '']
+    lines += [f'- ![{name}]({name})' for name in PLOTS]
+    return '\n'.join(lines) + '\n'
+
+
+def _summary(report: dict) -> str:
+    rows = report['rows']
+    lines = [f'{report["source"]}: {rows["diagnosed"]} rows diagnosed in {rows["bins"]} bins'
+             + (f', last {rows["test"]} rows kept as the test set' if rows['test'] else '')
+             + f'; truth {report["truth"]}; errors in rad/s']
+    for skipped in report['skipped']:
+        lines.append(f'skipped {skipped["effect"]}: {skipped["reason"]}')
+    for name, axis in report['axes'].items():
+        steps = axis['steps']
+        chain = ' -> '.join([_e(steps[0]['rms_before'])]
+                            + [f'{s["effect"]} {_e(s["rms_after"])}' for s in steps])
+        lines.append(f'axis {name}: held-out RMS {chain}')
+    for scope, methods in report['comparison'].items():
+        for method in METHODS:
+            values = ', '.join(f'{a} {_e(e["rms"])}' for a, e in methods[method].items())
+            lines.append(f'{scope:<16} {method:<22} {values}')
+    return '\n'.join(lines)
+
+
+def _every(count: int) -> slice:
+    return slice(None, None, max(1, math.ceil(count / MAX_PLOT_POINTS)))
+
+
+def _plots(out: Path, diagnosis) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot
+
+    axes = diagnosis.axes
+    held = diagnosis.held_out
+    pick = _every(len(held.time_s))
+    figure, grid = pyplot.subplots(len(axes), 2, figsize=(11.0, 3.2 * len(axes)),
+                                   squeeze=False, sharex=True)
+    for row, name in enumerate(axes):
+        for column, (title, values) in enumerate((('temperature polynomial',
+                                                   held.before_rad_s),
+                                                  ('diagnosed', held.after_rad_s))):
+            plot = grid[row][column]
+            for mask, colour, label in ((held.heating, 'tab:red', 'heating'),
+                                        (~held.heating, 'tab:blue', 'cooling')):
+                plot.scatter(held.temperature_c[pick][mask[pick]],
+                             values[pick, row][mask[pick]], s=2, c=colour, label=label)
+            plot.set_title(f'{name}: {title} (held-out)')
+            plot.set_ylabel('residual (rad/s)')
+            plot.grid(True, alpha=0.3)
+        grid[row][0].legend(markerscale=4)
+    for plot in grid[-1]:
+        plot.set_xlabel('temperature (C)')
+    _save(pyplot, figure, out / PLOTS[0])
+    figure, grid = pyplot.subplots(len(axes), 1, figsize=(11.0, 3.0 * len(axes)),
+                                   squeeze=False, sharex=True)
+    start_s = held.time_s[0]
+    parts = [(held, 'held-out')]  # fold-held-out residuals, then the test set
+    if diagnosis.test is not None:
+        parts.append((diagnosis.test, 'test'))
+    for row, name in enumerate(axes):
+        plot = grid[row][0]
+        for part, label in parts:
+            take = _every(len(part.time_s))
+            first = label == 'held-out'
+            plot.plot(part.time_s[take] - start_s, part.before_rad_s[take, row], lw=0.7,
+                      color='tab:orange', label='temperature polynomial' if first else None)
+            plot.plot(part.time_s[take] - start_s, part.after_rad_s[take, row], lw=0.7,
+                      color='tab:green', label='diagnosed' if first else None)
+        if diagnosis.test is not None:
+            plot.axvspan(diagnosis.test.time_s[0] - start_s, diagnosis.test.time_s[-1] - start_s,
+                         color='0.9', zorder=0, label='test set')
+        plot.set_ylabel(f'{name} residual (rad/s)')
+        plot.grid(True, alpha=0.3)
+    grid[0][0].legend(fontsize='small', ncol=2)
+    grid[-1][0].set_xlabel('time since start (s)')
+    _save(pyplot, figure, out / PLOTS[1])
+    figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
+    for row, axis in enumerate(diagnosis.per_axis):
+        values = [axis.steps[0].before.rms_rad_s] + [s.after.rms_rad_s for s in axis.steps]
+        labels = ['none'] + [s.effect for s in axis.steps]
+        plot.semilogy(range(len(values)), values, marker='o', label=f'axis {axis.axis}')
+        for index, label in enumerate(labels):
+            plot.annotate(label, (index, values[index]), fontsize=7, rotation=20,
+                          textcoords='offset points', xytext=(3, 3))
+    plot.set_xlabel('step')
+    plot.set_ylabel('held-out RMS (rad/s)')
+    plot.set_title('Held-out error per step')
+    plot.grid(True, which='both', alpha=0.3)
+    plot.legend()
+    _save(pyplot, figure, out / PLOTS[2])
+
+
+def _save(pyplot, figure, path: Path) -> None:
+    try:
+        figure.tight_layout()
+        figure.savefig(path, dpi=100)
+    finally:
+        pyplot.close(figure)

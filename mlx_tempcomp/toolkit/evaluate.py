@@ -1,0 +1,368 @@
+"""
+The ``mlx-tempcomp evaluate`` command: a parameter file's model run over a recording.
+
+The model is built as ``compensation_node`` builds it: the node's parameter
+defaults (`COMPENSATION_SPECS`), overridden by the node's section of the
+parameter file (types and ranges checked as rclpy would), then `build_model`.
+It runs over the whole recording in one batch, so stateful effects start at
+the first sample as they do when the recording is replayed into the node; the
+ZRO state file of the node is not applied. The error is the corrected rate
+minus the truth: the reference rate when the recording has one, else 0 (at
+rest). Statistics per axis cover every sample and averages over bins of
+``--average-s``, optionally only the last ``--test-fraction`` of the time.
+"""
+
+import argparse
+import csv
+import json
+import math
+from pathlib import Path
+import sys
+
+import numpy as np
+from rclpy.parameter import Parameter
+import yaml
+
+from .common import add_recording_options, load, UserError
+from ..core.conversion import Output
+from ..core.errors import TempCompError
+from ..core.metrics import ErrorStatistics
+from ..core.table import sensor_tables
+from ..ros.params import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
+                          ParameterError, transfer_of)
+from ..sources.bag import BagError, RawBagReader, RawTopics
+
+_WILDCARDS = ('/**', '**')
+_INPUTS = (('needs_time', 'time_s', 'time'),
+           ('needs_temperature_2', 'temperature_2_c', 'a temperature_2 column'),
+           ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'))
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value <= 1.0:
+        msg = f'expected a fraction in (0, 1], got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        msg = f'expected a positive number of seconds, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _flatten(tree: dict, prefix: str = '') -> dict:
+    flat = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _read_overrides(path: str, node_name: str) -> dict:
+    """Give the flat parameters of ``node_name`` in a ROS 2 parameter file (wildcards first)."""
+    try:
+        with open(path, encoding='utf-8') as stream:
+            document = yaml.safe_load(stream)
+    except OSError as err:
+        msg = f'cannot read parameter file {path}: {err.strerror}'
+        raise UserError(msg) from None
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        mark = getattr(err, 'problem_mark', None)
+        where = f' (line {mark.line + 1})' if mark is not None else ''
+        problem = getattr(err, 'problem', None) or type(err).__name__
+        msg = f'parameter file {path} is not YAML{where}: {problem}'
+        raise UserError(msg) from None
+    if not isinstance(document, dict):
+        msg = f'parameter file {path} is not a mapping of node sections'
+        raise UserError(msg)
+    names = [key for key in _WILDCARDS if key in document] + \
+        [key for key in (node_name, '/' + node_name.lstrip('/')) if key in document]
+    if not names:
+        sections = ', '.join(repr(str(key)) for key in document) or 'none'
+        msg = f'parameter file {path} has no section for node {node_name!r} (sections: ' \
+              f'{sections}); see --node-name'
+        raise UserError(msg)
+    overrides = {}
+    for name in names:
+        section = document[name]
+        parameters = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(parameters, dict):
+            msg = f'parameter file {path}: section {name!r} has no ros__parameters mapping'
+            raise UserError(msg)
+        overrides.update(_flatten(parameters))
+    return overrides
+
+
+def _expected_type(spec) -> Parameter.Type:
+    if isinstance(spec.default, Parameter.Type):
+        return spec.default
+    return Parameter.Type.from_parameter_value(spec.default)
+
+
+def _node_values(path: str, node_name: str) -> dict:
+    """Give every compensation-node parameter value; UserError where the node would refuse."""
+    overrides = _read_overrides(path, node_name)
+    values = {}
+    for spec in COMPENSATION_SPECS:
+        default = [] if isinstance(spec.default, Parameter.Type) else spec.default
+        if spec.name not in overrides:
+            values[spec.name] = default
+            continue
+        value = overrides[spec.name]
+        expected = _expected_type(spec)
+        try:
+            given = Parameter.Type.from_parameter_value(value)
+        except TypeError:
+            given = None
+        if value == [] and expected.name.endswith('_ARRAY'):
+            given = expected
+        if given is not expected:
+            kind = 'a mixed or unsupported value' if given is None else given.name.lower()
+            msg = (f'{path}: invalid parameter {spec.name}: expected '
+                   f'{expected.name.lower()}, got {kind} ({value!r})')
+            raise UserError(msg)
+        if spec.low is not None and not spec.low <= value <= spec.high:
+            msg = (f'{path}: invalid parameter {spec.name}: {value!r} is outside '
+                   f'{spec.low:g} to {spec.high:g}')
+            raise UserError(msg)
+        values[spec.name] = value
+    try:
+        check_choices(COMPENSATION_SPECS, values)
+    except ParameterError as err:
+        raise UserError(f'{path}: {err}') from None
+    return values
+
+
+def _eeprom_images(args: argparse.Namespace) -> tuple:
+    """Give the EEPROM images from --eeprom files, else from the bag's EEPROM topic."""
+    if args.eeprom:
+        images = []
+        for name in args.eeprom:
+            try:
+                images.append(Path(name).read_bytes())
+            except OSError as err:
+                msg = f'cannot read EEPROM image {name}: {err.strerror}'
+                raise UserError(msg) from None
+        return tuple(images)
+    path = Path(args.input)
+    if _is_bag(path):
+        try:
+            with RawBagReader(path, RawTopics(imu=args.imu_topic)) as bag:
+                if bag.eeprom is not None:
+                    return bag.eeprom.images
+        except BagError as err:
+            raise UserError(str(err)) from None
+    msg = ('the eeprom model needs the factory tables: give the EEPROM image of each chip '
+           'with --eeprom IMAGE [IMAGE ...] (or a bag with an /imu/eeprom message)')
+    raise UserError(msg)
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_dir() or path.suffix.lower() in ('.db3', '.mcap')
+
+
+def _chip_temperatures(args: argparse.Namespace, axes: tuple, time_s: np.ndarray):
+    """
+    Give each chip's temperature (samples, axes) from a bag, as the node pairs them.
+
+    With several chips and the eeprom model the node takes each chip's own
+    temperature from ``<temperature topic>/<axis>``; None when the input has none.
+    """
+    path = Path(args.input)
+    if not _is_bag(path):
+        return None
+    topics = tuple(f'{args.temperature_topic.rstrip("/")}/{a}' for a in axes)
+    by_topic = {topic: {} for topic in topics}
+    try:
+        with RawBagReader(path, RawTopics(imu=args.imu_topic,
+                                          temperature=args.temperature_topic),
+                          extra_temperature_topics=topics) as bag:
+            for _, topic, record in bag.records():
+                if topic in by_topic:
+                    by_topic[topic][record.stamp_ns] = record.temperature_c
+    except BagError as err:
+        raise UserError(str(err)) from None
+    columns = []
+    for topic in topics:
+        if not by_topic[topic]:
+            return None
+        stamps = np.array(sorted(by_topic[topic]), dtype=np.int64)
+        values = np.array([by_topic[topic][s] for s in stamps.tolist()])
+        # Recording times are float seconds: match each to the nearest stamp within 1 us.
+        wanted_ns = time_s * 1e9
+        index = np.clip(np.searchsorted(stamps, wanted_ns), 1, len(stamps) - 1)
+        index -= (wanted_ns - stamps[index - 1] < stamps[index] - wanted_ns).astype(int)
+        if len(stamps) == 1:
+            index = np.zeros(len(time_s), dtype=int)
+        if np.any(np.abs(stamps[index] - wanted_ns) > 1e3):
+            msg = f'{args.input}: {topic} lacks the stamps of some IMU samples'
+            raise UserError(msg)
+        columns.append(values[index])
+    return np.column_stack(columns)
+
+
+def _build(args: argparse.Namespace, values: dict):
+    try:
+        model = build_model(values)
+        if model is None:
+            tables = sensor_tables(_eeprom_images(args), Output.DIGITAL, transfer_of(values),
+                                   values['sensor.full_scale_dps'])
+            model = build_model(values, tables.tables, tables.full_scale_dps)
+    except ParameterError as err:
+        raise UserError(f'{args.params}: {err}') from None
+    except TempCompError as err:
+        raise UserError(f'EEPROM: {err}') from None
+    return model
+
+
+def _bin_means(time_s: np.ndarray, error: np.ndarray, width_s: float) -> np.ndarray:
+    """Average ``error`` (samples, axes) over consecutive bins of ``width_s`` from time_s[0]."""
+    bins = np.floor((time_s - time_s[0]) / width_s).astype(np.int64)
+    _, index = np.unique(bins, return_inverse=True)
+    counts = np.bincount(index)
+    return np.column_stack([np.bincount(index, weights=column) / counts
+                            for column in error.T])
+
+
+def _statistics(error: np.ndarray) -> dict:
+    stats = ErrorStatistics.of(error)
+    return {'mean': stats.mean, 'sigma': stats.sigma, 'rms': stats.rms, 'peak': stats.peak,
+            'samples': stats.samples}
+
+
+def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, axes: tuple,
+                     corrected: np.ndarray) -> None:
+    """Write time, temperature and corrected rate as a canonical CSV recording."""
+    try:
+        with open(path, 'w', newline='', encoding='utf-8') as stream:
+            writer = csv.writer(stream)
+            writer.writerow(['time', 'temperature'] + [f'gyro_{a}' for a in axes])
+            for t, temperature, row in zip(time_s.tolist(), temperature_c.tolist(),
+                                           corrected.tolist()):
+                writer.writerow([repr(t), repr(temperature)] + [repr(v) for v in row])
+    except OSError as err:
+        msg = f'cannot write {path}: {err.strerror}'
+        raise UserError(msg) from None
+
+
+def evaluate_command(args: argparse.Namespace) -> int:
+    values = _node_values(args.params, args.node_name)
+    try:
+        axes = axes_of(values)
+    except ParameterError as err:
+        raise UserError(f'{args.params}: {err}') from None
+    model = _build(args, values)
+    recording = load(args)
+    missing = [a for a in axes if a not in recording.axes]
+    if missing:
+        msg = (f'{args.input} has no gyro_{", gyro_".join(missing)} but the parameter file '
+               f'compensates axes {", ".join(axes)}')
+        raise UserError(msg)
+    columns = [recording.axes.index(a) for a in axes]
+    inputs = {}
+    for flag, keyword, what in _INPUTS:
+        if getattr(model, flag, False):
+            value = recording.time_s if keyword == 'time_s' else \
+                getattr(recording, keyword)
+            if value is None:
+                msg = f'the {model.name} model of {args.params} needs {what}; {args.input} ' \
+                      'has none'
+                raise UserError(msg)
+            inputs[keyword] = value
+    temperature_c = recording.temperature_c
+    if model.name == 'eeprom' and len(axes) > 1:
+        chips = _chip_temperatures(args, axes, recording.time_s)
+        if chips is None:
+            print(f'note: {args.input} has no per-chip temperatures '
+                  f'({args.temperature_topic}/<axis>): every chip gets the mean temperature',
+                  file=sys.stderr)
+        else:
+            temperature_c = chips
+    try:
+        result = model.correct(recording.gyro_rad_s[:, columns], temperature_c, **inputs)
+    except TempCompError as err:
+        raise UserError(f'{args.params}: the {model.name} model cannot run: {err}') from None
+    corrected = result.rate_rad_s
+    truth = np.zeros_like(corrected) if recording.reference_rad_s is None else \
+        recording.reference_rad_s[:, columns]
+    error = corrected - truth
+    start_s = recording.time_s[-1] - args.test_fraction * recording.duration_s
+    part = recording.time_s >= start_s if args.test_fraction < 1.0 else \
+        np.ones(len(recording), dtype=bool)
+    averaged = _bin_means(recording.time_s[part], error[part], args.average_s)
+    report = {
+        'input': args.input, 'params': args.params, 'model': model.name, 'axes': list(axes),
+        'truth': 'reference' if recording.reference_rad_s is not None else 'zero (at rest)',
+        'rows': len(recording), 'skipped': dict(recording.skipped),
+        'test_fraction': args.test_fraction,
+        'evaluated_from_s': float(recording.time_s[part][0]),
+        'evaluated_to_s': float(recording.time_s[-1]),
+        'average_s': args.average_s,
+        'temperature_clamped_samples': int(np.count_nonzero(result.temperature_clamped[part]
+                                                            .any(axis=1))),
+        'unit': 'rad/s',
+        'per_sample': {a: _statistics(error[part, i]) for i, a in enumerate(axes)},
+        'averaged': {a: _statistics(averaged[:, i]) for i, a in enumerate(axes)},
+    }
+    if args.out_csv is not None:
+        _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
+                         corrected)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
+                        if count)
+    print(f'{args.input}: {len(recording)} rows, skipped: {skipped or "none"}; model '
+          f'{model.name} from {args.params}; truth: {report["truth"]}')
+    print(f'evaluated {int(np.count_nonzero(part))} samples from '
+          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
+          f'(last {args.test_fraction:g} of the time); '
+          f'{report["temperature_clamped_samples"]} with temperature clamped')
+    print(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
+    for a in axes:
+        for label, key in (('per sample', 'per_sample'), (f'{args.average_s:g} s mean',
+                                                          'averaged')):
+            s = report[key][a]
+            print(f'{a:<6}{label:<14}{s["mean"]:>12.4g}{s["sigma"]:>12.4g}{s["rms"]:>12.4g}'
+                  f'{s["peak"]:>12.4g}')
+    if args.out_csv is not None:
+        print(f'wrote {args.out_csv}')
+    return 0
+
+
+def add_parser(commands) -> None:
+    """Add the ``evaluate`` subcommand."""
+    evaluate = commands.add_parser(
+        'evaluate', help="run a parameter file's model over a recording and report its error",
+        description='Build the compensation model from a ROS 2 parameter file as '
+                    'compensation_node does, run it over the whole recording, and print per '
+                    'axis the mean, sigma, RMS and peak of corrected minus true rate (the '
+                    'reference columns, else 0 at rest), per sample and averaged.')
+    add_recording_options(evaluate)
+    evaluate.add_argument('--params', required=True, metavar='FILE',
+                          help='ROS 2 parameter file (e.g. written by fit or diagnose)')
+    evaluate.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                          help='node section to read (default: %(default)s; /** applies too)')
+    evaluate.add_argument('--average-s', type=_positive, default=1.0, metavar='S',
+                          help='bin width of the averaged statistics (default: %(default)s)')
+    evaluate.add_argument('--test-fraction', type=_fraction, default=1.0, metavar='F',
+                          help='statistics over the last F of the time only (default: 1)')
+    evaluate.add_argument('--eeprom', nargs='+', metavar='IMAGE',
+                          help='EEPROM images (128 bytes, one per axis) for the eeprom model')
+    evaluate.add_argument('--json', action='store_true', help='print JSON')
+    evaluate.add_argument('--out-csv', metavar='FILE',
+                          help='write time, temperature and corrected rate of every sample')
+    evaluate.set_defaults(handler=evaluate_command)

@@ -1,0 +1,390 @@
+"""
+The ``mlx-tempcomp simulate`` command: a recording from the simulated sensor, and its truth.
+
+Without ``--turntable`` the samples come through the real device path: the
+simulated MLX90609 chips (`SimulatedArray`) answer SPI frames, the protocol
+driver reads them, and the nominal conversion (AN2 method 1) gives rad/s
+and degC, exactly as ``driver_node`` with ``source: simulated`` publishes
+them. That path costs about 0.2 ms per 3-axis sample (10^5 samples in about
+20 s), fast enough for thermal cycles at tens of Hz. ``--turntable`` writes
+the seed-004 rate-table session of `simulate_turntable` (reference rates and
+a second temperature). The truth (device coefficients, effects, profile) is
+written to ``<out stem>.truth.json`` beside the output.
+"""
+
+import argparse
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .common import non_negative_int, UserError
+from .convert import write_raw_bag
+from .progress import add_progress_option, Progress
+from ..core.compensation import NominalConversion
+from ..core.conversion import Output, SensorTransfer
+from ..core.errors import TempCompError
+from ..core.table import sensor_tables
+from ..hardware.errors import HardwareError
+from ..simulation.physics import Effects, GRAVITY_M_S2, GyroTruth, Noise, NOMINAL_SUPPLY_V
+from ..simulation.turntable import simulate_turntable, TurntableProtocol
+from ..sources.bag import STORAGES
+from ..sources.mlx90609 import SimulatedArray, SimulationConfig
+from ..sources.recording import AXES, Recording
+
+FORMATS = ('csv',) + STORAGES
+DEFAULT_DURATION_S = 600.0
+# Board faces up in turn with --orientation-period-s: specific force in the sensor frame.
+_FACES_M_S2 = tuple(tuple(GRAVITY_M_S2 * sign * (np.arange(3) == axis))
+                    for axis in (2, 0, 1) for sign in (1.0, -1.0))
+_CSV_FORMAT = '%.12g'
+
+
+def _parse_axes(text: str) -> tuple:
+    axes = tuple(a.strip() for a in text.split(',') if a.strip())
+    if not axes or len(set(axes)) != len(axes) or not set(axes) <= set(AXES):
+        msg = f'axes must be 1 to 3 distinct of x, y, z separated by commas, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return tuple(a for a in AXES if a in axes)
+
+
+def _time_value(text: str) -> tuple:
+    """Parse ``TIME:VALUE`` (argparse type)."""
+    when, colon, value = text.partition(':')
+    try:
+        pair = (float(when), float(value))
+    except ValueError:
+        pair = (math.nan, math.nan)
+    if not colon or not all(math.isfinite(v) for v in pair) or pair[0] < 0.0:
+        msg = f'expected TIME_S:VALUE with TIME_S >= 0, e.g. 1200:0.5; got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return pair
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        msg = f'expected a positive number, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0.0):
+        msg = f'expected a number >= 0, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _supply(items) -> tuple:
+    """Give supply waypoints ``(times_s, volts)`` from ``V`` or ``T:V ...``."""
+    if len(items) == 1 and ':' not in items[0]:
+        return (0.0,), (_positive(items[0]),)
+    points = sorted(_time_value(item) for item in items)
+    if any(v <= 0.0 for _, v in points):
+        raise UserError('--supply-v: volts must be positive')
+    return tuple(t for t, _ in points), tuple(v for _, v in points)
+
+
+def _output_paths(args: argparse.Namespace) -> tuple:
+    out = Path(args.out)
+    fmt = args.format or ('csv' if out.suffix.lower() == '.csv' else 'sqlite3')
+    if fmt != 'csv' and out.exists():
+        msg = f'{out} exists already; a bag is written into a new folder'
+        raise UserError(msg)
+    return out, fmt, out.with_name(out.stem + '.truth.json')
+
+
+def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
+    """
+    Give the true zero-rate bias of the nominal output as a polynomial in (T - 25 C).
+
+    T is the temperature the nominal conversion reports, which differs from the
+    die temperature by the device's temperature-sensor spread.
+    """
+    polynomial = np.polynomial.Polynomial
+    # die - 25 = ((T - 25) * typical slope + typical mV at 25 C - true mV at 25 C) / true slope
+    die = polynomial([(transfer.temperature_sensor_mv_at_25c - truth.sensor_mv_at_25c)
+                      / truth.sensor_mv_per_k,
+                      transfer.temperature_sensor_mv_per_k / truth.sensor_mv_per_k])
+    zro_dps = polynomial(truth.zro_dps_coefficients)(die)
+    return [math.radians(c) for c in zro_dps.coef]
+
+
+def _device_recording(args, out: Path, progress_enabled) -> tuple:
+    """Run the simulated chips; give the recording, per-chip temperatures, images, truth."""
+    supply_times, supply_v = _supply(args.supply_v)
+    effects = Effects(thermal_lag_s=args.thermal_lag_s, hysteresis_dps=args.hysteresis_dps,
+                      hysteresis_width_c=args.hysteresis_width_c,
+                      zro_supply_dps_per_v=args.zro_supply_dps_per_v,
+                      bias_steps=tuple(args.bias_step or ()),
+                      acceleration_dps_per_m_s2=tuple(args.acceleration_dps_per_m_s2))
+    noise = Noise()
+    noise = dataclasses.replace(
+        noise, density_dps_rt_hz=noise.density_dps_rt_hz * args.noise_scale,
+        bias_instability_dps=noise.bias_instability_dps * args.noise_scale,
+        temperature_noise_mv=noise.temperature_noise_mv * args.noise_scale)
+    config = SimulationConfig(
+        seed=args.seed, full_scale_dps=args.full_scale_dps, eeprom_version=args.eeprom_version,
+        start_temperature_c=args.start_c, cycle_temperatures_c=tuple(args.cycle_c or ()),
+        ramp_c_per_min=args.ramp_c_per_min, hold_s=args.hold_s,
+        die_time_constant_s=args.die_time_constant_s, rate_dps=tuple(args.rate_dps),
+        supply_v=supply_v[0], effects=effects, noise=noise)
+    axes = args.axes
+    try:
+        array = SimulatedArray(config, len(axes))
+        images = array.read_eeproms()
+        transfer = SensorTransfer()
+        tables = sensor_tables(images, Output.DIGITAL, transfer)
+    except (HardwareError, TempCompError) as err:
+        raise UserError(f'simulation: {err}') from None
+    faces = _FACES_M_S2 if args.orientation_period_s else (_FACES_M_S2[0],)
+    for device in array.devices:
+        device.physics.scenario = dataclasses.replace(
+            device.physics.scenario, supply_times_s=supply_times, supply_v=supply_v,
+            acceleration_m_s2=faces[0])
+    duration_s = args.duration_s
+    if duration_s is None:
+        duration_s = config.thermal_profile().duration_s if args.cycle_c else \
+            DEFAULT_DURATION_S
+    samples = int(math.floor(duration_s * args.rate_hz + 1e-9)) + 1
+    time_s = np.arange(samples) / args.rate_hz
+    rate_code = np.empty((samples, len(axes)))
+    temperature_code = np.empty((samples, len(axes)))
+    acceleration = np.empty((samples, 3))
+    kept = np.ones(samples, dtype=bool)
+    face = 0
+    with Progress(samples, f'simulating {samples} samples', progress_enabled) as progress:
+        for i, t in enumerate(time_s.tolist()):
+            if args.orientation_period_s:
+                wanted = int(t // args.orientation_period_s) % len(faces)
+                if wanted != face:
+                    face = wanted
+                    for device in array.devices:
+                        device.physics.scenario = dataclasses.replace(
+                            device.physics.scenario, acceleration_m_s2=faces[face])
+            array.advance_to(t)
+            sample = array.read(1)
+            kept[i] = not sample.saturated
+            rate_code[i] = sample.rate_code
+            temperature_code[i] = sample.temperature_code
+            acceleration[i] = faces[face]
+            progress.update(i + 1)
+    nominal = NominalConversion.for_range(tables.full_scale_dps, Output.DIGITAL, len(axes),
+                                          transfer)
+    rate_rad_s = np.radians((rate_code[kept] - nominal.zro) / nominal.sf)
+    axis_temperatures_c = transfer.temperature_output_to_c(temperature_code[kept],
+                                                           Output.DIGITAL)
+    with_acceleration = args.orientation_period_s or any(args.acceleration_dps_per_m_s2)
+    recording = Recording(
+        source=str(out), time_s=time_s[kept], temperature_c=axis_temperatures_c.mean(axis=1),
+        axes=axes, gyro_rad_s=rate_rad_s,
+        acceleration_m_s2=acceleration[kept] if with_acceleration else None,
+        skipped={'saturated': int(np.count_nonzero(~kept))})
+    truth = {
+        'source': 'simulated MLX90609 chips through the SPI protocol and the nominal '
+                  'conversion (driver_node source simulated)',
+        'axes': list(axes),
+        'config': dataclasses.asdict(config),
+        'thermal_profile': dataclasses.asdict(config.thermal_profile()),
+        'supply': {'times_s': list(supply_times), 'volts': list(supply_v),
+                   'nominal_v': NOMINAL_SUPPLY_V},
+        'orientation_period_s': args.orientation_period_s,
+        'devices': {axis: {
+            **dataclasses.asdict(device.physics.truth),
+            'zero_rate_bias_rad_s_in_reported_t_minus_25c': _truth_polynomial_rad_s(
+                device.physics.truth, transfer),
+        } for axis, device in zip(axes, array.devices)},
+        'notes': 'zro_dps_coefficients and sf_relative_coefficients are polynomials in '
+                 '(die temperature - 25 C), lowest order first; the zero_rate_bias polynomial '
+                 'is the bias of the recorded rate at the recorded temperature without '
+                 'effects or noise. Effects add: hysteresis +-hysteresis_dps/2 by branch, '
+                 'bias steps, zro_supply_dps_per_v x (supply - 5 V), '
+                 'acceleration_dps_per_m_s2 . specific force.',
+    }
+    return recording, axis_temperatures_c, images, truth
+
+
+def _turntable_recording(args, out: Path) -> tuple:
+    if args.axes != AXES:
+        raise UserError('--turntable simulates a 3-axis gyro: --axes must be x,y,z')
+    protocol = TurntableProtocol()
+    if args.cycle_c:
+        protocol = dataclasses.replace(protocol, chamber_temperatures_c=tuple(args.cycle_c))
+    if args.rate_hz_given:
+        protocol = dataclasses.replace(protocol, sample_rate_hz=args.rate_hz)
+    try:
+        session = simulate_turntable(protocol, seed=args.seed)
+    except TempCompError as err:
+        raise UserError(f'turntable simulation: {err}') from None
+    recording = Recording(source=str(out), time_s=session.time_s,
+                          temperature_c=session.temperature_c, axes=AXES,
+                          gyro_rad_s=session.measured_rad_s,
+                          reference_rad_s=session.reference_rad_s,
+                          temperature_2_c=session.temperature_2_c)
+    chain = session.truth.chain()
+    truth = {
+        'source': 'simulated rate table (mlx_tempcomp.simulation.turntable), seed-004 chain',
+        'axes': list(AXES),
+        'protocol': dataclasses.asdict(protocol),
+        'turntable_truth': dataclasses.asdict(session.truth),
+        'chain_parameters': {key: np.asarray(value).tolist()
+                             for key, value in chain.to_parameters().items()},
+        'plateaus': int(session.plateau_id.max()) + 1,
+    }
+    return recording, None, None, truth
+
+
+def _write_csv(path: Path, recording: Recording) -> None:
+    columns = {'time': recording.time_s, 'temperature': recording.temperature_c}
+    columns.update((f'gyro_{a}', recording.gyro_rad_s[:, i]) for i, a in enumerate(recording.axes))
+    if recording.reference_rad_s is not None:
+        columns.update((f'ref_{a}', recording.reference_rad_s[:, i])
+                       for i, a in enumerate(recording.axes))
+    if recording.acceleration_m_s2 is not None:
+        columns.update((f'acc_{a}', recording.acceleration_m_s2[:, i])
+                       for i, a in enumerate(AXES))
+    if recording.temperature_2_c is not None:
+        columns['temperature_2'] = recording.temperature_2_c
+    try:
+        np.savetxt(path, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
+                   delimiter=',', header=','.join(columns), comments='')
+    except OSError as err:
+        msg = f'cannot write {path}: {err.strerror}'
+        raise UserError(msg) from None
+
+
+def _check_turntable_options(args: argparse.Namespace) -> None:
+    effects = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v', 'bias_step',
+               'orientation_period_s')
+    given = [name for name in effects if getattr(args, name)]
+    if any(args.acceleration_dps_per_m_s2):
+        given.append('acceleration_dps_per_m_s2')
+    if given:
+        names = ', '.join('--' + name.replace('_', '-') for name in given)
+        msg = f'{names}: effects apply to the chip simulation, not to --turntable'
+        raise UserError(msg)
+
+
+def simulate_command(args: argparse.Namespace) -> int:
+    out, fmt, truth_path = _output_paths(args)
+    args.rate_hz_given = args.rate_hz is not None
+    if args.rate_hz is None:
+        args.rate_hz = 10.0
+    progress_enabled = args.progress or None
+    if args.turntable:
+        _check_turntable_options(args)
+        recording, axis_temperatures_c, images, truth = _turntable_recording(args, out)
+    else:
+        recording, axis_temperatures_c, images, truth = _device_recording(
+            args, out, progress_enabled)
+    if fmt == 'csv':
+        _write_csv(out, recording)
+        what = 'CSV'
+    else:
+        messages = write_raw_bag(out, fmt, recording, axis_temperatures_c, images,
+                                 progress_enabled)
+        what = f'{fmt} bag, {messages} messages on /imu/data_raw, /imu/temperature_raw'
+        if recording.temperature_2_c is not None:
+            what += ', /imu/temperature_2_raw'
+        if images is not None:
+            what += ', /imu/eeprom'
+        if recording.reference_rad_s is not None:
+            what += '; the reference rate has no topic: evaluate the CSV form'
+    truth['recording'] = {'path': str(out), 'format': fmt, 'samples': len(recording),
+                          'duration_s': recording.duration_s,
+                          'rate_hz': args.rate_hz,
+                          'skipped': dict(recording.skipped)}
+    try:
+        truth_path.write_text(json.dumps(truth, indent=2) + '\n')
+    except OSError as err:
+        msg = f'cannot write {truth_path}: {err.strerror}'
+        raise UserError(msg) from None
+    low, high = float(recording.temperature_c.min()), float(recording.temperature_c.max())
+    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
+                        if count)
+    print(f'{len(recording)} samples over {recording.duration_s:.1f} s, axes '
+          f'{", ".join(recording.axes)}, temperature {low:.2f} to {high:.2f} C; '
+          f'skipped: {skipped or "none"}')
+    print(f'wrote {out} ({what})')
+    print(f'truth in {truth_path}')
+    return 0
+
+
+def add_parser(commands) -> None:
+    """Add the ``simulate`` subcommand."""
+    simulate = commands.add_parser(
+        'simulate', help='write a recording (CSV or bag) from the simulated sensor',
+        description='Simulate MLX90609 chips through the real SPI protocol and nominal '
+                    'conversion (what driver_node publishes), with chosen thermal profile '
+                    'and effects, or a rate-table session (--turntable), and write a CSV '
+                    'file or a rosbag2 bag on the raw topics, plus <stem>.truth.json with '
+                    'the truth behind the data.')
+    simulate.add_argument('--out', required=True, metavar='PATH',
+                          help='CSV file, or bag folder to create')
+    simulate.add_argument('--format', choices=FORMATS,
+                          help='csv, sqlite3 or mcap (default: csv for a .csv name, '
+                               'else sqlite3)')
+    simulate.add_argument('--duration-s', type=_positive, metavar='S',
+                          help='length (default: the thermal cycle, or '
+                               f'{DEFAULT_DURATION_S:g} s at constant temperature)')
+    simulate.add_argument('--rate-hz', type=_positive, metavar='HZ',
+                          help='sample rate (default: 10)')
+    simulate.add_argument('--axes', type=_parse_axes, default=AXES, metavar='AXES',
+                          help='gyro axes, e.g. z or x,y,z (default: x,y,z)')
+    simulate.add_argument('--seed', type=non_negative_int, default=0, metavar='N',
+                          help='seed of the devices and the noise (default: %(default)s)')
+    simulate.add_argument('--full-scale-dps', type=_positive, default=75.0, metavar='DPS',
+                          help='full scale of the chips (default: %(default)s)')
+    simulate.add_argument('--eeprom-version', type=non_negative_int, default=2, metavar='N',
+                          help='EEPROM VERSION the simulated factory writes '
+                               '(default: %(default)s)')
+    simulate.add_argument('--noise-scale', type=_non_negative, default=1.0, metavar='F',
+                          help='multiply the datasheet noise (0: no noise; default: 1)')
+    simulate.add_argument('--rate-dps', type=float, nargs='+', default=[0.0], metavar='DPS',
+                          help='true rate, one value or one per axis (default: 0)')
+    thermal = simulate.add_argument_group('thermal profile')
+    thermal.add_argument('--start-c', type=float, default=25.0, metavar='C',
+                         help='chamber temperature at start (default: %(default)s)')
+    thermal.add_argument('--cycle-c', type=float, nargs='+', metavar='C',
+                         help='temperatures to ramp through in turn, e.g. 60 -20 25; with '
+                              '--turntable the chamber temperatures of the sessions')
+    thermal.add_argument('--ramp-c-per-min', type=_positive, default=2.0, metavar='R',
+                         help='ramp rate (default: %(default)s)')
+    thermal.add_argument('--hold-s', type=_non_negative, default=0.0, metavar='S',
+                         help='hold at each cycle temperature (default: %(default)s)')
+    thermal.add_argument('--die-time-constant-s', type=_non_negative, default=0.0,
+                         metavar='S', help='die follows the chamber with this lag')
+    effects = simulate.add_argument_group('effects (chip simulation only)')
+    effects.add_argument('--thermal-lag-s', type=_non_negative, default=0.0, metavar='S',
+                         help='temperature sensor lags the die (first order)')
+    effects.add_argument('--hysteresis-dps', type=float, default=0.0, metavar='DPS',
+                         help='ZRO difference between heating and cooling branches')
+    effects.add_argument('--hysteresis-width-c', type=_positive, default=5.0, metavar='C',
+                         help='temperature change that flips the branch (default: %(default)s)')
+    effects.add_argument('--bias-step', type=_time_value, action='append', metavar='T:DPS',
+                         help='bias step of DPS at time T s (repeatable)')
+    effects.add_argument('--acceleration-dps-per-m-s2', type=float, nargs=3,
+                         default=[0.0, 0.0, 0.0], metavar=('GX', 'GY', 'GZ'),
+                         help='g-sensitivity: deg/s per m/s^2 of specific force x, y, z')
+    effects.add_argument('--orientation-period-s', type=_non_negative, default=0.0,
+                         metavar='S', help='turn the board to the next of six faces up every '
+                                           'S seconds (writes acc_x|y|z)')
+    effects.add_argument('--zro-supply-dps-per-v', type=float, default=0.0, metavar='K',
+                         help='ZRO shift per volt off the nominal 5 V')
+    effects.add_argument('--supply-v', nargs='+', default=['5.0'], metavar='V',
+                         help='supply: one voltage, or waypoints T:V ... (linear between)')
+    simulate.add_argument('--turntable', action='store_true',
+                          help='rate plateaus on each axis at several chamber temperatures '
+                               'with a reference rate and a second temperature (seed 004)')
+    add_progress_option(simulate)
+    simulate.set_defaults(handler=simulate_command)

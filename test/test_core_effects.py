@@ -1,0 +1,143 @@
+"""EffectModel: each effect's formula, batch against stream, parameters round trip, bad input."""
+
+import math
+
+from mlx_tempcomp.core.effects import (AxisTerms, EffectModel, play_state,
+                                       temperature_rate_c_s)
+from mlx_tempcomp.core.errors import ConfigError
+import numpy as np
+import pytest
+
+
+def _record(samples=2000, seed=3):
+    rng = np.random.default_rng(seed)
+    time_s = 500.0 + np.cumsum(rng.uniform(0.05, 0.15, samples))
+    temperature_c = 25.0 + 20.0 * np.sin((time_s - 500.0) / 40.0) + rng.normal(0, 0.05, samples)
+    return {
+        'time_s': time_s,
+        'temperature_c': temperature_c,
+        'temperature_2_c': 30.0 + 5.0 * np.cos(time_s / 70.0),
+        'acceleration_m_s2': rng.normal(0.0, 1.0, (samples, 3)),
+        'rate_rad_s': rng.normal(0.0, 0.2, (samples, 3)),
+    }
+
+
+def _full_model():
+    terms = (
+        AxisTerms(bias=(0.01, 0.002, -0.001), thermal_lag_s=20.0, hysteresis_half_width_c=2.0,
+                  hysteresis_rad_s=0.003, time_drift_rad_s_per_s=1e-6,
+                  bias_steps=((600.0, 0.01),), secondary=(0.001, 0.0005),
+                  acceleration_rad_s_per_m_s2=(1e-4, 0.0, 2e-4), scale=(0.01, 0.001),
+                  nonlinearity=(0.01, 0.002), cross_axis=(0.0, 0.01, 0.02)),
+        AxisTerms(bias=(0.02,), cross_axis=(0.01, 0.0, 0.0)),
+        AxisTerms(bias=(0.0, 0.001), thermal_lag_s=-10.0, hysteresis_half_width_c=1.0,
+                  hysteresis_rad_s=-0.002),
+    )
+    return EffectModel(terms=terms, reference_temperature_c=25.0, temperature_scale_c=20.0,
+                       temperature_min_c=0.0, temperature_max_c=44.0,
+                       temperature_rate_window_s=30.0, time_reference_s=500.0,
+                       secondary_reference_c=30.0, secondary_scale_c=5.0,
+                       zro_offset_rad_s=(0.001, 0.002, 0.003))
+
+
+def test_stream_gives_the_batch_result_sample_by_sample():
+    data = _record()
+    model = _full_model()
+    batch = model.correct(data['rate_rad_s'], data['temperature_c'], data['time_s'],
+                          data['temperature_2_c'], data['acceleration_m_s2'])
+    stream = model.stream()
+    rates, clamped = [], []
+    for i in range(len(data['time_s'])):
+        rate, flag = stream.correct_sample(
+            data['rate_rad_s'][i].tolist(), [data['temperature_c'][i]], data['time_s'][i],
+            data['temperature_2_c'][i], data['acceleration_m_s2'][i].tolist())
+        rates.append(rate)
+        clamped.append(flag)
+    np.testing.assert_allclose(rates, batch.rate_rad_s, rtol=0.0, atol=1e-15)
+    assert clamped == batch.temperature_clamped.any(axis=1).tolist()
+    # The thermal lag pushes T_eff past the 44 C clamp on some samples: the flag is exercised.
+    assert 0 < sum(clamped) < len(clamped)
+
+
+def test_polynomial_only_model_is_the_polynomial():
+    data = _record()
+    model = EffectModel(terms=(AxisTerms(bias=(0.01, -0.02, 0.003)),),
+                        reference_temperature_c=20.0, temperature_scale_c=10.0)
+    corrected = model.correct(data['rate_rad_s'][:, :1], data['temperature_c']).rate_rad_s
+    x = (data['temperature_c'] - 20.0) / 10.0
+    expected = data['rate_rad_s'][:, 0] - (0.01 - 0.02 * x + 0.003 * x * x)
+    np.testing.assert_allclose(corrected[:, 0], expected, atol=1e-15)
+
+
+def test_temperature_rate_is_the_slope_over_the_window():
+    time_s = np.arange(0.0, 100.0, 0.5)
+    temperature_c = 10.0 + 0.1 * time_s
+    rate = temperature_rate_c_s(time_s, temperature_c, 20.0)
+    assert rate[0] == 0.0
+    np.testing.assert_allclose(rate[1:], 0.1, rtol=1e-12)
+    # Between samples the window start is interpolated: still the exact slope of a line.
+    np.testing.assert_allclose(temperature_rate_c_s(time_s, temperature_c, 7.25)[1:], 0.1,
+                               rtol=1e-12)
+
+
+def test_thermal_lag_recovers_the_die_temperature_of_a_first_order_lag():
+    # A sensor lagging the die by tau reads T_s with T_die = T_s + tau dT_s/dt.
+    tau_s = 30.0
+    time_s = np.arange(0.0, 2000.0, 0.5)
+    die_c = 25.0 + 0.05 * time_s
+    sensor_c = die_c - tau_s * 0.05 * (1.0 - np.exp(-time_s / tau_s))
+    model = EffectModel(terms=(AxisTerms(bias=(0.0, 1.0), thermal_lag_s=tau_s),),
+                        reference_temperature_c=0.0, temperature_scale_c=1.0,
+                        temperature_rate_window_s=10.0)
+    bias = -model.correct(np.zeros((time_s.size, 1)), sensor_c, time_s).rate_rad_s[:, 0]
+    settled = time_s > 300.0
+    np.testing.assert_allclose(bias[settled], die_c[settled], atol=1e-3)
+
+
+def test_play_state_follows_heating_and_cooling():
+    temperature_c = np.concatenate([np.linspace(20, 40, 201), np.linspace(40, 20, 201)])
+    state = play_state(temperature_c, 2.0)
+    assert state[0] == 0.0
+    assert np.all(np.abs(state) <= 1.0 + 1e-12)
+    assert state[200] == pytest.approx(1.0)
+    assert state[-1] == pytest.approx(-1.0)
+    # After turning at 40 C the state falls linearly, -1 once it has cooled by 2 x 2 C.
+    assert state[201 + 10] == pytest.approx(0.5)
+    assert state[201 + 40] == pytest.approx(-1.0)
+
+
+def test_parameters_round_trip_and_fingerprint_ignores_the_offset():
+    model = _full_model()
+    parameters = model.to_parameters(('x', 'y', 'z'))
+    assert all(isinstance(v, (float, list)) for v in parameters.values())
+    rebuilt = EffectModel.from_parameters(parameters, ('x', 'y', 'z'))
+    assert rebuilt.with_zro_offset(model.zro_offset_rad_s) == model
+    assert rebuilt.fingerprint() == model.fingerprint()
+    assert model.with_terms(1, bias=(0.03,)).fingerprint() != model.fingerprint()
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'bias': ()}, 'bias needs at least one coefficient'),
+    ({'hysteresis_rad_s': 0.1}, 'needs a positive hysteresis_half_width_c'),
+    ({'acceleration_rad_s_per_m_s2': (1.0, 2.0)}, 'needs 3 values'),
+    ({'thermal_lag_s': math.nan}, 'thermal_lag_s must be finite'),
+])
+def test_invalid_terms_are_refused_with_the_field_named(change, message):
+    with pytest.raises(ConfigError, match=message):
+        AxisTerms(**{'bias': (0.0,), **change})
+
+
+def test_missing_inputs_and_parameters_are_named():
+    data = _record(50)
+    model = _full_model()
+    with pytest.raises(ConfigError, match='needs time_s'):
+        model.correct(data['rate_rad_s'], data['temperature_c'])
+    with pytest.raises(ConfigError, match='needs temperature_2_c'):
+        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, None, [0.0] * 3)
+    parameters = model.to_parameters(('x', 'y', 'z'))
+    del parameters['bias.y']
+    with pytest.raises(ConfigError, match='bias.y is missing'):
+        EffectModel.from_parameters(parameters, ('x', 'y', 'z'))
+    with pytest.raises(ConfigError, match='cross_axis of axis 0 needs 2 values'):
+        EffectModel(terms=(AxisTerms(bias=(0.0,), cross_axis=(0.0, 0.1, 0.2)),
+                           AxisTerms(bias=(0.0,))))

@@ -1,0 +1,240 @@
+"""
+The driver node's ``device`` parameter over DDS: ADIS16130 and MPU-6000 next to the MLX90609.
+
+Each simulated part streams through the compensation node; the MPU's offset
+registers are calibrated, saved and written again at the next start; the
+ADIS16130 bias procedure runs as a service on the stream.
+"""
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
+from mlx_tempcomp.ros.qos import EEPROM_QOS
+from mlx_tempcomp.simulation.mpu6000 import MpuTruth
+import numpy as np
+import pytest
+from ros_harness import (COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with, rates,
+                         simulated_driver_params, status_values)
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String, UInt8MultiArray
+from std_srvs.srv import Trigger
+import yaml
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 30.0
+SEED = 4
+MPU_AXES = ['x', 'y', 'z']
+
+
+def mpu_truth(seed: int = SEED) -> MpuTruth:
+    """Return the part the driver simulates for ``seed`` (same draw)."""
+    return MpuTruth.random(np.random.default_rng(seed))
+
+
+def mean_dps(msgs, index: int) -> float:
+    return math.degrees(float(np.mean([rates(m)[index] for m in msgs])))
+
+
+def start_pipeline(launcher, probe, driver: dict, compensation: dict, axes=('z',)) -> dict:
+    """Start both nodes; once both report OK and stream, return their statuses."""
+    for topic in ('imu/data_raw', 'imu/data'):
+        probe.subscribe(Imu, topic)
+    probe.subscribe(Temperature, 'imu/temperature_raw')
+    probe.subscribe(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
+    probe.subscribe_diagnostics()
+    launcher.driver(simulated_driver_params(axes=list(axes), **driver))
+    launcher.compensation({'axes': list(axes),
+                           'recalibration.state_file': str(launcher.folder / 'zro.yaml'),
+                           **compensation})
+    statuses = probe.wait_statuses(
+        {DRIVER_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK,
+         COMPENSATION_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK},
+        TIMEOUT_S, 'both nodes OK', launcher)
+    probe.wait_streaming(['imu/data_raw', 'imu/data'], TIMEOUT_S, launcher)
+    return statuses
+
+
+def test_mlx90609_by_name_streams_with_its_eeprom(launcher, probe):
+    statuses = start_pipeline(launcher, probe, {'device': 'mlx90609', 'simulation.seed': SEED},
+                              {})
+    data = probe.wait_count('imu/data', 200, TIMEOUT_S, launcher)
+    assert statuses[DRIVER_DIAGNOSTIC].hardware_id == f'simulated MLX90609 x1 (seed {SEED})'
+    assert statuses[COMPENSATION_DIAGNOSTIC].message == 'compensating (eeprom)'
+    assert len(probe.received['imu/eeprom']) == 1
+    assert abs(mean_dps(data, 2)) < 0.3
+
+
+def test_adis16130_streams_through_linear_btc(launcher, probe):
+    bias_dps = 0.8
+    statuses = start_pipeline(
+        launcher, probe, {'device': 'adis16130', 'simulation.bias_dps': bias_dps},
+        {'model': 'linear_btc', 'linear_btc.pbc_rad_s': [-math.radians(bias_dps)],
+         'linear_btc.btc_rad_s_per_c': [0.0], 'linear_btc.t3_c': 25.0})
+    data = list(probe.wait_count('imu/data', 300, TIMEOUT_S, launcher))
+    raw = list(probe.received['imu/data_raw'])
+    temperature = list(probe.received['imu/temperature_raw'])
+    driver = statuses[DRIVER_DIAGNOSTIC]
+    assert driver.hardware_id == 'simulated ADIS16130 (seed 0), 24-bit'
+    assert status_values(driver)['device'] == 'adis16130'
+    assert statuses[COMPENSATION_DIAGNOSTIC].message == 'compensating (linear_btc)'
+    # One axis, no accelerometer, no EEPROM (the eeprom model would have no tables).
+    for msg in raw:
+        assert msg.linear_acceleration_covariance[0] == -1.0
+        assert math.isnan(msg.angular_velocity.x) and math.isnan(msg.angular_velocity.y)
+    assert probe.received['imu/eeprom'] == []
+    assert np.mean([m.temperature for m in temperature]) == pytest.approx(25.0, abs=0.05)
+    # 0.22 deg/s of white noise per sample: the mean of 300 is good to about 0.04.
+    raw_mean, compensated_mean = mean_dps(raw, 2), mean_dps(data, 2)
+    print(f'ADIS16130: bias {bias_dps} deg/s; raw mean {raw_mean:.4f}, compensated '
+          f'{compensated_mean:.4f} deg/s ({len(raw)} / {len(data)} samples)')
+    assert raw_mean == pytest.approx(bias_dps, abs=0.06)
+    assert abs(compensated_mean) < 0.06
+
+
+def test_mpu6000_streams_through_polynomial(launcher, probe, tmp_path):
+    truth = mpu_truth()
+    bias_rad_s = np.radians(truth.gyro_bias_dps)
+    polynomial = {'model': 'polynomial', 'polynomial.reference_temperature_c': 25.0}
+    for axis, bias in zip(MPU_AXES, bias_rad_s):
+        polynomial[f'polynomial.bias.{axis}'] = [float(bias)]
+    statuses = start_pipeline(
+        launcher, probe, {'device': 'mpu6000', 'simulation.seed': SEED,
+                          'mpu6000.offsets_file': str(tmp_path / 'offsets.yaml')},
+        polynomial, axes=MPU_AXES)
+    data = list(probe.wait_count('imu/data', 300, TIMEOUT_S, launcher))
+    raw = list(probe.received['imu/data_raw'])
+    driver = status_values(statuses[DRIVER_DIAGNOSTIC])
+    assert statuses[DRIVER_DIAGNOSTIC].hardware_id == f'simulated MPU6000 (seed {SEED})'
+    assert driver['offsets'] == 'none' and driver['gyro_offset_lsb'] == '[0, 0, 0]'
+    assert probe.received['imu/eeprom'] == []
+    for index in range(3):
+        raw_mean, compensated_mean = mean_dps(raw, index), mean_dps(data, index)
+        print(f'MPU axis {MPU_AXES[index]}: bias {truth.gyro_bias_dps[index]:.3f}, raw mean '
+              f'{raw_mean:.3f}, compensated {compensated_mean:.4f} deg/s')
+        assert raw_mean == pytest.approx(truth.gyro_bias_dps[index], abs=0.02)
+        assert abs(compensated_mean) < 0.02
+    # Linear acceleration: lying face up, the factory-trimmed bias on top, covariance set.
+    acceleration_g = np.mean([[m.linear_acceleration.x, m.linear_acceleration.y,
+                               m.linear_acceleration.z] for m in raw], axis=0) \
+        / STANDARD_GRAVITY_M_S2
+    expected_g = np.add(truth.acceleration_g, truth.accel_bias_g)
+    assert acceleration_g == pytest.approx(expected_g, abs=0.003)
+    assert list(raw[0].linear_acceleration_covariance) == pytest.approx(
+        [0.049 ** 2, 0, 0, 0, 0.049 ** 2, 0, 0, 0, 0.049 ** 2])
+
+
+def gyro_mean_dps(launcher, probe, samples: int = 200) -> np.ndarray:
+    """Return the mean raw rate of the next ``samples`` samples, deg/s per axis."""
+    probe.clear()
+    raw = probe.wait_count('imu/data_raw', samples, TIMEOUT_S, launcher)
+    return np.array([mean_dps(raw[:samples], i) for i in range(3)])
+
+
+def start_mpu(launcher, probe, path, label: str, **extra):
+    driver = launcher.driver(simulated_driver_params(
+        device='mpu6000', axes=MPU_AXES, **{'simulation.seed': SEED,
+                                            'mpu6000.calibration.duration_s': 2.0,
+                                            'mpu6000.offsets_file': str(path)}, **extra),
+        label=label)
+    probe.wait_streaming(['imu/data_raw'], TIMEOUT_S, launcher)
+    return driver
+
+
+@pytest.mark.slow
+def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, tmp_path):
+    truth = mpu_truth()
+    path = tmp_path / 'state' / 'offsets.yaml'
+    probe.subscribe(Imu, 'imu/data_raw')
+    driver = start_mpu(launcher, probe, path, 'first')
+    assert 'no saved offsets in' in driver.output()
+    before = gyro_mean_dps(launcher, probe)
+    assert before == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+
+    # A noise figure far below the real spread: the check sees motion and refuses.
+    probe.set_parameters('driver_node', {'rate_noise_rad_s': 1e-5})
+    response = probe.call(Trigger, 'imu/calibrate_offsets', Trigger.Request(), TIMEOUT_S)
+    assert not response.success
+    assert response.message.startswith('refused: the board moves: the '), response.message
+    assert not path.exists()
+
+    probe.set_parameters('driver_node', {'rate_noise_rad_s': 0.0058})
+    response = probe.call(Trigger, 'imu/calibrate_offsets', Trigger.Request(), TIMEOUT_S)
+    assert response.success, response.message
+    print(response.message)
+    assert 'gravity on +z' in response.message and str(path) in response.message
+    state = yaml.safe_load(path.read_text())
+    # The note's conversion: register = -round(bias / 0.031 deg/s).
+    expected_lsb = [-round(b / 0.031) for b in truth.gyro_bias_dps]
+    assert all(abs(got - want) <= 1 for got, want in zip(state['gyro_offset_lsb'],
+                                                         expected_lsb)), state
+    assert state['variant'] == 'mpu6000' and len(state['accel_bias_lsb']) == 3
+    after = gyro_mean_dps(launcher, probe)
+    print(f'gyro mean before {np.round(before, 4)}, after {np.round(after, 4)} deg/s')
+    # One register step is 0.031 deg/s: the residual is at most half of it, plus the noise
+    # of the two 200-sample means (0.063 deg/s per sample: 3 sigma of their sum 0.019).
+    assert np.all(np.abs(after) < 0.035)
+
+    # Power off and on: the registers clear, the driver writes the saved ones again.
+    driver.stop()
+    probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
+    restarted = start_mpu(launcher, probe, path, 'second')
+    assert 'wrote the saved offsets from' in restarted.output()
+    again = gyro_mean_dps(launcher, probe)
+    assert np.all(np.abs(again) < 0.035), again
+
+    # A corrupt file: logged, the driver starts without offsets (the bias is back).
+    restarted.stop()
+    probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
+    path.write_text('gyro_offset_lsb: [1, 2\n')
+    third = start_mpu(launcher, probe, path, 'third')
+    line = first_line_with(third.output(), 'is not valid YAML')
+    assert line.startswith('[ERROR]') and 'starting without offsets' in third.output(), \
+        third.output()
+    assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+
+
+@pytest.mark.parametrize('params, named', [
+    ({'device': 'adis'}, "invalid parameter device: 'adis' is not one of mlx90609, adis16130, "
+                         'mpu6000'),
+    ({'device': 'adis16130', 'axes': ['x', 'z']},
+     "invalid parameter axes: the adis16130 measures one axis, got ['x', 'z']"),
+])
+def test_bad_device_parameters_exit_1_naming_the_parameter(launcher, params, named):
+    driver = launcher.driver(params)
+    assert driver.wait(TIMEOUT_S) == 1
+    assert named in driver.output()
+
+
+@pytest.mark.slow
+def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
+    slope_dps_per_c = 0.3
+    out = tmp_path / 'btc' / 'adis.yaml'
+    prefix = 'adis16130.bias_procedure.'
+    # The temperature ramps 2 C/min: 1.5 C between the points, 0.45 deg/s of bias change
+    # against 0.05 deg/s of noise in the difference of two 2 s means at 20 Hz.
+    launcher.driver(simulated_driver_params(**{
+        'device': 'adis16130', 'rate_hz': 20.0, 'simulation.real_time_factor': 20.0,
+        'simulation.bias_dps_per_c': slope_dps_per_c,
+        'simulation.cycle_temperatures_c': [60.0], 'simulation.ramp_c_per_min': 2.0,
+        prefix + 'average_s': 2.0, prefix + 'self_heat_s': 45.0, prefix + 'settle_s': 12.0,
+        prefix + 'allan_record_s': 10.0, prefix + 'pbc_s': 2.0,
+        prefix + 'output_file': str(out)}))
+    status = probe.subscribe(String, 'imu/bias_procedure/status')
+    response = probe.call(Trigger, 'imu/run_bias_procedure', Trigger.Request(), TIMEOUT_S)
+    assert response.success, response.message
+    print(response.message)
+    for name in ('T1', 'B1', 'T2', 'B2', 'BTC', 'PBC', 'T3'):
+        assert f'{name} ' in response.message
+    probe.drain()
+    texts = [m.data for m in status]
+    for phase in ('point_1', 'self_heat', 'point_2', 'settle', 'rest_record', 'pbc'):
+        assert any(t.startswith(f'phase {phase}: ') for t in texts), (phase, texts)
+    assert texts[-1].startswith('done: ')
+    section = yaml.safe_load(out.read_text())['compensation_node']['ros__parameters']
+    assert section['model'] == 'linear_btc' and section['axes'] == ['z']
+    btc_dps_per_c = math.degrees(section['linear_btc']['btc_rad_s_per_c'][0])
+    # Table 6: a positive bias slope gives a negative BTC.
+    assert btc_dps_per_c == pytest.approx(-slope_dps_per_c, rel=0.3)
+    assert section['rate_noise_rad_s'] > 0.0

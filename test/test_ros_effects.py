@@ -1,0 +1,329 @@
+"""
+Replay bags through driver_node and compensation_node running the effects and chain models.
+
+The node runs each sample through the model's stream (temperature slope history,
+hysteresis play state); what it publishes must equal the offline batch correction
+of the whole recording, to rounding. The parameter files are the ones `fit` and
+`diagnose` write (model_params).
+"""
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.core.chain import ChainModel
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.model_params import (chain_parameters, effect_parameters, parameter_file,
+                                       write_parameter_file)
+from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
+from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProtocol,
+                                               TurntableTruth)
+from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
+import numpy as np
+import pytest
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with,
+                         parse_list, rates, status_values)
+from sensor_msgs.msg import Imu, Temperature
+from std_srvs.srv import Trigger
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 60.0
+T0_NS = 1_700_000_000 * 1_000_000_000   # stamps as a real recording has them
+PERIOD_NS = 100_000_000                 # 10 Hz
+T2_TOPIC = '/board/temperature'         # replayed as imu/temperature_2_raw
+NOISE_RAD_S = 0.002
+ACCELERATION_COVARIANCE = [1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4]
+
+
+def effects_recording(samples: int, seed: int) -> dict:
+    """Return a 10 Hz recording at rest: temperature ramp up and down, T2, acceleration."""
+    rng = np.random.default_rng(seed)
+    stamps_ns = [T0_NS + i * PERIOD_NS for i in range(samples)]
+    time_s = np.array([stamp / 1e9 for stamp in stamps_ns])   # as the node computes it
+    elapsed_s = time_s - time_s[0]
+    half_s = elapsed_s[-1] / 2.0
+    temperature_c = 15.0 + 30.0 * (1.0 - np.abs(elapsed_s - half_s) / half_s) + \
+        0.02 * rng.standard_normal(samples)
+    temperature_2_c = 30.0 + 4.0 * np.sin(2.0 * math.pi * elapsed_s / 300.0) + \
+        0.02 * rng.standard_normal(samples)
+    acceleration_m_s2 = np.column_stack([0.3 * np.sin(elapsed_s / 20.0),
+                                         -0.2 * np.cos(elapsed_s / 30.0),
+                                         np.full(samples, 9.81)]) + \
+        0.05 * rng.standard_normal((samples, 3))
+    return {'stamps_ns': stamps_ns, 'time_s': time_s, 'temperature_c': temperature_c,
+            'temperature_2_c': temperature_2_c, 'acceleration_m_s2': acceleration_m_s2,
+            'noise_rad_s': NOISE_RAD_S * rng.standard_normal((samples, 3))}
+
+
+def effect_model(recording: dict) -> EffectModel:
+    """Every kind of term, on three axes: lag, hysteresis, drift, step, T2, acceleration..."""
+    start_s = float(recording['time_s'][0])
+    span_s = float(recording['time_s'][-1]) - start_s
+    terms = (
+        AxisTerms(bias=(0.01, 2e-3, -3e-4, 1e-5), thermal_lag_s=20.0,
+                  bias_steps=((start_s + 0.4 * span_s + 0.05, 4e-3),), scale=(0.0, 1e-3)),
+        AxisTerms(bias=(-0.02, -1e-3, 2e-4), hysteresis_half_width_c=1.0,
+                  hysteresis_rad_s=3e-3, secondary=(2e-3, -1e-4)),
+        AxisTerms(bias=(0.005, 5e-4), time_drift_rad_s_per_s=2e-6,
+                  acceleration_rad_s_per_m_s2=(1e-3, -2e-3, 5e-4), secondary=(1e-3,),
+                  cross_axis=(2e-3, -1e-3, 0.0)))
+    return EffectModel(terms, reference_temperature_c=30.0, temperature_scale_c=15.0,
+                       temperature_rate_window_s=30.0, time_reference_s=start_s,
+                       secondary_reference_c=30.0, secondary_scale_c=4.0)
+
+
+def correct(model, recording: dict, gyro_rad_s=None) -> np.ndarray:
+    gyro = recording['gyro_rad_s'] if gyro_rad_s is None else gyro_rad_s
+    return model.correct(gyro, recording['temperature_c'], time_s=recording['time_s'],
+                         temperature_2_c=recording['temperature_2_c'],
+                         acceleration_m_s2=recording['acceleration_m_s2']).rate_rad_s
+
+
+def with_effects_gyro(model: EffectModel, recording: dict) -> dict:
+    """Add the raw rate: noise at rest plus the model's bias terms."""
+    bias_only = model
+    for axis in range(model.axes):
+        bias_only = bias_only.with_terms(axis, scale=(), cross_axis=())
+    bias_rad_s = -correct(bias_only, recording, np.zeros((len(recording['time_s']), 3)))
+    return {**recording, 'gyro_rad_s': recording['noise_rad_s'] + bias_rad_s}
+
+
+def write_bag(path, recording: dict, acceleration_known: bool = True) -> int:
+    """Write Imu (with acceleration), Temperature and the T2 topic; return the message count."""
+    covariance = ACCELERATION_COVARIANCE if acceleration_known else [-1.0] + [0.0] * 8
+    orientation = [-1.0] + [0.0] * 8
+    with RawBagWriter(path, 'sqlite3', extra_temperature_topics=(T2_TOPIC,)) as writer:
+        for i, stamp in enumerate(recording['stamps_ns']):
+            writer.write_temperature(stamp, TemperatureRecord(
+                stamp, 'imu_link', recording['temperature_c'][i], 0.0))
+            writer.write_temperature(stamp, TemperatureRecord(
+                stamp, 'board', recording['temperature_2_c'][i], 0.0), topic=T2_TOPIC)
+            writer.write_imu(stamp, ImuRecord(
+                stamp, 'imu_link', recording['gyro_rad_s'][i], [0.0] * 9,
+                recording['acceleration_m_s2'][i], covariance, orientation))
+    return 3 * len(recording['stamps_ns'])
+
+
+def write_model_file(path, parameters: dict) -> str:
+    write_parameter_file(path, parameter_file('compensation_node', parameters),
+                         header='test model')
+    return str(path)
+
+
+def start_replay(launcher, probe, tmp_path, bag, model_file: str, **params):
+    """Start the compensation node on ``model_file``, then the bag driver at rate factor 0."""
+    probe.subscribe(Imu, 'imu/data')
+    probe.subscribe_diagnostics()
+    launcher.start('compensation_node', 'compensation_node',
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
+                   extra_args=['--params-file', model_file], label='compensation')
+    probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, TIMEOUT_S,
+                     'the compensation node publishing imu/data', launcher)
+    return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
+                            'bag.temperature_2_topic': T2_TOPIC}, label='driver')
+
+
+def finish_replay(launcher, probe, recording: dict, messages_in_bag: int) -> np.ndarray:
+    """Wait for the replay and every compensated sample; return them in stamp order."""
+    status = probe.wait_status(DRIVER_DIAGNOSTIC,
+                               lambda s: status_values(s).get('state') == 'finished',
+                               TIMEOUT_S, 'the replay to finish', launcher)
+    assert status_values(status)['published'] == str(messages_in_bag)
+    samples = len(recording['stamps_ns'])
+    probe.spin_until(lambda: probe.count('imu/data') >= samples, 10.0,
+                     f'{samples} compensated samples', launcher)
+    probe.drain()
+    received = by_stamp(probe.received['imu/data'])
+    missing = [s for s in recording['stamps_ns'] if s not in received]
+    assert not missing, f'{len(missing)} stamps missing, first {missing[0]}'
+    assert len(received) == samples
+    return np.array([rates(received[s]) for s in recording['stamps_ns']])
+
+
+@pytest.mark.slow
+def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tmp_path):
+    recording = effects_recording(4000, seed=3)
+    model = effect_model(recording)
+    recording = with_effects_gyro(model, recording)
+    expected = correct(model, recording)
+    # The stateful terms matter: without the lag (or the hysteresis) the output differs.
+    for axis, change in ((0, {'thermal_lag_s': 0.0}), (1, {'hysteresis_rad_s': 0.0})):
+        other = correct(model.with_terms(axis, **change), recording)
+        assert np.max(np.abs(other[:, axis] - expected[:, axis])) > 1e-3
+    assert model.needs_time and model.needs_temperature_2 and model.needs_acceleration
+    count = write_bag(tmp_path / 'bag', recording)
+    model_file = write_model_file(tmp_path / 'effects.yaml',
+                                  effect_parameters(model, ('x', 'y', 'z')))
+
+    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file)
+    got = finish_replay(launcher, probe, recording, count)
+    difference = np.max(np.abs(got - expected))
+    print(f'effects: {len(got)} samples, largest difference {difference:.3g} rad/s')
+    assert difference <= 1e-9
+    status = probe.wait_status(COMPENSATION_DIAGNOSTIC, lambda s: True, TIMEOUT_S,
+                               'a compensation status', launcher)
+    values = status_values(status)
+    assert values['model'] == 'effects' and values['fingerprint'] == model.fingerprint()
+    assert values['unpaired_dropped'] == '0' and values['no_acceleration_samples'] == '0'
+
+
+@pytest.mark.slow
+def test_recalibration_keeps_the_stream_state(launcher, probe, tmp_path):
+    recording = effects_recording(3000, seed=4)
+    model = effect_model(recording)
+    recording = with_effects_gyro(model, recording)
+    expected = correct(model, recording)
+    count = write_bag(tmp_path / 'bag', recording)
+    model_file = write_model_file(tmp_path / 'effects.yaml',
+                                  effect_parameters(model, ('x', 'y', 'z')))
+    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file,
+                 rate_noise_rad_s=0.01, **{'recalibration.duration_s': 2.0})
+    probe.wait_count('imu/data', 800, TIMEOUT_S, launcher)
+    response = probe.call(Trigger, 'imu/recalibrate_zro', Trigger.Request(), TIMEOUT_S)
+    assert response.success, response.message
+    got = finish_replay(launcher, probe, recording, count)
+
+    difference = got - expected
+    before = np.max(np.abs(difference), axis=1) <= 1e-9
+    swap = int(np.argmin(before))
+    assert 800 <= swap < len(got) - 500 and before[:swap].all() and not before[swap:].any()
+    # After the swap the output is the same stream minus the learned offset: a rebuilt
+    # stream would restart the temperature slope and the play state, and differ.
+    offset = -difference[swap]
+    assert np.max(np.abs(difference[swap:] + offset)) <= 1e-9
+    assert np.all(np.abs(offset) > 1e-7)
+    status = probe.wait_status(COMPENSATION_DIAGNOSTIC, lambda s: True, TIMEOUT_S,
+                               'a compensation status', launcher)
+    np.testing.assert_allclose(parse_list(status_values(status)['zro_offset']), offset,
+                               rtol=1e-5)
+
+
+def turntable_recording(seed: int) -> tuple:
+    """Return a short simulated rate-table session (about 5000 samples) and its truth chain."""
+    protocol = TurntableProtocol(
+        rate_levels_rad_s=tuple(math.radians(d) for d in (-300, -150, -50, 0, 50, 150, 300)),
+        cross_axis_levels_rad_s=(math.radians(-200.0), math.radians(200.0)),
+        chamber_temperatures_c=(0.0, 20.0, 40.0), electronics_temperatures_c=(15.0, 25.0, 35.0),
+        hold_s=4.0, electronics_hold_s=10.0, soak_s=600.0)
+    truth = TurntableTruth.random(np.random.default_rng(seed))
+    session = simulate_turntable(protocol, truth, seed)
+    stamps_ns = [T0_NS + int(round(t * 1e9)) for t in session.time_s]
+    samples = len(stamps_ns)
+    recording = {'stamps_ns': stamps_ns, 'time_s': np.array([s / 1e9 for s in stamps_ns]),
+                 'temperature_c': session.temperature_c,
+                 'temperature_2_c': session.temperature_2_c,
+                 'acceleration_m_s2': np.tile([0.0, 0.0, 9.81], (samples, 1)),
+                 'gyro_rad_s': session.measured_rad_s}
+    return recording, ChainModel(truth.chain()), session.reference_rad_s
+
+
+@pytest.mark.slow
+def test_chain_model_replay_matches_the_offline_correction(launcher, probe, tmp_path):
+    recording, model, reference = turntable_recording(seed=5)
+    assert 3000 <= len(recording['stamps_ns']) <= 6000
+    expected = correct(model, recording)
+    error_before = np.sqrt(np.mean((recording['gyro_rad_s'] - reference) ** 2))
+    error_after = np.sqrt(np.mean((expected - reference) ** 2))
+    assert error_after < error_before / 10.0, 'the truth chain corrects the gyro'
+    count = write_bag(tmp_path / 'bag', recording)
+    model_file = write_model_file(tmp_path / 'chain.yaml', chain_parameters(model))
+
+    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file)
+    got = finish_replay(launcher, probe, recording, count)
+    difference = np.max(np.abs(got - expected))
+    print(f'chain: {len(got)} samples, largest difference {difference:.3g} rad/s')
+    assert difference <= 1e-9
+
+
+def broken_effects(parameters: dict) -> dict:
+    del parameters['effects']['bias']['y']
+    return parameters
+
+
+def chain_on_two_axes(parameters: dict) -> dict:
+    parameters['axes'] = ['x', 'y']
+    return parameters
+
+
+def chain_without_misalignment(parameters: dict) -> dict:
+    del parameters['chain']['misalignment']
+    return parameters
+
+
+def chain_model_parameters() -> dict:
+    return chain_parameters(turntable_recording(seed=6)[1])
+
+
+def effects_model_parameters() -> dict:
+    model = effect_model(effects_recording(10, seed=1))
+    return effect_parameters(model, ('x', 'y', 'z'))
+
+
+BROKEN_FILES = {
+    'missing_bias_y': (effects_model_parameters, broken_effects, 'effects.bias.y'),
+    'chain_on_two_axes': (chain_model_parameters, chain_on_two_axes,
+                          "invalid parameter axes: the chain model needs ['x', 'y', 'z']"),
+    'chain_without_misalignment': (chain_model_parameters, chain_without_misalignment,
+                                   'invalid parameter chain.misalignment'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(BROKEN_FILES))
+def test_incomplete_model_file_exits_1_naming_the_parameter(launcher, tmp_path, case):
+    make, breaks, expected = BROKEN_FILES[case]
+    model_file = write_model_file(tmp_path / 'model.yaml', breaks(make()))
+    node = launcher.start('compensation_node', 'compensation_node',
+                          extra_args=['--params-file', model_file])
+    assert node.wait(20.0) == 1
+    output = node.output()
+    assert 'Traceback' not in output
+    line = first_line_with(output, '[FATAL]')
+    assert expected in line, output
+
+
+def test_model_needing_acceleration_reports_imu_without_it(launcher, probe, tmp_path):
+    model = EffectModel((AxisTerms(bias=(0.01,), acceleration_rad_s_per_m_s2=(0.0, 0.0, 1e-3)),))
+    model_file = write_model_file(tmp_path / 'effects.yaml', effect_parameters(model, ('z',)))
+    launcher.start('compensation_node', 'compensation_node',
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml')},
+                   extra_args=['--params-file', model_file])
+    received = probe.subscribe(Imu, 'imu/data')
+    probe.subscribe_diagnostics()
+    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
+    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
+                                                        SENSOR_INPUT_QOS)
+    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
+                     temperature_publisher.get_subscription_count() and
+                     probe.node.count_publishers('imu/data'),
+                     TIMEOUT_S, 'the compensation node', launcher)
+    sent = []
+
+    def publish(with_acceleration: bool) -> None:
+        stamp = messages.ns_to_stamp(T0_NS + len(sent) * PERIOD_NS)
+        msg = messages.imu_message(stamp, 'imu_link', (2,), [0.5], [0.0] * 9)
+        if with_acceleration:
+            msg.linear_acceleration.z = 9.81
+            msg.linear_acceleration_covariance = ACCELERATION_COVARIANCE
+        temperature_publisher.publish(messages.temperature_message(stamp, 'imu_link', 25.0))
+        imu_publisher.publish(msg)
+        sent.append(stamp)
+        probe.spin_once(0.02)
+
+    def error_reported():
+        publish(with_acceleration=False)
+        statuses = probe.diagnostics.get(COMPENSATION_DIAGNOSTIC, [])
+        return any(s.level == DiagnosticStatus.ERROR and 'needs acceleration' in s.message
+                   for s in statuses)
+    probe.spin_until(error_reported, TIMEOUT_S, 'the missing acceleration reported', launcher)
+    status = [s for s in probe.diagnostics[COMPENSATION_DIAGNOSTIC] if s.level ==
+              DiagnosticStatus.ERROR][-1]
+    assert 'linear_acceleration_covariance[0] = -1' in status.message
+    assert int(status_values(status)['no_acceleration_samples']) > 0
+    assert not received, 'samples without acceleration must not be published'
+
+    def compensated():
+        publish(with_acceleration=True)
+        return received
+    probe.spin_until(compensated, TIMEOUT_S, 'samples with acceleration compensated', launcher)
+    assert rates(received[0])[2] == pytest.approx(0.5 - 0.01 - 9.81e-3, abs=1e-12)
