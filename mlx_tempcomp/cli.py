@@ -35,7 +35,8 @@ from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, load, non_n
 _COMMAND_MODULES = (adis_bias, convert, diagnose, evaluate, simulate)
 
 DEFAULT_MAX_ORDER = 8
-DEFAULT_BLOCKS = 5
+DEFAULT_BLOCKS = 20
+DEFAULT_FOLDS = 5
 DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order
 BTC_TABLE_ROWS = 6
 
@@ -129,17 +130,19 @@ def _rate_error(recording) -> tuple:
 def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
     """Choose the orders (or take --order), fit, print the orders; return the model."""
     blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
+    folds = DEFAULT_FOLDS if args.folds is None else args.folds
     if args.order is None:
         max_order = DEFAULT_MAX_ORDER if args.max_order is None else args.max_order
         selections = select_orders(recording.temperature_c, rate_rad_s, axes=recording.axes,
-                                   candidate_orders=range(max_order + 1), blocks=blocks)
+                                   candidate_orders=range(max_order + 1), blocks=blocks,
+                                   folds=folds)
         orders = tuple(selection.order for selection in selections)
         print(format_order_table(selections))
     else:
         orders = (args.order,) * len(recording.axes)
     model = fit_polynomial(recording.temperature_c, rate_rad_s, orders)
     how = 'given by --order' if args.order is not None else \
-        f'chosen by {blocks}-block cross-validation'
+        f'chosen by {folds}-fold cross-validation over {blocks} blocks'
     chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
     print(f'orders ({how}): {chosen}')
     return model
@@ -286,8 +289,9 @@ def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
 
 
 _FIT_MODELS = {
-    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks')),
-    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'true_temperature')),
+    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks', 'folds')),
+    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'folds',
+                                       'true_temperature')),
     'linear_btc': (_fit_linear_btc_model, ('t3', 'table_step')),
     'chain': (_fit_chain_model, ('order', 'full_scale_dps', 'reference_temperature',
                                  'reference_temperature_2')),
@@ -427,7 +431,10 @@ def build_parser() -> argparse.ArgumentParser:
     orders.add_argument('--max-order', type=non_negative_int, metavar='N',
                         help=f'highest order tried (default: {DEFAULT_MAX_ORDER})')
     fit.add_argument('--blocks', type=int, metavar='N',
-                     help=f'contiguous cross-validation blocks (default: {DEFAULT_BLOCKS})')
+                     help='contiguous blocks, dealt round-robin to the folds (default: '
+                          f'{DEFAULT_BLOCKS})')
+    fit.add_argument('--folds', type=int, metavar='N',
+                     help=f'cross-validation folds (default: {DEFAULT_FOLDS})')
     fit.add_argument('--true-temperature', type=_finite_float, metavar='C',
                      help='relative: temperature at which no bias is introduced '
                           '(default: the mean temperature of the data)')

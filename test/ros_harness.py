@@ -468,3 +468,36 @@ def first_line_with(text: str, needle: str) -> str:
         if needle in line:
             return line
     return ''
+
+
+def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
+                       driver_params: dict = None, timeout: float = 60.0, **params):
+    """Start compensation_node on ``model_file``, then the bag driver at rate factor 0."""
+    probe.subscribe(Imu, 'imu/data')
+    probe.subscribe_diagnostics()
+    # A state file of its own: a learned ZRO offset from elsewhere would shift every sample.
+    launcher.start('compensation_node', 'compensation_node',
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
+                   extra_args=['--params-file', model_file], label='compensation')
+    probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
+                     'the compensation node publishing imu/data', launcher)
+    return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
+                            **(driver_params or {})}, label='driver')
+
+
+def finish_model_replay(launcher, probe, stamps_ns, messages_in_bag: int,
+                        timeout: float = 60.0) -> list:
+    """Wait for the replay and every compensated sample; give their rates in stamp order."""
+    status = probe.wait_status(DRIVER_DIAGNOSTIC,
+                               lambda s: status_values(s).get('state') == 'finished',
+                               timeout, 'the replay to finish', launcher)
+    assert status_values(status)['published'] == str(messages_in_bag)
+    samples = len(stamps_ns)
+    probe.spin_until(lambda: probe.count('imu/data') >= samples, 10.0,
+                     f'{samples} compensated samples', launcher)
+    probe.drain()
+    received = by_stamp(probe.received['imu/data'])
+    missing = [s for s in stamps_ns if s not in received]
+    assert not missing, f'{len(missing)} stamps missing, first {missing[0]}'
+    assert len(received) == samples
+    return [rates(received[s]) for s in stamps_ns]

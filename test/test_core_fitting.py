@@ -1,8 +1,8 @@
 import warnings
 
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.fitting import (contiguous_blocks, fit_polynomial, format_order_table,
-                                       select_orders)
+from mlx_tempcomp.core.fitting import (contiguous_blocks, fit_polynomial, fold_rows,
+                                       format_order_table, select_orders)
 import numpy as np
 import pytest
 
@@ -141,10 +141,18 @@ def test_error_non_finite_input():
         select_orders(temperature_c, np.zeros(50))
 
 
-def test_error_fewer_than_two_blocks():
+def test_error_fewer_than_two_blocks_or_folds():
     with pytest.raises(CalibrationError, match=r'at least 2 blocks, got 1'):
         contiguous_blocks(100, 1)
-    with pytest.raises(CalibrationError, match=r'at least 2 blocks, got 1'):
+    with pytest.raises(CalibrationError, match=r'2 <= folds <= blocks, got 5 folds, 1 blocks'):
         select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), blocks=1)
+    with pytest.raises(CalibrationError, match=r'got 1 folds'):
+        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), folds=1)
+
+
+def test_folds_deal_contiguous_blocks_round_robin():
+    held_out = fold_rows(20, blocks=10, folds=5)
+    assert [rows.tolist() for rows in held_out] == [
+        [0, 1, 10, 11], [2, 3, 12, 13], [4, 5, 14, 15], [6, 7, 16, 17], [8, 9, 18, 19]]
     with pytest.raises(CalibrationError, match=r'cannot split 3 samples into 5 blocks'):
         contiguous_blocks(3, 5)

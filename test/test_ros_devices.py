@@ -91,6 +91,16 @@ def test_adis16130_streams_through_linear_btc(launcher, probe):
           f'{compensated_mean:.4f} deg/s ({len(raw)} / {len(data)} samples)')
     assert raw_mean == pytest.approx(bias_dps, abs=0.06)
     assert abs(compensated_mean) < 0.06
+    # Runtime faults: the MLX90609's refusal is not the ADIS16130's; a stuck MISO is.
+    result, = probe.set_parameters('driver_node', {'simulation.fault': 'refuse'})
+    assert not result.successful and 'knows none, silent_high, silent_low' in result.reason
+    result, = probe.set_parameters('driver_node', {'simulation.fault': 'silent_low'})
+    assert result.successful, result.reason
+    failing = probe.wait_status(
+        DRIVER_DIAGNOSTIC, lambda s: s.level == DiagnosticStatus.ERROR, TIMEOUT_S,
+        'driver ERROR', launcher)
+    assert int(status_values(failing)['silent_bus']) > 0
+    assert failing.message.startswith('SPI reads failing: '), failing.message
 
 
 def test_mpu6000_streams_through_polynomial(launcher, probe, tmp_path):
@@ -132,12 +142,11 @@ def gyro_mean_dps(launcher, probe, samples: int = 200) -> np.ndarray:
     return np.array([mean_dps(raw[:samples], i) for i in range(3)])
 
 
-def start_mpu(launcher, probe, path, label: str, **extra):
-    driver = launcher.driver(simulated_driver_params(
-        device='mpu6000', axes=MPU_AXES, **{'simulation.seed': SEED,
-                                            'mpu6000.calibration.duration_s': 2.0,
-                                            'mpu6000.offsets_file': str(path)}, **extra),
-        label=label)
+def start_mpu(launcher, probe, path, label: str):
+    params = simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
+        'simulation.seed': SEED, 'mpu6000.calibration.duration_s': 2.0,
+        'mpu6000.offsets_file': str(path)})
+    driver = launcher.driver(params, label=label)
     probe.wait_streaming(['imu/data_raw'], TIMEOUT_S, launcher)
     return driver
 
@@ -200,7 +209,7 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
                          'mpu6000'),
     ({'device': 'adis16130', 'axes': ['x', 'z']},
      "invalid parameter axes: the adis16130 measures one axis, got ['x', 'z']"),
-])
+], ids=['unknown device', 'adis16130 on two axes'])
 def test_bad_device_parameters_exit_1_naming_the_parameter(launcher, params, named):
     driver = launcher.driver(params)
     assert driver.wait(TIMEOUT_S) == 1

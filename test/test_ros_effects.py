@@ -21,8 +21,8 @@ from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProt
 from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
 import numpy as np
 import pytest
-from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with,
-                         parse_list, rates, status_values)
+from ros_harness import (COMPENSATION_DIAGNOSTIC, finish_model_replay, first_line_with,
+                         parse_list, rates, start_model_replay, status_values)
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
 
@@ -32,6 +32,7 @@ TIMEOUT_S = 60.0
 T0_NS = 1_700_000_000 * 1_000_000_000   # stamps as a real recording has them
 PERIOD_NS = 100_000_000                 # 10 Hz
 T2_TOPIC = '/board/temperature'         # replayed as imu/temperature_2_raw
+T2_DRIVER = {'bag.temperature_2_topic': T2_TOPIC}
 NOISE_RAD_S = 0.002
 ACCELERATION_COVARIANCE = [1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4]
 
@@ -111,36 +112,6 @@ def write_model_file(path, parameters: dict) -> str:
     return str(path)
 
 
-def start_replay(launcher, probe, tmp_path, bag, model_file: str, **params):
-    """Start the compensation node on ``model_file``, then the bag driver at rate factor 0."""
-    probe.subscribe(Imu, 'imu/data')
-    probe.subscribe_diagnostics()
-    launcher.start('compensation_node', 'compensation_node',
-                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
-                   extra_args=['--params-file', model_file], label='compensation')
-    probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, TIMEOUT_S,
-                     'the compensation node publishing imu/data', launcher)
-    return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
-                            'bag.temperature_2_topic': T2_TOPIC}, label='driver')
-
-
-def finish_replay(launcher, probe, recording: dict, messages_in_bag: int) -> np.ndarray:
-    """Wait for the replay and every compensated sample; return them in stamp order."""
-    status = probe.wait_status(DRIVER_DIAGNOSTIC,
-                               lambda s: status_values(s).get('state') == 'finished',
-                               TIMEOUT_S, 'the replay to finish', launcher)
-    assert status_values(status)['published'] == str(messages_in_bag)
-    samples = len(recording['stamps_ns'])
-    probe.spin_until(lambda: probe.count('imu/data') >= samples, 10.0,
-                     f'{samples} compensated samples', launcher)
-    probe.drain()
-    received = by_stamp(probe.received['imu/data'])
-    missing = [s for s in recording['stamps_ns'] if s not in received]
-    assert not missing, f'{len(missing)} stamps missing, first {missing[0]}'
-    assert len(received) == samples
-    return np.array([rates(received[s]) for s in recording['stamps_ns']])
-
-
 @pytest.mark.slow
 def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tmp_path):
     recording = effects_recording(4000, seed=3)
@@ -156,8 +127,8 @@ def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tm
     model_file = write_model_file(tmp_path / 'effects.yaml',
                                   effect_parameters(model, ('x', 'y', 'z')))
 
-    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file)
-    got = finish_replay(launcher, probe, recording, count)
+    start_model_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file, T2_DRIVER)
+    got = np.array(finish_model_replay(launcher, probe, recording['stamps_ns'], count))
     difference = np.max(np.abs(got - expected))
     print(f'effects: {len(got)} samples, largest difference {difference:.3g} rad/s')
     assert difference <= 1e-9
@@ -177,12 +148,12 @@ def test_recalibration_keeps_the_stream_state(launcher, probe, tmp_path):
     count = write_bag(tmp_path / 'bag', recording)
     model_file = write_model_file(tmp_path / 'effects.yaml',
                                   effect_parameters(model, ('x', 'y', 'z')))
-    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file,
-                 rate_noise_rad_s=0.01, **{'recalibration.duration_s': 2.0})
+    start_model_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file, T2_DRIVER,
+                       rate_noise_rad_s=0.01, **{'recalibration.duration_s': 2.0})
     probe.wait_count('imu/data', 800, TIMEOUT_S, launcher)
     response = probe.call(Trigger, 'imu/recalibrate_zro', Trigger.Request(), TIMEOUT_S)
     assert response.success, response.message
-    got = finish_replay(launcher, probe, recording, count)
+    got = np.array(finish_model_replay(launcher, probe, recording['stamps_ns'], count))
 
     difference = got - expected
     before = np.max(np.abs(difference), axis=1) <= 1e-9
@@ -229,8 +200,8 @@ def test_chain_model_replay_matches_the_offline_correction(launcher, probe, tmp_
     count = write_bag(tmp_path / 'bag', recording)
     model_file = write_model_file(tmp_path / 'chain.yaml', chain_parameters(model))
 
-    start_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file)
-    got = finish_replay(launcher, probe, recording, count)
+    start_model_replay(launcher, probe, tmp_path, tmp_path / 'bag', model_file, T2_DRIVER)
+    got = np.array(finish_model_replay(launcher, probe, recording['stamps_ns'], count))
     difference = np.max(np.abs(got - expected))
     print(f'chain: {len(got)} samples, largest difference {difference:.3g} rad/s')
     assert difference <= 1e-9

@@ -143,11 +143,26 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
                            temperature_min_c=low_c, temperature_max_c=high_c)
 
 
-def _held_out_rms_rad_s(temperature, rate, blocks: tuple, order: int) -> np.ndarray:
-    """Return the held-out RMS per block (rows) and axis (columns), inf if unsupported."""
-    rms = np.full((len(blocks), rate.shape[1]), math.inf)
-    for index, block in enumerate(blocks):
-        train = np.concatenate([b for i, b in enumerate(blocks) if i != index])
+def fold_rows(samples: int, blocks: int, folds: int) -> tuple:
+    """
+    Give the held-out rows of each fold: contiguous blocks dealt round-robin to folds.
+
+    Fold k holds out blocks k, k + folds, k + 2 folds, ... With more blocks
+    than folds, training data surrounds every held-out block, so a single
+    thermal cycle's extremes are not extrapolated.
+    """
+    if not 2 <= folds <= blocks:
+        msg = f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, {blocks} blocks'
+        raise CalibrationError(msg)
+    splits = contiguous_blocks(samples, blocks)
+    return tuple(np.concatenate(splits[fold::folds]) for fold in range(folds))
+
+
+def _held_out_rms_rad_s(temperature, rate, held_out: tuple, order: int) -> np.ndarray:
+    """Return the held-out RMS per fold (rows) and axis (columns), inf if unsupported."""
+    rms = np.full((len(held_out), rate.shape[1]), math.inf)
+    for index, block in enumerate(held_out):
+        train = np.setdiff1d(np.arange(temperature.size), block, assume_unique=True)
         try:
             model = fit_polynomial(temperature[train], rate[train], order)
         except CalibrationError:
@@ -158,16 +173,18 @@ def _held_out_rms_rad_s(temperature, rate, blocks: tuple, order: int) -> np.ndar
 
 
 def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),
-                  blocks: int = 5) -> tuple:
+                  blocks: int = 20, folds: int = 5) -> tuple:
     """
     Choose the bias polynomial order per axis by contiguous-block cross-validation.
 
-    Each candidate order is fitted on all blocks but one and scored by the RMS
-    of the corrected rate (through PolynomialModel.correct, so clamping acts as
-    in the node) on the held-out block. Blocks are contiguous because
-    neighbouring samples are correlated. The chosen order is the lowest whose
-    mean held-out RMS is within one standard error of the best; orders the
-    training data cannot support score inf and are never chosen.
+    The record is cut into ``blocks`` contiguous blocks dealt round-robin to
+    ``folds`` folds (`fold_rows`). Each candidate order is fitted on all folds
+    but one and scored by the RMS of the corrected rate (through
+    PolynomialModel.correct, so clamping acts as in the node) on the held-out
+    fold. Blocks are contiguous because neighbouring samples are correlated.
+    The chosen order is the lowest whose mean held-out RMS is within one
+    standard error of the best; orders the training data cannot support
+    score inf and are never chosen.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     names = AXIS_NAMES[:rate.shape[1]] if axes is None else tuple(axes)
@@ -179,8 +196,8 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
         msg = 'no candidate orders given'
         raise CalibrationError(msg)
     orders = sorted(set(_axis_orders(candidates, len(candidates))))
-    splits = contiguous_blocks(temperature.size, blocks)
-    block_rms = {order: _held_out_rms_rad_s(temperature, rate, splits, order)
+    held_out = fold_rows(temperature.size, blocks, folds)
+    block_rms = {order: _held_out_rms_rad_s(temperature, rate, held_out, order)
                  for order in orders}
     selections = []
     for axis, name in enumerate(names):
@@ -188,13 +205,13 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
         best = min(scores, key=lambda score: score.mean_rms_rad_s)
         if not math.isfinite(best.mean_rms_rad_s):
             msg = (f'axis {name}: the data cannot support any of the orders {orders} '
-                   f'in {blocks}-block cross-validation')
+                   f'in {folds}-fold cross-validation')
             raise CalibrationError(msg)
         threshold = best.mean_rms_rad_s + best.standard_error_rad_s
         chosen = next(score.order for score in scores if score.mean_rms_rad_s <= threshold)
-        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS over {blocks} '
-                f'contiguous blocks is within one standard error of the best (order '
-                f'{best.order})')
+        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS over {folds} '
+                f'folds of {blocks} contiguous blocks is within one standard error of the '
+                f'best (order {best.order})')
         selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
     return tuple(selections)
 

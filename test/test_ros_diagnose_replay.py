@@ -1,0 +1,133 @@
+"""
+Replay the recording `diagnose` studied through the nodes, with the parameter file it wrote.
+
+Issue 4: replaying the data through driver_node and compensation_node gives
+the offline numbers. The data are the project's simulated chips with a
+hysteresis the diagnosis is not told about, so the diagnosed model keeps
+play-operator state that the node must carry from sample to sample.
+
+The test-part figures have two definitions: `evaluate --test-fraction F`
+takes every row in the last F of the time and the plain RMS of its bin means;
+`diagnose --test-fraction F` keeps the last floor(F x rows) rows and weights
+each bin mean by its row count. Each is recomputed from the node's output
+its own way.
+"""
+
+import json
+import math
+
+from mlx_tempcomp.cli import main
+from mlx_tempcomp.sources.bag import RawBagReader, RawTopics
+import numpy as np
+import pytest
+from ros_harness import finish_model_replay, start_model_replay
+
+pytestmark = pytest.mark.ros
+
+# Three axes, 2 Hz for 2000 s (4001 rows), two -10..60 C cycles, a 0.3 deg/s hysteresis.
+SIMULATE = ('--axes', 'x,y,z', '--rate-hz', '2', '--duration-s', '2000', '--seed', '1',
+            '--cycle-c', '60', '-10', '60', '-10', '60', '--ramp-c-per-min', '8',
+            '--hysteresis-dps', '0.3', '--hysteresis-width-c', '5')
+TEST_FRACTION = 0.25
+AVERAGE_S = 1.0
+STATEFUL_EFFECTS = {'hysteresis', 'thermal_lag'}
+TOLERANCE_RAD_S = 1e-9
+RELATIVE = 1e-9
+
+
+def run(capsys, *argv) -> str:
+    """Run an mlx-tempcomp command in this process; give what it printed."""
+    code = main([str(arg) for arg in argv])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    return captured.out
+
+
+def bag_stamps(bag) -> tuple:
+    """Give the Imu stamps (ns) of a raw bag and the number of messages in it."""
+    stamps, messages = [], 0
+    with RawBagReader(bag, RawTopics()) as reader:
+        for _, topic, record in reader.records():
+            messages += 1
+            if topic == RawTopics.imu:
+                stamps.append(record.stamp_ns)
+    return stamps, messages
+
+
+def bin_means(time_s: np.ndarray, error: np.ndarray) -> tuple:
+    """Give the means (bins, axes) over AVERAGE_S bins from time_s[0] and their row counts."""
+    index = np.floor((time_s - time_s[0]) / AVERAGE_S).astype(np.int64)
+    starts = np.flatnonzero(np.concatenate(([True], index[1:] != index[:-1])))
+    counts = np.diff(np.append(starts, len(time_s)))
+    return np.add.reduceat(error, starts, axis=0) / counts[:, None], counts
+
+
+def evaluate_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
+    """Test-part figures as `evaluate` defines them: last fraction of the time, plain RMS."""
+    part = time_s >= time_s[-1] - TEST_FRACTION * (time_s[-1] - time_s[0])
+    means, _ = bin_means(time_s[part], error[part])
+    return {'rows': int(np.count_nonzero(part)), 'bins': len(means),
+            'per_sample_rms': np.sqrt(np.mean(np.square(error[part]), axis=0)),
+            'rms': np.sqrt(np.mean(np.square(means), axis=0)),
+            'peak': np.max(np.abs(means), axis=0)}
+
+
+def diagnose_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
+    """Test-part figures as `diagnose` defines them: last rows, RMS weighted by bin rows."""
+    first = len(time_s) - int(math.floor(TEST_FRACTION * len(time_s)))
+    means, counts = bin_means(time_s[first:], error[first:])
+    weights = counts[:, None] / np.sum(counts)
+    return {'rows': len(time_s) - first, 'rms': np.sqrt(np.sum(weights * np.square(means),
+                                                               axis=0)),
+            'peak': np.max(np.abs(means), axis=0)}
+
+
+@pytest.mark.slow
+def test_node_replay_of_a_diagnose_file_matches_the_offline_evaluation(
+        launcher, probe, tmp_path, capsys):
+    csv, out, bag = tmp_path / 'sim.csv', tmp_path / 'diagnosis', tmp_path / 'bag'
+    run(capsys, 'simulate', '--out', csv, *SIMULATE)
+    run(capsys, 'diagnose', csv, '--test-fraction', TEST_FRACTION, '--average-s', AVERAGE_S,
+        '--out', out)
+    report = json.loads((out / 'report.json').read_text())
+    axes = tuple(report['axes'])
+    assert axes == ('x', 'y', 'z')
+    added = {step['effect'] for a in axes for step in report['axes'][a]['steps'][1:]}
+    # Without a stateful effect the replay would not show that the node keeps the state.
+    assert added & STATEFUL_EFFECTS, f'diagnose added {sorted(added) or "nothing"}'
+
+    offline_csv = tmp_path / 'offline.csv'
+    evaluation = json.loads(run(capsys, 'evaluate', csv, '--params', out / 'params.yaml',
+                                '--test-fraction', TEST_FRACTION, '--average-s', AVERAGE_S,
+                                '--json', '--out-csv', offline_csv))
+    assert evaluation['model'] == 'effects' and evaluation['truth'] == 'zero (at rest)'
+    offline = np.loadtxt(offline_csv, delimiter=',', skiprows=1)
+    time_s, expected = offline[:, 0], offline[:, 2:]
+    run(capsys, 'convert', csv, '--out', bag)
+    stamps_ns, messages = bag_stamps(bag)
+    assert len(stamps_ns) == len(time_s)
+    assert np.max(np.abs(np.array(stamps_ns) / 1e9 - time_s)) <= 1e-9
+
+    start_model_replay(launcher, probe, tmp_path, bag, str(out / 'params.yaml'))
+    got = np.array(finish_model_replay(launcher, probe, stamps_ns, messages))
+    difference = np.max(np.abs(got - expected))
+    print(f'{len(got)} samples, largest |node - offline| {difference:.3g} rad/s')
+    assert difference <= TOLERANCE_RAD_S
+
+    # At rest the truth is 0: the node's output is its error.
+    node = evaluate_figures(time_s, got)
+    assert (node['rows'], node['bins']) == (evaluation['per_sample']['x']['samples'],
+                                            evaluation['averaged']['x']['samples'])
+    node_diagnose = diagnose_figures(time_s, got)
+    assert node_diagnose['rows'] == report['rows']['test']
+    test = report['comparison']['test']['diagnosed']
+    for i, a in enumerate(axes):
+        print(f'{a}: evaluate rms {node["rms"][i]:.9e} ({node["rows"]} rows), diagnose test '
+              f'rms {node_diagnose["rms"][i]:.9e} ({node_diagnose["rows"]} rows) rad/s')
+        assert node['per_sample_rms'][i] == pytest.approx(
+            evaluation['per_sample'][a]['rms'], rel=RELATIVE)
+        assert node['rms'][i] == pytest.approx(evaluation['averaged'][a]['rms'], rel=RELATIVE)
+        assert node['peak'][i] == pytest.approx(evaluation['averaged'][a]['peak'],
+                                                rel=RELATIVE)
+        assert node_diagnose['rms'][i] == pytest.approx(test[a]['rms'], rel=RELATIVE)
+        assert node_diagnose['peak'][i] == pytest.approx(test[a]['peak'], rel=RELATIVE)
