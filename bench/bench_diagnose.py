@@ -158,7 +158,7 @@ def _diagnose(data: dict) -> tuple:
         step.before.rms_rad_s), 'rms_after_dps': math.degrees(step.after.rms_rad_s),
         'parameters': _brief(step.parameters)} for step in axis.steps]
         for axis in diagnosis.per_axis}
-    return seconds, {'cpu_s': cpu_s, 'found': found, 'orders': [axis.order for axis in diagnosis.per_axis]}
+    return seconds, {'cpu_s': cpu_s, 'found': found}
 
 
 def _brief(parameters) -> str:

@@ -62,23 +62,14 @@ def bin_means(time_s: np.ndarray, error: np.ndarray) -> tuple:
     return np.add.reduceat(error, starts, axis=0) / counts[:, None], counts
 
 
-def evaluate_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
-    """Test-part figures as `evaluate` defines them: last fraction of the time, plain RMS."""
-    part = time_s >= time_s[-1] - TEST_FRACTION * (time_s[-1] - time_s[0])
-    means, _ = bin_means(time_s[part], error[part])
-    return {'rows': int(np.count_nonzero(part)), 'bins': len(means),
-            'per_sample_rms': np.sqrt(np.mean(np.square(error[part]), axis=0)),
-            'rms': np.sqrt(np.mean(np.square(means), axis=0)),
-            'peak': np.max(np.abs(means), axis=0)}
-
-
-def diagnose_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
-    """Test-part figures as `diagnose` defines them: last rows, RMS weighted by bin rows."""
+def held_out_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
+    """Test-part figures as diagnose and evaluate define them: last rows, bins weighted by rows."""
     first = len(time_s) - int(math.floor(TEST_FRACTION * len(time_s)))
     means, counts = bin_means(time_s[first:], error[first:])
     weights = counts[:, None] / np.sum(counts)
-    return {'rows': len(time_s) - first, 'rms': np.sqrt(np.sum(weights * np.square(means),
-                                                               axis=0)),
+    return {'rows': len(time_s) - first, 'bins': len(means),
+            'per_sample_rms': np.sqrt(np.mean(np.square(error[first:]), axis=0)),
+            'rms': np.sqrt(np.sum(weights * np.square(means), axis=0)),
             'peak': np.max(np.abs(means), axis=0)}
 
 
@@ -115,19 +106,16 @@ def test_node_replay_of_a_diagnose_file_matches_the_offline_evaluation(
     assert difference <= TOLERANCE_RAD_S
 
     # At rest the truth is 0: the node's output is its error.
-    node = evaluate_figures(time_s, got)
-    assert (node['rows'], node['bins']) == (evaluation['per_sample']['x']['samples'],
-                                            evaluation['averaged']['x']['samples'])
-    node_diagnose = diagnose_figures(time_s, got)
-    assert node_diagnose['rows'] == report['rows']['test']
+    node = held_out_figures(time_s, got)
+    assert node['rows'] == report['rows']['test'] == evaluation['per_sample']['x']['samples']
+    assert node['bins'] == evaluation['averaged']['x']['samples']
     test = report['comparison']['test']['diagnosed']
     for i, a in enumerate(axes):
-        print(f'{a}: evaluate rms {node["rms"][i]:.9e} ({node["rows"]} rows), diagnose test '
-              f'rms {node_diagnose["rms"][i]:.9e} ({node_diagnose["rows"]} rows) rad/s')
+        print(f'{a}: node test-part rms {node["rms"][i]:.9e} rad/s over {node["rows"]} rows; '
+              f'evaluate {evaluation["averaged"][a]["rms"]:.9e}, diagnose {test[a]["rms"]:.9e}')
         assert node['per_sample_rms'][i] == pytest.approx(
             evaluation['per_sample'][a]['rms'], rel=RELATIVE)
-        assert node['rms'][i] == pytest.approx(evaluation['averaged'][a]['rms'], rel=RELATIVE)
-        assert node['peak'][i] == pytest.approx(evaluation['averaged'][a]['peak'],
-                                                rel=RELATIVE)
-        assert node_diagnose['rms'][i] == pytest.approx(test[a]['rms'], rel=RELATIVE)
-        assert node_diagnose['peak'][i] == pytest.approx(test[a]['peak'], rel=RELATIVE)
+        for figure in ('rms', 'peak'):
+            assert node[figure][i] == pytest.approx(evaluation['averaged'][a][figure],
+                                                    rel=RELATIVE)
+            assert node[figure][i] == pytest.approx(test[a][figure], rel=RELATIVE)

@@ -34,6 +34,7 @@ from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, EffectMode
                       temperature_rate_c_s)
 from .errors import CalibrationError
 from .fitting import MIN_SPAN_C, OrderScore
+from .metrics import bin_means, bin_starts, test_start_row
 
 BASE_EFFECT = 'temperature_polynomial'
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
@@ -241,7 +242,7 @@ class _Problem:
         self.progress = progress
         self.axes = tuple(recording.axes)
         total = len(recording.time_s)
-        self.rows = total - int(math.floor(settings.test_fraction * total))
+        self.rows = test_start_row(total, settings.test_fraction)
         self.full = recording
         rows = slice(0, self.rows)
         self.time = np.asarray(recording.time_s, dtype=np.float64)[rows]
@@ -726,19 +727,13 @@ def _heating(problem: _Problem, rows: slice, starts: np.ndarray) -> np.ndarray:
     return np.add.reduceat(slope, starts) >= 0.0
 
 
-def _test_bins(problem: _Problem, test_rows: int) -> np.ndarray:
+def _test_bins(problem: _Problem) -> np.ndarray:
     """Bin starts of the test part (relative to its first row)."""
-    time = problem.full.time_s[problem.rows:]
-    average_s = problem.settings.average_s
-    if average_s <= 0.0:
-        return np.arange(test_rows)
-    index = np.floor((time - time[0]) / average_s).astype(np.int64)
-    return np.flatnonzero(np.concatenate(([True], index[1:] != index[:-1])))
+    return bin_starts(problem.full.time_s[problem.rows:], problem.settings.average_s)
 
 
 def _binned_error(residual: np.ndarray, starts: np.ndarray) -> tuple:
-    counts = np.diff(np.append(starts, residual.shape[0])).astype(np.float64)
-    binned = np.add.reduceat(residual, starts, axis=0) / counts[:, None]
+    binned, counts = bin_means(residual, starts)
     errors = tuple(HeldOutError(_rms(binned[:, a], counts), float(np.max(np.abs(binned[:, a]))))
                    for a in range(residual.shape[1]))
     return binned, errors
@@ -749,7 +744,7 @@ def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel
     full = problem.full
     test = slice(problem.rows, len(full.time_s))
     rows = len(full.time_s) - problem.rows
-    starts = _test_bins(problem, rows)
+    starts = _test_bins(problem)
     shape = (rows, len(problem.axes))
     none, cubic, before, after = (np.empty(shape) for _ in range(4))
     for axis in range(len(problem.axes)):

@@ -300,8 +300,11 @@ class CompensationNode(Node):
             self.window = None
             self.destroy_timer(stale_timer)
         response.success = not response.message.startswith(('refused', 'applied but'))
-        log = self.get_logger().info if response.success else self.get_logger().warn
-        log(f'ZRO recalibration: {response.message}')
+        # One call site per severity: rclpy refuses a call site that changes severity.
+        if response.success:
+            self.get_logger().info(f'ZRO recalibration: {response.message}')
+        else:
+            self.get_logger().warn(f'ZRO recalibration: {response.message}')
         return response
 
     def _finish_window(self, window: _Window, model, limits, duration_s: float) -> str:

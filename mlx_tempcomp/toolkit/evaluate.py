@@ -9,7 +9,8 @@ the first sample as they do when the recording is replayed into the node; the
 ZRO state file of the node is not applied. The error is the corrected rate
 minus the truth: the reference rate when the recording has one, else 0 (at
 rest). Statistics per axis cover every sample and averages over bins of
-``--average-s``, optionally only the last ``--test-fraction`` of the time.
+``--average-s`` (weighted by their sample counts), optionally only the last
+``--test-fraction`` of the rows: the test part and bins `diagnose` reports.
 """
 
 import argparse
@@ -26,7 +27,7 @@ import yaml
 from .common import add_recording_options, load, UserError
 from ..core.conversion import Output
 from ..core.errors import TempCompError
-from ..core.metrics import ErrorStatistics
+from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
 from ..core.table import sensor_tables
 from ..ros.params import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
                           ParameterError, transfer_of)
@@ -228,17 +229,8 @@ def _build(args: argparse.Namespace, values: dict):
     return model
 
 
-def _bin_means(time_s: np.ndarray, error: np.ndarray, width_s: float) -> np.ndarray:
-    """Average ``error`` (samples, axes) over consecutive bins of ``width_s`` from time_s[0]."""
-    bins = np.floor((time_s - time_s[0]) / width_s).astype(np.int64)
-    _, index = np.unique(bins, return_inverse=True)
-    counts = np.bincount(index)
-    return np.column_stack([np.bincount(index, weights=column) / counts
-                            for column in error.T])
-
-
-def _statistics(error: np.ndarray) -> dict:
-    stats = ErrorStatistics.of(error)
+def _statistics(error: np.ndarray, weights=None) -> dict:
+    stats = ErrorStatistics.of(error, weights)
     return {'mean': stats.mean, 'sigma': stats.sigma, 'rms': stats.rms, 'peak': stats.peak,
             'samples': stats.samples}
 
@@ -299,10 +291,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
     truth = np.zeros_like(corrected) if recording.reference_rad_s is None else \
         recording.reference_rad_s[:, columns]
     error = corrected - truth
-    start_s = recording.time_s[-1] - args.test_fraction * recording.duration_s
-    part = recording.time_s >= start_s if args.test_fraction < 1.0 else \
-        np.ones(len(recording), dtype=bool)
-    averaged = _bin_means(recording.time_s[part], error[part], args.average_s)
+    # The test part and bins as diagnose defines them, so the figures compare.
+    part = slice(test_start_row(len(recording), args.test_fraction), len(recording))
+    averaged, counts = bin_means(error[part], bin_starts(recording.time_s[part], args.average_s))
     report = {
         'input': args.input, 'params': args.params, 'model': model.name, 'axes': list(axes),
         'truth': 'reference' if recording.reference_rad_s is not None else 'zero (at rest)',
@@ -315,7 +306,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
                                                             .any(axis=1))),
         'unit': 'rad/s',
         'per_sample': {a: _statistics(error[part, i]) for i, a in enumerate(axes)},
-        'averaged': {a: _statistics(averaged[:, i]) for i, a in enumerate(axes)},
+        'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
     if args.out_csv is not None:
         _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
@@ -327,9 +318,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
                         if count)
     print(f'{args.input}: {len(recording)} rows, skipped: {skipped or "none"}; model '
           f'{model.name} from {args.params}; truth: {report["truth"]}')
-    print(f'evaluated {int(np.count_nonzero(part))} samples from '
+    print(f'evaluated {len(recording) - part.start} samples from '
           f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
-          f'(last {args.test_fraction:g} of the time); '
+          f'(last {args.test_fraction:g} of the rows); '
           f'{report["temperature_clamped_samples"]} with temperature clamped')
     print(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
     for a in axes:
@@ -359,7 +350,8 @@ def add_parser(commands) -> None:
     evaluate.add_argument('--average-s', type=_positive, default=1.0, metavar='S',
                           help='bin width of the averaged statistics (default: %(default)s)')
     evaluate.add_argument('--test-fraction', type=_fraction, default=1.0, metavar='F',
-                          help='statistics over the last F of the time only (default: 1)')
+                          help='statistics over the last F of the rows only, the test part '
+                               'of diagnose --test-fraction (default: 1)')
     evaluate.add_argument('--eeprom', nargs='+', metavar='IMAGE',
                           help='EEPROM images (128 bytes, one per axis) for the eeprom model')
     evaluate.add_argument('--json', action='store_true', help='print JSON')
