@@ -9,7 +9,7 @@ linearly interpolated) plus 3 C of self-heating, and the temperature
 reading adds 0.02 C of white noise. Each axis has a cubic bias in the die
 temperature; x adds a hysteresis (play operator of half width 2 C,
 +-0.06 deg/s), y a +0.05 deg/s bias step at 60% of the record, z nothing
-more; all add 0.2 deg/s of white noise (MLX90609 density 0.03 deg/s/rtHz
+more; all add 0.2 deg/s of white noise (an MLX90609 density of 0.03 deg/s/rtHz
 over 50 Hz).
 
 The parent generates the data once and saves it as .npy files. Each job
@@ -192,10 +192,10 @@ def child(args: argparse.Namespace) -> None:
                       'loading_mb': loading_mb, 'reset': reset, **extra}))
 
 
-def _run_job(job: str, args: argparse.Namespace, data_dir: str, fit_defaults: tuple) -> dict:
+def _run_job(job: str, args: argparse.Namespace, data_dir: str) -> dict:
     command = [sys.executable, __file__, '--child', job, '--data', data_dir,
-               '--repeats', str(args.repeats), '--max-order', str(fit_defaults[0]),
-               '--blocks', str(fit_defaults[1])]
+               '--repeats', str(args.repeats), '--max-order', str(args.max_order),
+               '--blocks', str(args.blocks)]
     print(f'  running {job} ...', flush=True)
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     if done.returncode:
@@ -216,20 +216,20 @@ def report(args: argparse.Namespace, data_mb: float, results: dict) -> None:
                                      for key in ('seconds', 'cpu_s')),
                  math.nan, max(results['fit']['peak_mb'], results['diagnose']['peak_mb'])))
     print(f'\n{args.samples:.0e} samples x 3 axes at {args.rate_hz:g} Hz '
-          f'({args.samples / args.rate_hz / 3600.0:.1f} h); data {data_mb:.0f} MB '
+          f'({args.samples / args.rate_hz / 3600.0:.1f} h); data {data_mb:.0f} MiB '
           '(time, temperature, gyro in float64); each job in a fresh process')
-    print(f'  {"job":<15}{"wall s":>9}{"x cubic":>9}{"CPU s":>9}{"RSS at start MB":>17}'
-          f'{"peak RSS MB":>13}{"added MB":>10}')
+    print(f'  {"job":<15}{"wall s":>9}{"x cubic":>9}{"CPU s":>9}{"RSS at start MiB":>18}'
+          f'{"peak RSS MiB":>14}{"added MiB":>11}')
     for job, seconds, cpu_s, start_mb, peak_mb in rows:
         start_text = '' if math.isnan(start_mb) else f'{start_mb:.0f}'
         added_text = '' if math.isnan(start_mb) else f'{peak_mb - start_mb:.0f}'
-        print(f'  {job:<15}{seconds:9.2f}{seconds / cubic_s:9.1f}{cpu_s:9.2f}{start_text:>17}'
-              f'{peak_mb:13.0f}{added_text:>10}')
+        print(f'  {job:<15}{seconds:9.2f}{seconds / cubic_s:9.1f}{cpu_s:9.2f}{start_text:>18}'
+              f'{peak_mb:14.0f}{added_text:>11}')
     print(f'  cubic: best of {args.repeats}; fit and diagnose: one run each. RSS at start: '
           'interpreter, numpy and the loaded data')
     if not all(result['reset'] for result in results.values()):
         print('  peak RSS could not be reset after loading: peaks include loading')
-    loading = ', '.join(f'{job} {results[job]["loading_mb"]:.0f} MB' for job in JOBS)
+    loading = ', '.join(f'{job} {results[job]["loading_mb"]:.0f} MiB' for job in JOBS)
     print(f'  peak while loading (np.load, not counted above): {loading}; diagnose also '
           'copies the data into a Recording before its peak is reset')
     diagnose_ratio = results['diagnose']['seconds'] / cubic_s
@@ -240,9 +240,10 @@ def report(args: argparse.Namespace, data_mb: float, results: dict) -> None:
           f'{_verdict(diagnose_ratio <= TARGET_RATIO)} (CPU time {cpu_ratios[0]:.1f}x)')
     print(f'  target fit + diagnose <= {TARGET_RATIO:g}x cubic: {both_ratio:.1f}x, '
           f'{_verdict(both_ratio <= TARGET_RATIO)} (CPU time {cpu_ratios[1]:.1f}x)')
-    print(f'  target peak RSS < {TARGET_PEAK_MB:.0f} MB in every job: {peak_mb:.0f} MB, '
+    print(f'  target peak RSS < {TARGET_PEAK_MB:.0f} MiB in every job: {peak_mb:.0f} MiB, '
           f'{_verdict(peak_mb < TARGET_PEAK_MB)}')
-    print(f'\nfit: orders chosen {results["fit"]["orders"]} (x, y, z; the data has cubic biases)')
+    print(f'\nfit: orders chosen {results["fit"]["orders"]} (x, y, z; the data has cubic biases) '
+          f'from 0..{args.max_order} over {args.blocks} blocks (the fit defaults)')
     print('diagnose, per axis (held-out RMS of 1 s bin means, deg/s); injected: x hysteresis '
           f'half width {HYSTERESIS_HALF_WIDTH_C:g} C, {HYSTERESIS_DPS:g} deg/s; y bias step '
           f'{STEP_DPS:g} deg/s at {STEP_FRACTION * args.samples / args.rate_hz:.0f} s; z none')
@@ -271,6 +272,7 @@ def main() -> None:
         parser.error('--samples must be at least 1000 and --rate-hz positive')
     # The defaults of `mlx-tempcomp fit`; read here, as the cli module imports rclpy.
     from mlx_tempcomp.cli import DEFAULT_BLOCKS, DEFAULT_MAX_ORDER
+    args.max_order, args.blocks = DEFAULT_MAX_ORDER, DEFAULT_BLOCKS
     start = time.perf_counter()
     data = generate(args.samples, args.rate_hz, args.seed)
     print(f'generated in {time.perf_counter() - start:.1f} s (not timed in the jobs)',
@@ -280,8 +282,7 @@ def main() -> None:
         for name, column in data.items():
             np.save(Path(data_dir) / f'{name}.npy', column)
         del data, column
-        results = {job: _run_job(job, args, data_dir, (DEFAULT_MAX_ORDER, DEFAULT_BLOCKS))
-                   for job in JOBS}
+        results = {job: _run_job(job, args, data_dir) for job in JOBS}
     report(args, data_mb, results)
 
 
