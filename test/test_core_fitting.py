@@ -1,8 +1,9 @@
 import warnings
 
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.fitting import (contiguous_blocks, fit_polynomial, fold_rows,
-                                       format_order_table, select_orders)
+from mlx_tempcomp.core.fitting import (CHUNK_ROWS, contiguous_blocks, fit_polynomial,
+                                       fold_rows, format_order_table, select_orders)
+from mlx_tempcomp.core.models import PolynomialModel
 import numpy as np
 import pytest
 
@@ -156,3 +157,95 @@ def test_folds_deal_contiguous_blocks_round_robin():
         [0, 1, 10, 11], [2, 3, 12, 13], [4, 5, 14, 15], [6, 7, 16, 17], [8, 9, 18, 19]]
     with pytest.raises(CalibrationError, match=r'cannot split 3 samples into 5 blocks'):
         contiguous_blocks(3, 5)
+
+
+def direct_fit(temperature_c, rate_rad_s, order):
+    """Return the power coefficients in x of the data's range by np.linalg.lstsq on polyvander."""
+    low_c, high_c = np.min(temperature_c), np.max(temperature_c)
+    x = (temperature_c - 0.5 * (low_c + high_c)) / (0.5 * (high_c - low_c))
+    design = np.polynomial.polynomial.polyvander(x, order)
+    return np.linalg.lstsq(design, rate_rad_s, rcond=None)[0]
+
+
+def test_fit_equals_a_direct_lstsq_per_axis():
+    rng = np.random.default_rng(5)
+    temperature_c = np.sort(rng.uniform(-30.0, 70.0, 700)) + KELVIN_OFFSET_C
+    rate_rad_s = np.column_stack([
+        true_bias_rad_s(temperature_c - KELVIN_OFFSET_C, TRUE_BIAS_RAD_S[order])
+        + rng.normal(0.0, 3e-4, temperature_c.size) for order in (2, 3, 5)])
+    orders = (2, 8, 5)
+    model = fit_polynomial(temperature_c, rate_rad_s, orders)
+    assert (model.temperature_min_c, model.temperature_max_c) == (temperature_c[0],
+                                                                  temperature_c[-1])
+    for axis, order in enumerate(orders):
+        expected = direct_fit(temperature_c, rate_rad_s[:, axis], order)
+        ours = np.asarray(model.bias_coefficients[axis])
+        assert ours.shape == expected.shape
+        error = np.max(np.abs(ours - expected)) / np.max(np.abs(expected))
+        print(f'axis {axis} order {order}: relative coefficient difference {error:.1e}')
+        assert error < 1e-10
+
+
+def direct_block_rms_rad_s(temperature_c, rate_rad_s, order, blocks, folds):
+    """Return the held-out RMS per fold: lstsq on the training rows, correct on the held out."""
+    rms = []
+    for held_out in fold_rows(temperature_c.size, blocks, folds):
+        train = np.delete(np.arange(temperature_c.size), held_out)
+        low_c, high_c = np.min(temperature_c[train]), np.max(temperature_c[train])
+        model = PolynomialModel(
+            bias_coefficients=(direct_fit(temperature_c[train], rate_rad_s[train], order),),
+            reference_temperature_c=0.5 * (low_c + high_c),
+            temperature_scale_c=0.5 * (high_c - low_c),
+            temperature_min_c=low_c, temperature_max_c=high_c)
+        residual = model.correct(rate_rad_s[held_out], temperature_c[held_out]).rate_rad_s
+        rms.append(np.sqrt(np.mean(np.square(residual))))
+    return np.array(rms)
+
+
+@pytest.mark.parametrize('samples, blocks, folds, highest', [
+    (3000, 20, 5, 8), (2 * CHUNK_ROWS + 1001, 2, 2, 3)])  # the second: blocks of 2 chunks
+def test_cross_validation_equals_direct_fits_on_the_training_rows(samples, blocks, folds,
+                                                                  highest):
+    # a ramp up then a cycle: the first block's lowest temperatures are held out alone, so
+    # its fold's model is clamped to a narrower range than the whole record's
+    phase = np.linspace(0.0, 1.0, samples)
+    temperature_c = np.where(phase < 0.3, -40.0 + 400.0 * phase,
+                             60.0 - 60.0 * np.sin(np.pi * (phase - 0.3) / 0.35) ** 2)
+    rng = np.random.default_rng(blocks)
+    rate_rad_s = (true_bias_rad_s(temperature_c, TRUE_BIAS_RAD_S[3])
+                  + rng.normal(0.0, 1e-4, samples))
+    (selection,) = select_orders(temperature_c, rate_rad_s,
+                                 candidate_orders=range(0, highest + 1), blocks=blocks,
+                                 folds=folds)
+    first_fold = fold_rows(samples, blocks, folds)[0]
+    assert np.min(temperature_c[first_fold]) < np.min(np.delete(temperature_c, first_fold))
+    for score in selection.scores:
+        expected = direct_block_rms_rad_s(temperature_c, rate_rad_s, score.order, blocks,
+                                          folds)
+        np.testing.assert_allclose(score.block_rms_rad_s, expected, rtol=1e-9, atol=0.0)
+
+
+def test_distinct_temperatures_are_counted_across_chunks():
+    temperature_c = np.repeat([10.0, 20.0, 30.0], CHUNK_ROWS - 7)
+    rate_rad_s = 1e-3 + 1e-5 * temperature_c
+    message = (r'order 3 needs at least 4 distinct temperatures \(rounded to 0.01 C\), '
+               r'the data has 3$')
+    with pytest.raises(CalibrationError, match=message):
+        fit_polynomial(temperature_c, rate_rad_s, 3)
+    model = fit_polynomial(temperature_c, rate_rad_s, 2)
+    np.testing.assert_allclose(model.bias_coefficients[0], (1.2e-3, 1e-4, 0.0),
+                               rtol=0.0, atol=1e-15)
+
+
+def test_temperatures_too_close_to_determine_the_order():
+    # three distinct values after rounding, but two of them 2e-10 C apart
+    temperature_c = np.repeat([0.0049999999, 0.0050000001, 30.0], 20)
+    rate_rad_s = 1e-3 * temperature_c
+    message = (r'axis x: the temperatures cannot determine an order 2 polynomial '
+               r'\(design matrix rank 2\)')
+    with pytest.raises(CalibrationError, match=message):
+        fit_polynomial(temperature_c, rate_rad_s, 2)
+    (selection,) = select_orders(temperature_c, rate_rad_s, candidate_orders=range(3),
+                                 blocks=6, folds=3)
+    assert [score.mean_rms_rad_s == np.inf for score in selection.scores] == [False, False, True]
+    assert selection.order == 1

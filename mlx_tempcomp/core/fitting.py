@@ -24,6 +24,10 @@ from .models import AXIS_NAMES, LinearBtcModel, PolynomialModel
 MIN_SPAN_C = 1.0
 DISTINCT_DECIMALS = 2
 ONE_SE_RULE = 'one-standard-error'
+# Rows per chunk of the normal equations: 2^18 rows of an order-8 basis are 19 MB.
+CHUNK_ROWS = 1 << 18
+# Gram singular values this far below the largest are rounding, not data.
+GRAM_RCOND = 1e-13
 
 
 @dataclass(frozen=True)
@@ -46,8 +50,8 @@ class OrderSelection:
     rule: str
 
 
-def contiguous_blocks(samples: int, count: int) -> tuple:
-    """Split indices 0..samples-1 into `count` contiguous, near-equal index arrays."""
+def _block_bounds(samples: int, count: int) -> np.ndarray:
+    """Return the count + 1 boundaries of `contiguous_blocks` (np.array_split's sizes)."""
     samples = operator.index(samples)
     count = operator.index(count)
     if count < 2:
@@ -56,7 +60,15 @@ def contiguous_blocks(samples: int, count: int) -> tuple:
     if samples < count:
         msg = f'cannot split {samples} samples into {count} blocks'
         raise CalibrationError(msg)
-    return tuple(np.array_split(np.arange(samples), count))
+    sizes = np.full(count, samples // count)
+    sizes[:samples % count] += 1
+    return np.concatenate(([0], np.cumsum(sizes)))
+
+
+def contiguous_blocks(samples: int, count: int) -> tuple:
+    """Split indices 0..samples-1 into `count` contiguous, near-equal index arrays."""
+    bounds = _block_bounds(samples, count)
+    return tuple(np.arange(first, last) for first, last in zip(bounds[:-1], bounds[1:]))
 
 
 def _fit_inputs(temperature_c, rate_rad_s) -> tuple:
@@ -74,7 +86,8 @@ def _fit_inputs(temperature_c, rate_rad_s) -> tuple:
     if temperature.size == 0:
         msg = 'no samples to fit'
         raise CalibrationError(msg)
-    bad = np.count_nonzero(~np.isfinite(temperature)) + np.count_nonzero(~np.isfinite(rate))
+    bad = (temperature.size - np.count_nonzero(np.isfinite(temperature))
+           + rate.size - np.count_nonzero(np.isfinite(rate)))
     if bad:
         msg = f'calibration data has {bad} non-finite temperature or rate values'
         raise CalibrationError(msg)
@@ -97,6 +110,104 @@ def _axis_orders(orders, axes: int) -> tuple:
     return values
 
 
+@dataclass(frozen=True)
+class _Moments:
+    """
+    Least-squares summary of some rows: all a fit of order <= the basis order needs.
+
+    gram and moment are the normal equations of the Legendre basis
+    P_0..P_order in x = (T - centre) / half_span, one x for every block of a
+    record, so blocks add up. distinct holds the rows' temperatures rounded to
+    DISTINCT_DECIMALS: all of them, or at least order + 1 (all support needs).
+    """
+
+    rows: int
+    low_c: float
+    high_c: float
+    distinct: np.ndarray
+    gram: np.ndarray
+    moment: np.ndarray
+
+
+def _scaling(low_c: float, high_c: float) -> tuple:
+    """Return (centre, half span) of a temperature range; half span 1 for a single value."""
+    return 0.5 * (low_c + high_c), (0.5 * (high_c - low_c)) or 1.0
+
+
+def _chunks(start: int, stop: int):
+    for first in range(start, stop, CHUNK_ROWS):
+        yield first, min(first + CHUNK_ROWS, stop)
+
+
+def _moments(temperature, rate, rows: slice, scaling: tuple, order: int) -> _Moments:
+    """Accumulate the `_Moments` of temperature[rows], CHUNK_ROWS rows at a time."""
+    centre_c, half_span_c = scaling
+    gram = np.zeros((order + 1, order + 1))
+    moment = np.zeros((order + 1, rate.shape[1]))
+    distinct = np.empty(0)
+    for first, last in _chunks(rows.start, rows.stop):
+        chunk_c = temperature[first:last]
+        basis = np.polynomial.legendre.legvander((chunk_c - centre_c) / half_span_c, order)
+        gram += basis.T @ basis
+        moment += basis.T @ rate[first:last]
+        # Support needs order + 1 distinct values at most: stop sorting once there are enough.
+        if distinct.size <= order:
+            distinct = np.union1d(distinct, np.round(chunk_c, DISTINCT_DECIMALS))
+    return _Moments(rows=rows.stop - rows.start, low_c=float(np.min(temperature[rows])),
+                    high_c=float(np.max(temperature[rows])), distinct=distinct, gram=gram,
+                    moment=moment)
+
+
+def _combined(parts) -> _Moments:
+    """Return the `_Moments` of the union of disjoint row sets sharing one basis."""
+    return _Moments(rows=sum(part.rows for part in parts),
+                    low_c=min(part.low_c for part in parts),
+                    high_c=max(part.high_c for part in parts),
+                    distinct=np.unique(np.concatenate([part.distinct for part in parts])),
+                    gram=sum(part.gram for part in parts),
+                    moment=sum(part.moment for part in parts))
+
+
+def _support_problem(moments: _Moments, order: int) -> str:
+    """Return why the rows cannot support a polynomial of this order, '' if they can."""
+    distinct = moments.distinct.size
+    if distinct < order + 1:
+        return (f'order {order} needs at least {order + 1} distinct temperatures '
+                f'(rounded to 0.01 C), the data has {distinct}')
+    span_c = moments.high_c - moments.low_c
+    if order >= 1 and span_c < MIN_SPAN_C:
+        return (f'order {order} needs a temperature span of at least {MIN_SPAN_C} C, '
+                f'the data spans {span_c:.3g} C ({moments.low_c:.2f} to {moments.high_c:.2f} C)')
+    if span_c == 0.0:
+        return (f'all temperatures equal {moments.low_c:.2f} C; the model needs '
+                'temperature_min_c below temperature_max_c')
+    return ''
+
+
+def _legendre_solution(moments: _Moments, order: int) -> tuple:
+    """
+    Solve the normal equations up to ``order``: (coefficients (order + 1, axes), rank).
+
+    The Gram matrix is scaled to a unit diagonal and solved by SVD; singular
+    values below GRAM_RCOND of the largest count as zero (the rank).
+    """
+    size = order + 1
+    gram = moments.gram[:size, :size]
+    diagonal = np.diag(gram)
+    scale = 1.0 / np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
+    solution, _, rank, _ = np.linalg.lstsq(gram * np.outer(scale, scale),
+                                           moments.moment[:size] * scale[:, None],
+                                           rcond=GRAM_RCOND)
+    return solution * scale[:, None], int(rank)
+
+
+def _power_coefficients(legendre: np.ndarray) -> tuple:
+    """Convert Legendre coefficients to powers of the same x, keeping their count."""
+    power = np.polynomial.legendre.leg2poly(legendre)
+    # leg2poly drops trailing exact zeros; the model keeps one coefficient per power.
+    return tuple(float(c) for c in np.pad(power, (0, legendre.size - power.size)))
+
+
 def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
     """
     Fit a bias polynomial per axis by least squares in float64.
@@ -105,42 +216,40 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
     orders is one int for every axis or one per axis. The model works in
     x = (T - centre) / half_span of the data's temperature range and clamps to
     that range. Raise CalibrationError when the data cannot support an order.
+
+    The fit never holds a design matrix: it accumulates the normal equations
+    of Legendre polynomials in x CHUNK_ROWS rows at a time (well conditioned
+    on [-1, 1]), solves them and converts the solution to powers of x.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     axis_orders = _axis_orders(orders, rate.shape[1])
     highest = max(axis_orders)
-    distinct = np.unique(np.round(temperature, DISTINCT_DECIMALS)).size
-    if distinct < highest + 1:
-        msg = (f'order {highest} needs at least {highest + 1} distinct temperatures '
-               f'(rounded to 0.01 C), the data has {distinct}')
-        raise CalibrationError(msg)
     low_c = float(np.min(temperature))
     high_c = float(np.max(temperature))
-    span_c = high_c - low_c
-    if highest >= 1 and span_c < MIN_SPAN_C:
-        msg = (f'order {highest} needs a temperature span of at least {MIN_SPAN_C} C, '
-               f'the data spans {span_c:.3g} C ({low_c:.2f} to {high_c:.2f} C)')
-        raise CalibrationError(msg)
-    if span_c == 0.0:
-        msg = (f'all temperatures equal {low_c:.2f} C; the model needs '
-               'temperature_min_c below temperature_max_c')
-        raise CalibrationError(msg)
-    centre_c = 0.5 * (low_c + high_c)
-    half_span_c = 0.5 * span_c
-    vandermonde = np.polynomial.polynomial.polyvander((temperature - centre_c) / half_span_c,
-                                                      highest)
+    scaling = _scaling(low_c, high_c)
+    moments = _moments(temperature, rate, slice(0, temperature.size), scaling, highest)
+    problem = _support_problem(moments, highest)
+    if problem:
+        raise CalibrationError(problem)
     coefficients = []
     for axis, order in enumerate(axis_orders):
-        solution, _, rank, _ = np.linalg.lstsq(vandermonde[:, :order + 1], rate[:, axis],
-                                               rcond=None)
+        solution, rank = _legendre_solution(moments, order)
         if rank < order + 1:
             msg = (f'axis {AXIS_NAMES[axis]}: the temperatures cannot determine an order '
                    f'{order} polynomial (design matrix rank {rank})')
             raise CalibrationError(msg)
-        coefficients.append(tuple(solution))
+        coefficients.append(_power_coefficients(solution[:, axis]))
+    centre_c, half_span_c = scaling
     return PolynomialModel(bias_coefficients=tuple(coefficients),
                            reference_temperature_c=centre_c, temperature_scale_c=half_span_c,
                            temperature_min_c=low_c, temperature_max_c=high_c)
+
+
+def _fold_bounds(samples: int, blocks: int, folds: int) -> np.ndarray:
+    if not 2 <= folds <= blocks:
+        msg = f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, {blocks} blocks'
+        raise CalibrationError(msg)
+    return _block_bounds(samples, blocks)
 
 
 def fold_rows(samples: int, blocks: int, folds: int) -> tuple:
@@ -151,24 +260,50 @@ def fold_rows(samples: int, blocks: int, folds: int) -> tuple:
     than folds, training data surrounds every held-out block, so a single
     thermal cycle's extremes are not extrapolated.
     """
-    if not 2 <= folds <= blocks:
-        msg = f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, {blocks} blocks'
-        raise CalibrationError(msg)
-    splits = contiguous_blocks(samples, blocks)
-    return tuple(np.concatenate(splits[fold::folds]) for fold in range(folds))
+    bounds = _fold_bounds(samples, blocks, folds)
+    return tuple(np.concatenate([np.arange(bounds[block], bounds[block + 1])
+                                 for block in range(fold, blocks, folds)])
+                 for fold in range(folds))
 
 
-def _held_out_rms_rad_s(temperature, rate, held_out: tuple, order: int) -> np.ndarray:
-    """Return the held-out RMS per fold (rows) and axis (columns), inf if unsupported."""
-    rms = np.full((len(held_out), rate.shape[1]), math.inf)
-    for index, block in enumerate(held_out):
-        train = np.setdiff1d(np.arange(temperature.size), block, assume_unique=True)
-        try:
-            model = fit_polynomial(temperature[train], rate[train], order)
-        except CalibrationError:
+def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds: int) -> dict:
+    """
+    Return per order the held-out RMS per fold (rows) and axis (columns), inf if unsupported.
+
+    Each fold's polynomial is the least-squares fit on its training rows,
+    clamped to their temperature range; it is evaluated, clamped so, in the
+    Legendre basis it was solved in (the same polynomial as
+    PolynomialModel.correct would evaluate in powers of the training x).
+    """
+    highest = orders[-1]
+    scaling = _scaling(float(np.min(temperature)), float(np.max(temperature)))
+    parts = [_moments(temperature, rate, slice(first, last), scaling, highest)
+             for first, last in zip(bounds[:-1], bounds[1:])]
+    rms = {order: np.full((folds, rate.shape[1]), math.inf) for order in orders}
+    for fold in range(folds):
+        held_out = range(fold, len(parts), folds)
+        training = _combined([part for index, part in enumerate(parts)
+                              if index % folds != fold])
+        solutions = {}
+        for order in orders:
+            if not _support_problem(training, order):
+                solution, rank = _legendre_solution(training, order)
+                if rank == order + 1:
+                    solutions[order] = solution
+        if not solutions:
             continue
-        residual = model.correct(rate[block], temperature[block]).rate_rad_s
-        rms[index] = np.sqrt(np.mean(np.square(residual), axis=0))
+        squares = {order: np.zeros(rate.shape[1]) for order in solutions}
+        for block in held_out:
+            for first, last in _chunks(bounds[block], bounds[block + 1]):
+                clamped_c = np.clip(temperature[first:last], training.low_c, training.high_c)
+                basis = np.polynomial.legendre.legvander(
+                    (clamped_c - scaling[0]) / scaling[1], max(solutions))
+                for order, solution in solutions.items():
+                    residual = rate[first:last] - basis[:, :order + 1] @ solution
+                    squares[order] += np.einsum('ij,ij->j', residual, residual)
+        rows = sum(parts[block].rows for block in held_out)
+        for order, total in squares.items():
+            rms[order][fold] = np.sqrt(total / rows)
     return rms
 
 
@@ -179,12 +314,14 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
 
     The record is cut into ``blocks`` contiguous blocks dealt round-robin to
     ``folds`` folds (`fold_rows`). Each candidate order is fitted on all folds
-    but one and scored by the RMS of the corrected rate (through
-    PolynomialModel.correct, so clamping acts as in the node) on the held-out
-    fold. Blocks are contiguous because neighbouring samples are correlated.
-    The chosen order is the lowest whose mean held-out RMS is within one
-    standard error of the best; orders the training data cannot support
-    score inf and are never chosen.
+    but one and scored by the RMS of the corrected rate (clamped to the
+    training temperature range, as PolynomialModel.correct clamps in the
+    node) on the held-out fold. Blocks are contiguous because neighbouring
+    samples are correlated. The chosen order is the lowest whose mean
+    held-out RMS is within one standard error of the best; orders the
+    training data cannot support score inf and are never chosen. Each block
+    is summarised once (normal equations up to the highest order), so the
+    cost hardly grows with the number of orders and folds.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     names = AXIS_NAMES[:rate.shape[1]] if axes is None else tuple(axes)
@@ -196,9 +333,8 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
         msg = 'no candidate orders given'
         raise CalibrationError(msg)
     orders = sorted(set(_axis_orders(candidates, len(candidates))))
-    held_out = fold_rows(temperature.size, blocks, folds)
-    block_rms = {order: _held_out_rms_rad_s(temperature, rate, held_out, order)
-                 for order in orders}
+    bounds = _fold_bounds(temperature.size, blocks, folds)
+    block_rms = _held_out_rms_rad_s(temperature, rate, bounds, orders, folds)
     selections = []
     for axis, name in enumerate(names):
         scores = tuple(_score(order, block_rms[order][:, axis]) for order in orders)
