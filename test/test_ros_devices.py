@@ -3,19 +3,24 @@ The driver node's ``device`` parameter over DDS: ADIS16130 and MPU-6000 next to 
 
 Each simulated part streams through the compensation node; the MPU's offset
 registers are calibrated, saved and written again at the next start; the
-ADIS16130 bias procedure runs as a service on the stream.
+ADIS16130 bias procedure runs as a service on the stream; the MPU's gyro
+offsets follow a bias model fitted by the toolkit as the temperature ramps.
 """
 
 import math
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
 from mlx_tempcomp.ros.qos import EEPROM_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
+from mlx_tempcomp.simulation.physics import ThermalProfile
+from mlx_tempcomp.sources.mpu6000 import SimulatedMpuSource
+from mlx_tempcomp.state_file import write_state
 import numpy as np
 import pytest
-from ros_harness import (COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with, rates,
-                         simulated_driver_params, status_values)
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with,
+                         rates, simulated_driver_params, status_values)
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String, UInt8MultiArray
 from std_srvs.srv import Trigger
@@ -209,7 +214,10 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
                          'mpu6000'),
     ({'device': 'adis16130', 'axes': ['x', 'z']},
      "invalid parameter axes: the adis16130 measures one axis, got ['x', 'z']"),
-], ids=['unknown device', 'adis16130 on two axes'])
+    ({'device': 'mpu6000', 'axes': MPU_AXES, 'mpu6000.offset_model_file': '/absent/bias.yaml'},
+     'invalid parameter mpu6000.offset_model_file (/absent/bias.yaml): cannot read parameter '
+     'file /absent/bias.yaml'),
+], ids=['unknown device', 'adis16130 on two axes', 'mpu6000 offset model file absent'])
 def test_bad_device_parameters_exit_1_naming_the_parameter(launcher, params, named):
     driver = launcher.driver(params)
     assert driver.wait(TIMEOUT_S) == 1
@@ -247,3 +255,77 @@ def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
     # Table 6: a positive bias slope gives a negative BTC.
     assert btc_dps_per_c == pytest.approx(-slope_dps_per_c, rel=0.3)
     assert section['rate_noise_rad_s'] > 0.0
+
+
+def drift_dps(temperature_c, gyro_rad_s, span_c: float) -> np.ndarray:
+    """Return the rate change over ``span_c`` of a line fitted to rate(T), deg/s per axis."""
+    slopes = np.polyfit(temperature_c, np.degrees(gyro_rad_s), 1)[0]
+    return slopes * span_c
+
+
+@pytest.mark.slow
+def test_mpu6000_gyro_offsets_follow_a_fitted_bias_model(launcher, probe, tmp_path):
+    # Seed 6 draws bias slopes of 0.041, 0.020, 0.045 deg/s/C: 1 to 2.2 deg/s over the ramp.
+    seed, start_c, end_c, ramp_c_per_min = 6, 20.0, 70.0, 300.0
+    thermal = ThermalProfile.cycle((end_c,), ramp_c_per_min, start_c)
+    # The part the driver simulates, recorded in-process along the same ramp, no offsets.
+    source = SimulatedMpuSource(MpuTruth.random(np.random.default_rng(seed), thermal=thermal),
+                                seed=seed)
+    source.start()
+    record = source.record(1100, 0.01)
+    csv_path = tmp_path / 'ramp.csv'
+    np.savetxt(csv_path, np.column_stack((record.time_s, record.temperature_c,
+                                          record.gyro_rad_s)),
+               delimiter=',', header='time,temperature,gyro_x,gyro_y,gyro_z', comments='')
+    model_path = tmp_path / 'bias.yaml'
+    assert main(['fit', str(csv_path), '--order', '1', '--out', str(model_path)]) == 0
+    # Offsets calibrated at a steady 25 C and saved as the service saves them.
+    steady = SimulatedMpuSource(MpuTruth.random(np.random.default_rng(seed)), seed=seed)
+    steady.start()
+    calibration = steady.calibrate_offsets()
+    offsets_path = tmp_path / 'offsets.yaml'
+    write_state(str(offsets_path), {
+        'variant': 'mpu6000', 'gyro_offset_lsb': list(calibration.gyro_lsb),
+        'accel_bias_lsb': list(calibration.accel_bias_lsb),
+        'temperature_c': calibration.temperature_c})
+
+    imu = probe.subscribe(Imu, 'imu/data_raw')
+    temperature = probe.subscribe(Temperature, 'imu/temperature_raw')
+    probe.subscribe_diagnostics()
+    driver = launcher.driver(simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
+        'simulation.seed': seed, 'simulation.real_time_factor': 4.0,
+        'simulation.start_temperature_c': start_c, 'simulation.cycle_temperatures_c': [end_c],
+        'simulation.ramp_c_per_min': ramp_c_per_min,
+        'mpu6000.offsets_file': str(offsets_path),
+        'mpu6000.offset_model_file': str(model_path)}))
+    probe.spin_until(lambda: temperature and temperature[-1].temperature >= end_c - 0.1,
+                     TIMEOUT_S, f'the ramp to {end_c} C', launcher)
+    status = probe.wait_status(DRIVER_DIAGNOSTIC, lambda s: True, TIMEOUT_S, 'driver status',
+                               launcher)
+    probe.drain()
+    assert 'gyro offset refresh from' in driver.output()
+    by_time = by_stamp(temperature)
+    pairs = [(by_time[t].temperature, rates(m)) for t, m in by_stamp(imu).items()
+             if t in by_time and by_time[t].temperature < end_c - 0.1]
+    published_c = np.array([p[0] for p in pairs])
+    published = np.array([p[1] for p in pairs])
+    span_c = end_c - start_c
+    before = drift_dps(record.temperature_c, record.gyro_rad_s, span_c)
+    after = drift_dps(published_c, published, span_c)
+    mean_after = np.degrees(published.mean(axis=0))
+    values = status_values(status)
+    print(f'{len(pairs)} samples from {published_c.min():.2f} to {published_c.max():.2f} C; '
+          f'drift over {span_c:g} C without the refresh {np.round(before, 4)}, with '
+          f'{np.round(after, 4)} deg/s; mean with {np.round(mean_after, 4)} deg/s; '
+          f'{values["offset_refresh_writes"]} refresh writes, last at '
+          f'{values["offset_refresh_temperature_c"]} C, registers {values["gyro_offset_lsb"]}')
+    assert published_c.min() < start_c + 5.0 and len(pairs) > 500
+    assert np.all(np.abs(after) * 3.0 <= np.abs(before)), (before, after)
+    # Saved offsets plus the model's change since 25 C: nothing counted twice (12.8 deg/s
+    # of bias on x would show).
+    assert np.all(np.abs(mean_after) < 0.05), mean_after
+    # One write at start, then one per 0.5 C of the 50 C ramp.
+    assert int(values['offset_refresh_writes']) >= 90
+    assert values['offset_refresh_failures'] == '0'
+    assert float(values['offset_refresh_base_temperature_c']) == pytest.approx(25.0, abs=0.01)
+    assert float(values['offset_refresh_temperature_c']) > end_c - 1.0

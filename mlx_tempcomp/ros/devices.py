@@ -3,11 +3,13 @@ Driver streams of the ADIS16130 and the MPU-6000/6500, and their services.
 
 Each reads one part (simulated or over spidev) on the driver's schedule and
 publishes through `DriverNode.publish_raw`: no EEPROM, one temperature. The
-MPU stream writes the offset registers saved in its state file at start and
-offers ``imu/calibrate_offsets``; the ADIS16130 stream offers
+MPU stream writes the offset registers saved in its state file at start,
+offers ``imu/calibrate_offsets`` and, given a bias model, refreshes the gyro
+offset registers as the temperature moves; the ADIS16130 stream offers
 ``imu/run_bias_procedure`` (AN-1042, fed from the stream).
 """
 
+import dataclasses
 from datetime import datetime, timezone
 import math
 import os
@@ -21,9 +23,10 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import messages
-from .params import effects_of, ParameterError
+from .params import axes_of, build_model, effects_of, ParameterError
 from ..core.bias_procedure import BiasProcedure, MIN_WINDOW_SAMPLES, Phase, ProcedureSettings
 from ..core.errors import CalibrationError, TempCompError
+from ..core.models import AXIS_NAMES
 from ..core.noise import allan_deviation, MIN_SAMPLES
 from ..core.offsets import accel_offset_lsb, gyro_offset_lsb, rest_bias
 from ..hardware.errors import HardwareError
@@ -36,6 +39,8 @@ from ..simulation.physics import ThermalProfile
 from ..sources import adis16130, mpu6000
 from ..sources.mlx90609 import samples_due
 from ..state_file import read_state, StateFileError, write_state
+from ..toolkit.common import UserError
+from ..toolkit.evaluate import node_values
 
 # Faults both parts can simulate: MISO stuck high or low.
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
@@ -405,12 +410,85 @@ def _register_triple(state: dict, key: str) -> tuple:
     return tuple(values)
 
 
+def _offset_refresh(values: dict):
+    """Give the `_OffsetRefresh` of ``mpu6000.offset_model_file``; None when it is ''."""
+    path = values['mpu6000.offset_model_file']
+    if not path:
+        return None
+    path = os.path.expanduser(path)
+    try:
+        model_values = node_values(path, values['mpu6000.offset_model_node'])
+        if model_values['model'] != 'polynomial':
+            msg = (f'model {model_values["model"]!r}: the offset registers take a polynomial '
+                   'bias (mlx-tempcomp fit --model polynomial or relative)')
+            raise ParameterError(msg)
+        if axes_of(model_values) != AXIS_NAMES:
+            msg = (f'axes {model_values["axes"]}: the model must cover gyro x, y and z in that '
+                   'order')
+            raise ParameterError(msg)
+        model = build_model(model_values)
+    except (ParameterError, UserError) as err:
+        msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
+        raise ParameterError(msg) from None
+    # A register can only add: the scale polynomial does not apply at rest.
+    return _OffsetRefresh(dataclasses.replace(model, scale_coefficients=()), path,
+                          values['mpu6000.offset_refresh_c'])
+
+
+class _OffsetRefresh:
+    """
+    Gyro offset registers that follow a bias model as the temperature moves.
+
+    registers(T) = base + gyro_offset_lsb(bias(T) - bias(T_base)), where
+    ``base`` are the registers that cancel the whole bias at ``T_base`` (the
+    saved or just calibrated offsets): the model adds only the change since
+    then, so a calibration and the model never count the same bias twice.
+    Without a base (no saved offsets) the registers cancel the model's whole
+    bias(T).
+    """
+
+    def __init__(self, model, path: str, step_c: float):
+        self.model = model
+        self.path = path
+        self.step_c = step_c
+        self.base_lsb = (0, 0, 0)
+        self.base_temperature_c = None
+        self.temperature_c = None       # of the last write; None: write at the next sample
+        self.writes = 0
+        self.failures = 0
+        self.last_error = ''
+
+    def bias_rad_s(self, temperature_c: float) -> np.ndarray:
+        return -self.model.correct(np.zeros((1, 3)), [temperature_c]).rate_rad_s[0]
+
+    def due(self, temperature_c: float) -> bool:
+        return self.temperature_c is None or \
+            abs(temperature_c - self.temperature_c) >= self.step_c
+
+    def registers(self, temperature_c: float) -> tuple:
+        change = self.bias_rad_s(temperature_c)
+        if self.base_temperature_c is not None:
+            change = change - self.bias_rad_s(self.base_temperature_c)
+        return tuple(base + lsb for base, lsb in zip(self.base_lsb, gyro_offset_lsb(change)))
+
+    def status(self) -> dict:
+        return {'offset_model_file': self.path, 'offset_refresh_writes': self.writes,
+                'offset_refresh_failures': self.failures,
+                'offset_refresh_temperature_c': 'none' if self.temperature_c is None
+                else self.temperature_c,
+                'offset_refresh_base_temperature_c': 'none (whole model bias)'
+                if self.base_temperature_c is None else self.base_temperature_c,
+                'offset_refresh_error': self.last_error}
+
+
 class MpuStream(DeviceStream):
     """
     An MPU-6000/6500: gyro, accelerometer and temperature; hardware offset registers.
 
     The offsets live in the part only until power-off, so the ones saved by
-    ``imu/calibrate_offsets`` are written again at every start.
+    ``imu/calibrate_offsets`` are written again at every start. With
+    ``mpu6000.offset_model_file`` the gyro registers then follow the model's
+    bias as the temperature moves (`_OffsetRefresh`).
     """
 
     def __init__(self, node):
@@ -419,6 +497,7 @@ class MpuStream(DeviceStream):
             msg = (f'invalid parameter oversample: the mpu6000 averages in its DLPF, not in '
                    f'the driver; give 1, got {values["oversample"]}')
             raise ParameterError(msg)
+        self.refresh = _offset_refresh(values)
         options = {'gyro_full_scale_dps': values['mpu6000.gyro_full_scale_dps'],
                    'accel_full_scale_g': values['mpu6000.accel_full_scale_g'],
                    'dlpf_config': values['mpu6000.dlpf_config'],
@@ -461,6 +540,8 @@ class MpuStream(DeviceStream):
         self.source = source
         self.node = node
         self._write_saved_offsets()
+        if self.refresh is not None:
+            self._start_refresh()
         node.create_service(Trigger, 'imu/calibrate_offsets', self.calibrate_offsets,
                             callback_group=ReentrantCallbackGroup())
         super().__init__(node, source, hardware_id, values['source'] == 'simulated')
@@ -494,12 +575,20 @@ class MpuStream(DeviceStream):
                 raise ValueError(msg)
             gyro = _register_triple(state, 'gyro_offset_lsb')
             accel = _register_triple(state, 'accel_bias_lsb')
+            temperature_c = state.get('temperature_c')
+            if self.refresh is not None and not (
+                    isinstance(temperature_c, (int, float)) and math.isfinite(temperature_c)):
+                msg = (f'temperature_c (the base of mpu6000.offset_model_file) must be a '
+                       f'number, got {temperature_c!r}')
+                raise ValueError(msg)
             registers = self.source.write_offsets(gyro, accel)
         except (ValueError, HardwareError) as err:
             logger.error(f'saved offsets in {self.offsets_path} are unusable: {err}; starting '
                          'without offsets')
             return
         self._offsets_now(gyro, accel, registers, 'saved file')
+        if self.refresh is not None:
+            self.refresh.base_lsb, self.refresh.base_temperature_c = gyro, float(temperature_c)
         logger.info(f'wrote the saved offsets from {self.offsets_path}: gyro {list(gyro)} LSB, '
                     f'accel registers {list(registers)} (bias {list(accel)} LSB at 16 g, '
                     f'calibrated {state.get("time", "at an unknown time")})')
@@ -507,6 +596,40 @@ class MpuStream(DeviceStream):
     def _offsets_now(self, gyro, accel, registers, origin: str) -> None:
         self.gyro_lsb, self.accel_bias_lsb = tuple(gyro), tuple(accel)
         self.accel_registers, self.offsets_origin = tuple(registers), origin
+
+    def _start_refresh(self) -> None:
+        refresh = self.refresh
+        base = 'the whole model bias (no saved offsets)' \
+            if refresh.base_temperature_c is None else \
+            f'the change since {refresh.base_temperature_c:.2f} C (saved offsets)'
+        self.node.get_logger().info(
+            f'gyro offset refresh from {refresh.path}: {base}, rewritten every '
+            f'{refresh.step_c:g} C')
+        try:
+            temperature_c = float(self.source.read().temperature_c)
+        except HardwareError as err:
+            # Counted; the first sample of the stream tries again.
+            refresh.failures += 1
+            refresh.last_error = str(err)
+            self.node.get_logger().warn(f'gyro offset refresh at start failed: {err}')
+            return
+        self._refresh_offsets(temperature_c)
+
+    def _refresh_offsets(self, temperature_c: float) -> None:
+        refresh = self.refresh
+        try:
+            registers = refresh.registers(temperature_c)
+            self.source.device.write_gyro_offsets(registers)
+        except (CalibrationError, HardwareError) as err:
+            # Retried at the next sample; the registers in place stay as they were.
+            refresh.failures += 1
+            refresh.last_error = str(err)
+            self.node.get_logger().warn(f'gyro offset refresh at {temperature_c:.2f} C '
+                                        f'failed: {err}', throttle_duration_sec=5.0)
+            return
+        refresh.writes += 1
+        refresh.temperature_c = temperature_c
+        self.gyro_lsb = registers
 
     def read(self):
         return self.source.read()
@@ -518,15 +641,19 @@ class MpuStream(DeviceStream):
                               self.acceleration_covariance)
         if self.window is not None:
             self.window.add(stamp_ns, sample)
+        # Registers stay put while a calibration window averages over them.
+        elif self.refresh is not None and self.refresh.due(sample.temperature_c):
+            self._refresh_offsets(float(sample.temperature_c))
 
     def set_fault(self, value: str) -> None:
         self.source.simulated.stuck_miso = _STUCK_MISO[Fault(value)]
 
     def extra_status(self) -> dict:
+        refresh = {} if self.refresh is None else self.refresh.status()
         return {'variant': self.variant, 'offsets': self.offsets_origin,
                 'gyro_offset_lsb': list(self.gyro_lsb),
                 'accel_offset_registers': list(self.accel_registers),
-                'offsets_file': self.offsets_path}
+                'offsets_file': self.offsets_path, **refresh}
 
     async def calibrate_offsets(self, request, response):
         """
@@ -590,6 +717,10 @@ class MpuStream(DeviceStream):
             return f'refused: writing the offset registers failed: {err}'
         self._offsets_now(gyro_lsb, accel_lsb, registers, 'calibrated')
         temperature_c = float(np.mean(window.temperature))
+        if self.refresh is not None:
+            # The new registers cancel the whole bias at the window's temperature.
+            self.refresh.base_lsb, self.refresh.base_temperature_c = gyro_lsb, temperature_c
+            self.refresh.temperature_c = temperature_c
         state = {'variant': self.variant, 'gyro_offset_lsb': list(gyro_lsb),
                  'accel_bias_lsb': list(accel_lsb), 'accel_registers': list(registers),
                  'residual_gyro_rad_s': list(bias.gyro_rad_s),

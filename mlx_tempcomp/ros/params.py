@@ -207,6 +207,15 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('mpu6000.calibration.noise_multiple', 3.0,
          'a gyro rate spread above this x rate_noise_rad_s means the board moves',
          low=0.1, high=1000.0),
+    Spec('mpu6000.offset_model_file', '',
+         'parameter file of a polynomial bias model of gyro x, y, z (mlx-tempcomp fit): '
+         "refresh the gyro offset registers from it as the temperature moves ('' = off)",
+         read_only=True),
+    Spec('mpu6000.offset_model_node', 'compensation_node',
+         'node section of mpu6000.offset_model_file', read_only=True),
+    Spec('mpu6000.offset_refresh_c', 0.5,
+         'rewrite the gyro offset registers when the temperature moved this much since the '
+         'last write', read_only=True, low=0.001, high=100.0),
 )
 
 _EFFECT_DESCRIPTIONS = {

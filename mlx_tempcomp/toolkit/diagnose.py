@@ -334,6 +334,7 @@ def _plots(out: Path, diagnosis) -> None:
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
+    from matplotlib.ticker import MaxNLocator
 
     axes = diagnosis.axes
     held = diagnosis.held_out
@@ -388,6 +389,7 @@ def _plots(out: Path, diagnosis) -> None:
             plot.annotate(label, (index, values[index]), fontsize=7, rotation=20,
                           textcoords='offset points', xytext=(3, 3))
     plot.set_xlabel('step')
+    plot.xaxis.set_major_locator(MaxNLocator(integer=True))
     plot.set_ylabel('held-out RMS (rad/s)')
     plot.set_title('Held-out error per step')
     plot.grid(True, which='both', alpha=0.3)

@@ -113,7 +113,7 @@ def _expected_type(spec) -> Parameter.Type:
     return Parameter.Type.from_parameter_value(spec.default)
 
 
-def _node_values(path: str, node_name: str) -> dict:
+def node_values(path: str, node_name: str) -> dict:
     """Give every compensation-node parameter value; UserError where the node would refuse."""
     overrides = _read_overrides(path, node_name)
     values = {}
@@ -251,7 +251,7 @@ def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, a
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
-    values = _node_values(args.params, args.node_name)
+    values = node_values(args.params, args.node_name)
     try:
         axes = axes_of(values)
     except ParameterError as err:
