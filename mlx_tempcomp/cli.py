@@ -28,8 +28,8 @@ from .core.table import factory_table, TRIPLET_TEMPERATURES_C
 from .model_params import (chain_parameters, linear_btc_parameters, parameter_file,
                            polynomial_parameters, write_parameter_file)
 from .toolkit import adis_bias, convert, diagnose, evaluate, simulate
-from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, load, non_negative_int,
-                             UserError)
+from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, finite_float, load,
+                             non_negative_int, positive_float, UserError)
 
 # Each adds its subcommand with add_parser(commands).
 _COMMAND_MODULES = (adis_bias, convert, diagnose, evaluate, simulate)
@@ -43,27 +43,6 @@ BTC_TABLE_ROWS = 6
 SECONDS_PER_HOUR = 3600.0
 # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
 EXIT_BROKEN_PIPE = 141
-
-
-def _finite_float(text: str) -> float:
-    """Parse a finite number option (argparse type)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
-        msg = f'expected a finite number, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _positive_float(text: str) -> float:
-    """Parse a positive finite number option (argparse type)."""
-    value = _finite_float(text)
-    if value <= 0.0:
-        msg = f'expected a positive number, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
 
 
 def _read_image(path: str) -> bytes:
@@ -435,21 +414,21 @@ def build_parser() -> argparse.ArgumentParser:
                           f'{DEFAULT_BLOCKS})')
     fit.add_argument('--folds', type=int, metavar='N',
                      help=f'cross-validation folds (default: {DEFAULT_FOLDS})')
-    fit.add_argument('--true-temperature', type=_finite_float, metavar='C',
+    fit.add_argument('--true-temperature', type=finite_float, metavar='C',
                      help='relative: temperature at which no bias is introduced '
                           '(default: the mean temperature of the data)')
-    fit.add_argument('--t3', type=_finite_float, metavar='C',
+    fit.add_argument('--t3', type=finite_float, metavar='C',
                      help='linear_btc: T3, where PBC holds (default: the mean temperature of '
                           'the data)')
-    fit.add_argument('--table-step', type=_positive_float, metavar='C',
+    fit.add_argument('--table-step', type=positive_float, metavar='C',
                      help='linear_btc: temperature step of the printed correction table '
                           '(default: a 1-2-5 step covering the data in 6 rows each side)')
-    fit.add_argument('--full-scale-dps', type=_positive_float, metavar='DPS',
+    fit.add_argument('--full-scale-dps', type=positive_float, metavar='DPS',
                      help='chain: full scale in deg/s (default: the largest reference rate)')
-    fit.add_argument('--reference-temperature', type=_finite_float, metavar='C',
+    fit.add_argument('--reference-temperature', type=finite_float, metavar='C',
                      help='chain: temperature of the nonlinearity fit (default: the mean '
                           'temperature over the plateaus)')
-    fit.add_argument('--reference-temperature-2', type=_finite_float, metavar='C',
+    fit.add_argument('--reference-temperature-2', type=finite_float, metavar='C',
                      help='chain: second temperature of stages 1-3 (default: the mean '
                           'second temperature over the plateaus)')
     fit.add_argument('--out', required=True, metavar='PARAMS.yaml',

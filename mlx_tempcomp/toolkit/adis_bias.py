@@ -16,7 +16,7 @@ import math
 import sys
 import time
 
-from .common import non_negative_int, UserError
+from .common import finite_float, non_negative_float, non_negative_int, positive_float, UserError
 from .progress import add_progress_option, Progress
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
                                    MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
@@ -53,32 +53,6 @@ _PHASE_TEXT = {
                        'deviation',
     Phase.PBC: 'averaging RATE for {:g} s -> PBC = -mean, T3 = mean TEMP',
 }
-
-
-def _number(kind: str):
-    """Return an argparse type for finite numbers that are positive or (``kind`` >=0) not."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        ok = value > 0.0 if kind == '>0' else value >= 0.0
-        if not (math.isfinite(value) and ok):
-            msg = f'expected a number {kind}, got {text!r}'
-            raise argparse.ArgumentTypeError(msg)
-        return value
-    return parse
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
-        msg = f'expected a finite number, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
 
 
 def _dps(rad_s: float) -> str:
@@ -325,33 +299,34 @@ def add_parser(commands) -> None:
                         help=f'spidev: SCLK in Hz (default {DEFAULT_SPEED_HZ})')
     parser.add_argument('--bits', type=int, choices=(24, 16), default=24,
                         help='conversion resolution (default: %(default)s)')
-    parser.add_argument('--rate-hz', type=_number('>0'), default=DEFAULT_RATE_HZ, metavar='HZ',
+    parser.add_argument('--rate-hz', type=positive_float, default=DEFAULT_RATE_HZ, metavar='HZ',
                         help='sample rate of the averaging windows (default: %(default)g; the '
                              'note reads at 5700)')
-    parser.add_argument('--average-s', type=_number('>0'), default=NOTE_AVERAGE_S,
+    parser.add_argument('--average-s', type=positive_float, default=NOTE_AVERAGE_S,
                         metavar='S', help='window of each point (default: %(default)g)')
-    parser.add_argument('--self-heat-s', type=_number('>=0'), default=NOTE_SELF_HEAT_S,
+    parser.add_argument('--self-heat-s', type=non_negative_float, default=NOTE_SELF_HEAT_S,
                         metavar='S', help='wait between the points (default: %(default)g)')
-    parser.add_argument('--settle-s', type=_number('>=0'), default=NOTE_SETTLE_S, metavar='S',
+    parser.add_argument('--settle-s', type=non_negative_float, default=NOTE_SETTLE_S, metavar='S',
                         help='wait before the PBC window, the rest record included '
                              '(default: %(default)g)')
-    parser.add_argument('--pbc-s', type=_number('>0'), metavar='S',
+    parser.add_argument('--pbc-s', type=positive_float, metavar='S',
                         help='PBC window (default: the averaging time the rest record advises, '
                              f'at least the {NOTE_PBC_S:g} of the note)')
-    parser.add_argument('--allan-record-s', type=_number('>=0'), default=DEFAULT_ALLAN_RECORD_S,
-                        metavar='S', help='rest record for the Allan deviation at the end of '
-                                          'the settle wait; 0 skips it (default: %(default)g)')
-    parser.add_argument('--min-temperature-change-c', type=_number('>0'),
+    parser.add_argument('--allan-record-s', type=non_negative_float,
+                        default=DEFAULT_ALLAN_RECORD_S, metavar='S',
+                        help='rest record for the Allan deviation at the end of the settle '
+                             'wait; 0 skips it (default: %(default)g)')
+    parser.add_argument('--min-temperature-change-c', type=positive_float,
                         default=MIN_TEMPERATURE_CHANGE_C, metavar='C',
                         help='smallest T2 - T1 a BTC is computed from (default: %(default)g)')
     parser.add_argument('--seed', type=non_negative_int, metavar='N',
                         help='simulated: noise seed (default 0)')
-    parser.add_argument('--bias-slope-dps-per-c', type=_finite, metavar='DPS_PER_C',
+    parser.add_argument('--bias-slope-dps-per-c', type=finite_float, metavar='DPS_PER_C',
                         help=f'simulated: true bias slope (default {DEFAULT_SLOPE_DPS_PER_C})')
-    parser.add_argument('--self-heat-rise-c', type=_number('>=0'), metavar='C',
+    parser.add_argument('--self-heat-rise-c', type=non_negative_float, metavar='C',
                         help=f'simulated: how much the part warms itself (default '
                              f'{DEFAULT_RISE_C:g})')
-    parser.add_argument('--time-scale', type=_number('>0'), metavar='FACTOR',
+    parser.add_argument('--time-scale', type=positive_float, metavar='FACTOR',
                         help='simulated: simulated seconds per wall second (default: as fast '
                              'as possible)')
     parser.add_argument('--out', required=True, metavar='PARAMS.yaml',

@@ -7,6 +7,7 @@ asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
 """
 
 import argparse
+import math
 
 from ..sources.recording import load_recording, Recording, RecordingError
 
@@ -27,6 +28,25 @@ def non_negative_int(text: str) -> int:
         msg = f'expected a non-negative integer, got {text!r}'
         raise argparse.ArgumentTypeError(msg)
     return value
+
+
+def float_type(accept, expected: str):
+    """Return an argparse type for finite numbers that ``accept`` admits ("expected ...")."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and accept(value)):
+            msg = f'expected {expected}, got {text!r}'
+            raise argparse.ArgumentTypeError(msg)
+        return value
+    return parse
+
+
+finite_float = float_type(lambda value: True, 'a finite number')
+positive_float = float_type(lambda value: value > 0.0, 'a positive number')
+non_negative_float = float_type(lambda value: value >= 0.0, 'a number >= 0')
 
 
 def add_recording_options(parser: argparse.ArgumentParser) -> None:

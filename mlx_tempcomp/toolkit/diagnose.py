@@ -13,7 +13,8 @@ import json
 import math
 from pathlib import Path
 
-from .common import add_recording_options, load, non_negative_int, UserError
+from .common import (add_recording_options, float_type, load, non_negative_float,
+                     non_negative_int, UserError)
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.errors import TempCompError
@@ -27,26 +28,7 @@ METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bi
           'bias')
 
 
-def _fraction(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not 0.0 <= value < 1.0:
-        msg = f'expected a number in [0, 1), got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0.0):
-        msg = f'expected a non-negative number, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
+_fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
 
 
 def add_parser(commands) -> None:
@@ -68,7 +50,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--blocks', type=non_negative_int, default=defaults.blocks,
                         metavar='N', help='contiguous blocks dealt round-robin to the folds '
                                           '(default: %(default)s)')
-    parser.add_argument('--average-s', type=_non_negative, default=defaults.average_s,
+    parser.add_argument('--average-s', type=non_negative_float, default=defaults.average_s,
                         metavar='S', help='bin length the residual is averaged over, 0 per '
                                           'sample (default: %(default)s)')
     parser.add_argument('--max-order', type=non_negative_int, default=defaults.max_order,

@@ -16,7 +16,6 @@ rest). Statistics per axis cover every sample and averages over bins of
 import argparse
 import csv
 import json
-import math
 from pathlib import Path
 import sys
 
@@ -24,7 +23,7 @@ import numpy as np
 from rclpy.parameter import Parameter
 import yaml
 
-from .common import add_recording_options, load, UserError
+from .common import add_recording_options, float_type, load, positive_float, UserError
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
@@ -39,26 +38,7 @@ _INPUTS = (('needs_time', 'time_s', 'time'),
            ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'))
 
 
-def _fraction(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not 0.0 < value <= 1.0:
-        msg = f'expected a fraction in (0, 1], got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        msg = f'expected a positive number of seconds, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
+_fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')
 
 
 def _flatten(tree: dict, prefix: str = '') -> dict:
@@ -347,7 +327,7 @@ def add_parser(commands) -> None:
                           help='ROS 2 parameter file (e.g. written by fit or diagnose)')
     evaluate.add_argument('--node-name', default='compensation_node', metavar='NAME',
                           help='node section to read (default: %(default)s; /** applies too)')
-    evaluate.add_argument('--average-s', type=_positive, default=1.0, metavar='S',
+    evaluate.add_argument('--average-s', type=positive_float, default=1.0, metavar='S',
                           help='bin width of the averaged statistics (default: %(default)s)')
     evaluate.add_argument('--test-fraction', type=_fraction, default=1.0, metavar='F',
                           help='statistics over the last F of the rows only, the test part '

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import non_negative_int, UserError
+from .common import non_negative_float, non_negative_int, positive_float, UserError
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
@@ -63,32 +63,10 @@ def _time_value(text: str) -> tuple:
     return pair
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        msg = f'expected a positive number, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0.0):
-        msg = f'expected a number >= 0, got {text!r}'
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
 def _supply(items) -> tuple:
     """Give supply waypoints ``(times_s, volts)`` from ``V`` or ``T:V ...``."""
     if len(items) == 1 and ':' not in items[0]:
-        return (0.0,), (_positive(items[0]),)
+        return (0.0,), (positive_float(items[0]),)
     points = sorted(_time_value(item) for item in items)
     if any(v <= 0.0 for _, v in points):
         raise UserError('--supply-v: volts must be positive')
@@ -334,21 +312,21 @@ def add_parser(commands) -> None:
     simulate.add_argument('--format', choices=FORMATS,
                           help='csv, sqlite3 or mcap (default: csv for a .csv name, '
                                'else sqlite3)')
-    simulate.add_argument('--duration-s', type=_positive, metavar='S',
+    simulate.add_argument('--duration-s', type=positive_float, metavar='S',
                           help='length (default: the thermal cycle, or '
                                f'{DEFAULT_DURATION_S:g} s at constant temperature)')
-    simulate.add_argument('--rate-hz', type=_positive, metavar='HZ',
+    simulate.add_argument('--rate-hz', type=positive_float, metavar='HZ',
                           help='sample rate (default: 10)')
     simulate.add_argument('--axes', type=_parse_axes, default=AXES, metavar='AXES',
                           help='gyro axes, e.g. z or x,y,z (default: x,y,z)')
     simulate.add_argument('--seed', type=non_negative_int, default=0, metavar='N',
                           help='seed of the devices and the noise (default: %(default)s)')
-    simulate.add_argument('--full-scale-dps', type=_positive, default=75.0, metavar='DPS',
+    simulate.add_argument('--full-scale-dps', type=positive_float, default=75.0, metavar='DPS',
                           help='full scale of the chips (default: %(default)s)')
     simulate.add_argument('--eeprom-version', type=non_negative_int, default=2, metavar='N',
                           help='EEPROM VERSION the simulated factory writes '
                                '(default: %(default)s)')
-    simulate.add_argument('--noise-scale', type=_non_negative, default=1.0, metavar='F',
+    simulate.add_argument('--noise-scale', type=non_negative_float, default=1.0, metavar='F',
                           help='multiply the datasheet noise (0: no noise; default: 1)')
     simulate.add_argument('--rate-dps', type=float, nargs='+', default=[0.0], metavar='DPS',
                           help='true rate, one value or one per axis (default: 0)')
@@ -358,25 +336,25 @@ def add_parser(commands) -> None:
     thermal.add_argument('--cycle-c', type=float, nargs='+', metavar='C',
                          help='temperatures to ramp through in turn, e.g. 60 -20 25; with '
                               '--turntable the chamber temperatures of the sessions')
-    thermal.add_argument('--ramp-c-per-min', type=_positive, default=2.0, metavar='R',
+    thermal.add_argument('--ramp-c-per-min', type=positive_float, default=2.0, metavar='R',
                          help='ramp rate (default: %(default)s)')
-    thermal.add_argument('--hold-s', type=_non_negative, default=0.0, metavar='S',
+    thermal.add_argument('--hold-s', type=non_negative_float, default=0.0, metavar='S',
                          help='hold at each cycle temperature (default: %(default)s)')
-    thermal.add_argument('--die-time-constant-s', type=_non_negative, default=0.0,
+    thermal.add_argument('--die-time-constant-s', type=non_negative_float, default=0.0,
                          metavar='S', help='die follows the chamber with this lag')
     effects = simulate.add_argument_group('effects (chip simulation only)')
-    effects.add_argument('--thermal-lag-s', type=_non_negative, default=0.0, metavar='S',
+    effects.add_argument('--thermal-lag-s', type=non_negative_float, default=0.0, metavar='S',
                          help='temperature sensor lags the die (first order)')
     effects.add_argument('--hysteresis-dps', type=float, default=0.0, metavar='DPS',
                          help='ZRO difference between heating and cooling branches')
-    effects.add_argument('--hysteresis-width-c', type=_positive, default=5.0, metavar='C',
+    effects.add_argument('--hysteresis-width-c', type=positive_float, default=5.0, metavar='C',
                          help='temperature change that flips the branch (default: %(default)s)')
     effects.add_argument('--bias-step', type=_time_value, action='append', metavar='T:DPS',
                          help='bias step of DPS at time T s (repeatable)')
     effects.add_argument('--acceleration-dps-per-m-s2', type=float, nargs=3,
                          default=[0.0, 0.0, 0.0], metavar=('GX', 'GY', 'GZ'),
                          help='g-sensitivity: deg/s per m/s^2 of specific force x, y, z')
-    effects.add_argument('--orientation-period-s', type=_non_negative, default=0.0,
+    effects.add_argument('--orientation-period-s', type=non_negative_float, default=0.0,
                          metavar='S', help='turn the board to the next of six faces up every '
                                            'S seconds (writes acc_x|y|z)')
     effects.add_argument('--zro-supply-dps-per-v', type=float, default=0.0, metavar='K',
