@@ -68,7 +68,7 @@ def _check_axes(axes, count: int) -> tuple:
     return axes
 
 
-def _nested(flat: dict) -> dict:
+def nest_parameters(flat: dict) -> dict:
     """Turn ``{'a.b': v}`` into ``{'a': {'b': v}}``, as rcl reads parameter files."""
     tree = {}
     for key, value in flat.items():
@@ -84,7 +84,7 @@ def effect_parameters(model: EffectModel, axes) -> dict:
     """Return the compensation node's parameters for an effects model (ZRO offset excluded)."""
     axes = _check_axes(axes, model.axes)
     return {'model': 'effects', 'axes': list(axes),
-            'effects': _nested(model.to_parameters(axes))}
+            'effects': nest_parameters(model.to_parameters(axes))}
 
 
 def linear_btc_parameters(model: LinearBtcModel, axes) -> dict:
@@ -100,7 +100,7 @@ def chain_parameters(model: ChainModel) -> dict:
     """Return the compensation node's parameters for the seed-004 chain (axes x, y, z)."""
     flat = {key: [float(v) for v in value] if isinstance(value, (list, tuple)) else float(value)
             for key, value in model.chain.to_parameters().items()}
-    return {'model': 'chain', 'axes': list(AXIS_NAMES), 'chain': _nested(flat)}
+    return {'model': 'chain', 'axes': list(AXIS_NAMES), 'chain': nest_parameters(flat)}
 
 
 def parameter_file(node_name: str, parameters: dict) -> dict:

@@ -18,6 +18,7 @@ import tempfile
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from mlx_tempcomp.model_params import nest_parameters, write_parameter_file
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import EEPROM_QOS
 import pytest
@@ -30,7 +31,6 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
-import yaml
 
 BIN = os.path.dirname(sys.executable)
 
@@ -85,27 +85,6 @@ def executable(name: str) -> str:
     return os.path.join(BIN, name)
 
 
-def nest(values: dict) -> dict:
-    """Turn dotted parameter names into the nested mapping of a parameter file."""
-    nested = {}
-    for name, value in values.items():
-        *groups, leaf = name.split('.')
-        level = nested
-        for group in groups:
-            level = level.setdefault(group, {})
-        level[leaf] = value
-    return nested
-
-
-class _QuotingDumper(yaml.SafeDumper):
-    """Quote every string: rcl reads a bare y or n as a boolean (YAML 1.1)."""
-
-
-_QuotingDumper.add_representer(
-    str, lambda dumper, value: dumper.represent_scalar('tag:yaml.org,2002:str', value,
-                                                       style="'"))
-
-
 def write_params(path, node_name: str, values: dict) -> str:
     """Write a ROS 2 parameter file for ``node_name``; return its path."""
     return write_sections(path, {node_name: values})
@@ -113,9 +92,8 @@ def write_params(path, node_name: str, values: dict) -> str:
 
 def write_sections(path, sections: dict) -> str:
     """Write a ROS 2 parameter file with a section per node name; return its path."""
-    with open(path, 'w') as stream:
-        yaml.dump({node: {'ros__parameters': nest(values)} for node, values in sections.items()},
-                  stream, Dumper=_QuotingDumper)
+    write_parameter_file(path, {node: {'ros__parameters': nest_parameters(values)}
+                                for node, values in sections.items()})
     return str(path)
 
 

@@ -81,11 +81,13 @@ def test_learned_offsets_zero_the_rest_window_without_double_counting():
     temperature = np.full(100, 31.0)
     raw = np.full(100, 0.004) + np.random.default_rng(0).normal(0.0, 1e-4, 100)
     for model in (eeprom, polynomial, btc):
-        offset = model.learn_zro_offset(raw, temperature)
+        offset = model.learn_zro_offset(raw, temperature,
+                                        model.correct(raw, temperature).rate_rad_s)
         shifted = model.with_zro_offset(offset)
         residual = shifted.correct(raw, temperature).rate_rad_s.mean()
         assert residual == pytest.approx(0.0, abs=1e-12)
-        np.testing.assert_allclose(shifted.learn_zro_offset(raw, temperature), offset)
+        np.testing.assert_allclose(shifted.learn_zro_offset(
+            raw, temperature, shifted.correct(raw, temperature).rate_rad_s), offset)
         assert shifted.fingerprint() == model.fingerprint()
         np.testing.assert_allclose(shifted.offset_rad_s(31.0),
                                    model.correct(raw, temperature).rate_rad_s.mean(axis=0),

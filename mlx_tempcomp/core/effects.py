@@ -30,6 +30,7 @@ sample a batch or stream sees, with dT/dt = 0 and s = 0.
 
 import collections
 from dataclasses import dataclass, field, fields, replace
+import functools
 import math
 from typing import Mapping, Optional
 
@@ -272,18 +273,23 @@ class EffectModel(_OffsetModel):
     def axes(self) -> int:
         return len(self.terms)
 
-    @property
+    # Cached (the model is frozen): the stream asks for these on every sample.
+    @functools.cached_property
     def needs_time(self) -> bool:
         return any(t.thermal_lag_s or t.time_drift_rad_s_per_s or t.bias_steps
                    for t in self.terms)
 
-    @property
+    @functools.cached_property
     def needs_temperature_2(self) -> bool:
         return any(any(t.secondary) for t in self.terms)
 
-    @property
+    @functools.cached_property
     def needs_acceleration(self) -> bool:
         return any(any(t.acceleration_rad_s_per_m_s2) for t in self.terms)
+
+    @functools.cached_property
+    def has_cross_axis(self) -> bool:
+        return any(any(t.cross_axis) for t in self.terms)
 
     def fingerprint(self) -> str:
         content = {f.name: getattr(self, f.name) for f in fields(self)
@@ -343,7 +349,7 @@ class EffectModel(_OffsetModel):
                 u = corrected[:, axis]
                 corrected[:, axis] = u - u * u * np.polynomial.polynomial.polyval(
                     u, term.nonlinearity)
-        if any(any(t.cross_axis) for t in self.terms):
+        if self.has_cross_axis:
             matrix = np.array([t.cross_axis or (0.0,) * self.axes for t in self.terms])
             corrected = corrected - corrected @ matrix.T
         return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s), clamped)
@@ -522,7 +528,7 @@ class EffectStream:
                 u = corrected[axis]
                 corrected[axis] = u - u * u * float(np.polynomial.polynomial.polyval(
                     u, term.nonlinearity))
-        if any(any(t.cross_axis) for t in model.terms):
+        if model.has_cross_axis:
             before = list(corrected)
             for axis, term in enumerate(model.terms):
                 if term.cross_axis:

@@ -105,10 +105,16 @@ class _OffsetModel(_SampleCorrection):
         offset = _finite_tuple('zro_offset_rad_s', np.ravel(offset), self.axes)
         return replace(self, zro_offset_rad_s=offset)
 
-    def learn_zro_offset(self, rate_rad_s, temperature_c) -> np.ndarray:
-        """Return the total offset that zeroes the mean of readings taken at rest."""
-        base = self.with_zro_offset(np.zeros(self.axes))
-        return np.mean(base.correct(rate_rad_s, temperature_c).rate_rad_s, axis=0)
+    def learn_zro_offset(self, rate_rad_s, temperature_c, corrected_rad_s) -> np.ndarray:
+        """
+        Return the total offset that zeroes the mean of readings taken at rest.
+
+        ``corrected_rad_s`` is what this model gave for them. The offset is taken
+        off last, so the answer is the current offset plus the mean corrected
+        rate: no need to replay the readings (stateful models could not).
+        """
+        return np.asarray(self.zro_offset_rad_s) + np.mean(
+            np.asarray(corrected_rad_s, dtype=np.float64).reshape(-1, self.axes), axis=0)
 
     def offset_rad_s(self, temperature_c: float) -> np.ndarray:
         return np.asarray(self.zro_offset_rad_s)
@@ -301,8 +307,13 @@ class EepromModel(_SampleCorrection):
     def with_zro_offset(self, offset) -> 'EepromModel':
         return replace(self, compensation=self.compensation.with_zro_shift(offset))
 
-    def learn_zro_offset(self, rate_rad_s, temperature_c) -> np.ndarray:
-        """Return AN2's ZRO shift (output units) that zeroes readings taken at rest."""
+    def learn_zro_offset(self, rate_rad_s, temperature_c, corrected_rad_s) -> np.ndarray:
+        """
+        Return AN2's ZRO shift (output units) that zeroes readings taken at rest.
+
+        The shift sits inside formula (4), so it is learned from the raw readings;
+        ``corrected_rad_s`` is not needed.
+        """
         outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
         return self.compensation.learn_zro_shift(outar, tempout)
 

@@ -10,12 +10,12 @@ Reading back the 8-bit set-up registers is UNCONFIRMED (AD773x-like layout),
 so `verify_registers` can be switched off.
 """
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from .errors import HardwareError, ProtocolError, SilentBusError
+from .errors import FaultCounters, HardwareError, ProtocolError, SilentBusError
 from .transport import Transport
 
 # Registers (sensor-facts.md section 2, from the kernel driver).
@@ -151,18 +151,6 @@ def temperature_code_from_c(temperature_c, bits: int = 24):
     return _encode(offset_c * temperature_lsb_per_c(bits), bits)
 
 
-@dataclass
-class ErrorCounters:
-    """How often each fault was seen since the driver started."""
-
-    silent_bus: int = 0
-    protocol_errors: int = 0
-    saturated: int = 0
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
 @dataclass(frozen=True)
 class Reading:
     """
@@ -193,7 +181,7 @@ class Adis16130:
         self.resolution_bits = check_resolution(resolution_bits)
         self.verify_registers = verify_registers
         self.rate_range_dps = rate_range_dps
-        self.counters = ErrorCounters()
+        self.counters = FaultCounters()
 
     def _transfer(self, tx: bytes) -> bytes:
         rx = self.transport.transfer(tx)

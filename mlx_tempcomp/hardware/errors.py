@@ -1,4 +1,6 @@
-"""Errors raised by transports and device protocols."""
+"""Errors raised by transports and device protocols, and the counters of the faults seen."""
+
+from dataclasses import dataclass, fields
 
 
 class HardwareError(Exception):
@@ -27,3 +29,15 @@ class EocTimeoutError(HardwareError):
 
 class ProtocolError(HardwareError):
     """An answer is not what the protocol allows (for example a wrong channel echo)."""
+
+
+@dataclass
+class FaultCounters:
+    """How often each fault every device protocol can meet was seen since the driver started."""
+
+    silent_bus: int = 0
+    protocol_errors: int = 0
+    saturated: int = 0
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}

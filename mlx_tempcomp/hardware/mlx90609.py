@@ -6,10 +6,11 @@ One frame is an 8-bit instruction followed by a 16-bit answer, MSB first
 pages 9 and 13); EER is UNCONFIRMED there and follows Colin O'Flynn's library.
 """
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 import enum
 
-from .errors import EocTimeoutError, HardwareError, ProtocolError, RefusalError, SilentBusError
+from .errors import (EocTimeoutError, FaultCounters, HardwareError, ProtocolError, RefusalError,
+                     SilentBusError)
 from .transport import Transport
 
 EEPROM_SIZE = 128
@@ -61,17 +62,11 @@ def describe_refusal(answer: int) -> str:
 
 
 @dataclass
-class ErrorCounters:
-    """How often each fault was seen since the driver started."""
+class ErrorCounters(FaultCounters):
+    """The common fault counters plus the MLX90609's refusals and EOC time-outs."""
 
     refusals: int = 0
     eoc_timeouts: int = 0
-    silent_bus: int = 0
-    protocol_errors: int = 0
-    saturated: int = 0
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)

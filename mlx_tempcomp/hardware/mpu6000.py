@@ -15,12 +15,12 @@ bytes from 0x7D). Temperature conversions are UNCONFIRMED (datasheets, not
 the seed): MPU-6000 T = raw / 340 + 36.53, MPU-6500 T = raw / 333.87 + 21.
 """
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from .errors import HardwareError, ProtocolError, SilentBusError
+from .errors import FaultCounters, HardwareError, ProtocolError, SilentBusError
 from .transport import Transport
 from ..core.errors import CalibrationError
 from ..core.offsets import from_twos_complement, merge_preserving_bit0, STANDARD_GRAVITY_M_S2
@@ -98,18 +98,6 @@ def word_bytes(value: int) -> bytes:
     return (int(value) & 0xFFFF).to_bytes(2, 'big')
 
 
-@dataclass
-class MpuCounters:
-    """How often each fault was seen since the driver started."""
-
-    silent_bus: int = 0
-    protocol_errors: int = 0
-    saturated: int = 0
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
 @dataclass(frozen=True)
 class RawReading:
     """Signed output registers of one burst read."""
@@ -183,7 +171,7 @@ class Mpu6000:
         self.dlpf_config = dlpf_config
         self.sample_rate_divider = sample_rate_divider
         self.settle_s = settle_s
-        self.counters = MpuCounters()
+        self.counters = FaultCounters()
         self.factory_accel_lsb: Optional[Tuple[int, int, int]] = None
 
     def read_registers(self, address: int, count: int) -> bytes:

@@ -28,9 +28,7 @@ from .params import (axes_of, build_model, check_choices, COMPENSATION_SPECS, de
                      limits_of, ParameterError, state_file_of, transfer_of)
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
-from ..core.chain import ChainModel
 from ..core.conversion import Output
-from ..core.effects import EffectModel
 from ..core.errors import CalibrationError, TempCompError
 from ..core.pairing import StampPairer
 from ..core.recalibration import check_window
@@ -171,7 +169,9 @@ class CompensationNode(Node):
         else:
             self.stream = None if model is None else model.stream()
         self.model = model
-        needs_2 = getattr(model, 'needs_temperature_2', False)
+        # Read once here, not per sample: what the model needs besides rate and temperature.
+        self.needs_acceleration = getattr(model, 'needs_acceleration', False)
+        needs_2 = self.needs_temperature_2 = getattr(model, 'needs_temperature_2', False)
         if needs_2 != (_TEMPERATURE_2 in self.pairer.streams):
             if needs_2 and self.temperature_2_subscription is None:
                 self.temperature_2_subscription = self.create_subscription(
@@ -226,10 +226,9 @@ class CompensationNode(Node):
         if stream is None:
             self.samples_waiting += 1
             return
-        model = stream.model
         imu = parts['imu']
         acceleration = None
-        if getattr(model, 'needs_acceleration', False):
+        if self.needs_acceleration:
             # REP-145: covariance[0] = -1 says the message has no acceleration.
             if imu.linear_acceleration_covariance[0] == -1.0:
                 self.no_acceleration_samples += 1
@@ -237,8 +236,7 @@ class CompensationNode(Node):
                 return
             vector = imu.linear_acceleration
             acceleration = (vector.x, vector.y, vector.z)
-        temperature_2 = parts[_TEMPERATURE_2].temperature \
-            if getattr(model, 'needs_temperature_2', False) else None
+        temperature_2 = parts[_TEMPERATURE_2].temperature if self.needs_temperature_2 else None
         # Plain floats on this per-message path: numpy's per-call overhead would dominate.
         raw = messages.imu_rates(imu, self.indices)
         temperatures = [parts[s].temperature for s in self.temperature_streams]
@@ -299,12 +297,8 @@ class CompensationNode(Node):
         finally:
             self.window = None
             self.destroy_timer(stale_timer)
-        response.success = not response.message.startswith(('refused', 'applied but'))
-        # One call site per severity: rclpy refuses a call site that changes severity.
-        if response.success:
-            self.get_logger().info(f'ZRO recalibration: {response.message}')
-        else:
-            self.get_logger().warn(f'ZRO recalibration: {response.message}')
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.get_logger(), response, 'ZRO recalibration')
         return response
 
     def _finish_window(self, window: _Window, model, limits, duration_s: float) -> str:
@@ -317,12 +311,7 @@ class CompensationNode(Node):
             stats = check_window(corrected, temperature.mean(axis=1), limits)
         except CalibrationError as err:
             return f'refused: {err}'
-        if isinstance(model, (EffectModel, ChainModel)):
-            # Their learn_zro_offset cannot replay the stream's state (or lacks its inputs):
-            # the residual still left is the window's mean published rate.
-            offset = np.asarray(model.zro_offset_rad_s) + corrected.mean(axis=0)
-        else:
-            offset = model.learn_zro_offset(raw, temperature)
+        offset = model.learn_zro_offset(raw, temperature, corrected)
         new_model = model.with_zro_offset(offset)
         offset_rad_s = new_model.offset_rad_s(stats.temperature_c)
         self._use(new_model)

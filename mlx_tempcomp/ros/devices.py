@@ -72,43 +72,36 @@ def _speed_hz(values: dict, default_hz: int) -> int:
     return values['spi.speed_hz'] or default_hz
 
 
-def _outcome(message: str) -> bool:
-    return not message.startswith(('refused', 'applied but'))
+def refuse_fault() -> None:
+    """Refuse ``simulation.fault`` on a source that is not simulated."""
+    raise ParameterError('simulation.fault applies only to the simulated source')
 
 
-def _log_outcome(logger, response, what: str) -> None:
-    # rclpy refuses two severities from one call site: one line per severity.
-    if response.success:
-        logger.info(f'{what}: {response.message}')
-    else:
-        logger.warn(f'{what}: {response.message}')
+class TimedStream:
+    """
+    A part read on a timer; a failed or saturated read is skipped and counted.
 
+    Subclasses give `read`, `publish` and `advance_to` (simulated time) and call
+    `start_schedule` once the part is ready. The schedule moves on whatever a
+    read gives: simulated sources run at ``real_time_factor``, stamped in
+    simulated time from the start; real ones are stamped with the node clock.
+    """
 
-class DeviceStream:
-    """One part read on a timer; a failed or saturated read is skipped and counted."""
-
-    def __init__(self, node, source, hardware_id: str, simulated: bool):
+    def start_schedule(self, node, real_time_factor) -> None:
         self.node = node
-        self.source = source
-        self.hardware_id = hardware_id
-        self.simulated = simulated
-        values = node.values
-        self.period_s = 1.0 / values['rate_hz']
+        self.period_s = 1.0 / node.values['rate_hz']
         self.published = 0
         self.failed_reads = 0
         self.saturated = 0
         self.consecutive_failures = 0
         self.last_error = ''
         self.last_sample = time.monotonic()
-        self.real_time_factor = values['simulation.real_time_factor'] if simulated else None
-        # Start-up took simulated time (resets, settling): the schedule starts after it.
-        self.source_start_s = source.clock.now_s if simulated else 0.0
+        self.real_time_factor = real_time_factor
         self.start_ns = node.get_clock().now().nanoseconds
         self.start_wall = time.monotonic()
-        tick = self.period_s if self.real_time_factor is None else \
-            max(self.period_s / self.real_time_factor, 0.002)
+        tick = self.period_s if real_time_factor is None else \
+            max(self.period_s / real_time_factor, 0.002)
         self.timer = node.create_timer(tick, self.tick)
-        node.get_logger().info(f'{hardware_id}: publishing at {1.0 / self.period_s:g} Hz')
 
     def tick(self) -> None:
         if self.real_time_factor is None:
@@ -118,7 +111,7 @@ class DeviceStream:
         for _ in range(samples_due(elapsed_s, self.period_s, self.published,
                                    MAX_SAMPLES_PER_TICK)):
             time_s = self.published * self.period_s
-            self.source.advance_to(self.source_start_s + time_s)
+            self.advance_to(time_s)
             self._publish_one(self.start_ns + int(round(time_s * 1e9)))
 
     def _publish_one(self, stamp_ns: int) -> None:
@@ -138,16 +131,36 @@ class DeviceStream:
         self.last_sample = time.monotonic()
         self.publish(stamp_ns, sample)
 
+    def advance_to(self, time_s: float) -> None:
+        raise NotImplementedError
+
     def read(self):
         raise NotImplementedError
 
     def publish(self, stamp_ns: int, sample) -> None:
         raise NotImplementedError
 
+
+class DeviceStream(TimedStream):
+    """One ADIS16130 or MPU-6000 part, simulated or on spidev."""
+
+    def __init__(self, node, source, hardware_id: str, simulated: bool):
+        self.source = source
+        self.hardware_id = hardware_id
+        self.simulated = simulated
+        # Start-up took simulated time (resets, settling): the schedule starts after it.
+        self.source_start_s = source.clock.now_s if simulated else 0.0
+        self.start_schedule(node, node.values['simulation.real_time_factor'] if simulated
+                            else None)
+        node.get_logger().info(f'{hardware_id}: publishing at {1.0 / self.period_s:g} Hz')
+
+    def advance_to(self, time_s: float) -> None:
+        self.source.advance_to(self.source_start_s + time_s)
+
     def check_fault(self, value: str) -> None:
         """Raise `ParameterError` unless ``simulation.fault`` = ``value`` can be switched on."""
         if not self.simulated:
-            raise ParameterError('simulation.fault applies only to the simulated source')
+            refuse_fault()
         if Fault(value) not in DEVICE_FAULTS:
             choices = ', '.join(f.value for f in DEVICE_FAULTS)
             msg = (f'invalid parameter simulation.fault: the simulated {self.node.device} '
@@ -263,10 +276,10 @@ class AdisStream(DeviceStream):
             self.procedure = None
             self.node.destroy_timer(timer)
         response.message = f'refused: {error}' if error else running.finish()
-        response.success = _outcome(response.message)
+        response.success = messages.trigger_succeeded(response.message)
         self.status_publisher.publish(String(
             data=('done: ' if response.success else 'failed: ') + response.message))
-        _log_outcome(self.node.get_logger(), response, 'bias procedure')
+        messages.log_trigger(self.node.get_logger(), response, 'bias procedure')
         return response
 
 
@@ -690,8 +703,8 @@ class MpuStream(DeviceStream):
             self.node.destroy_timer(timer)
         response.message = refusal or self._finish(window, noise_rad_s,
                                                    values['mpu6000.calibration.noise_multiple'])
-        response.success = _outcome(response.message)
-        _log_outcome(self.node.get_logger(), response, 'offset calibration')
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.node.get_logger(), response, 'offset calibration')
         return response
 
     def _finish(self, window: _RestWindow, noise_rad_s: float, multiple: float) -> str:

@@ -26,7 +26,7 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 
 from . import messages
-from .devices import AdisStream, DeviceStream, MpuStream
+from .devices import AdisStream, MpuStream, refuse_fault, TimedStream
 from .params import (axes_of, check_choices, declare, DRIVER_SPECS, effects_of, ParameterError,
                      transfer_of)
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
@@ -37,7 +37,7 @@ from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
 from ..simulation.mlx90609 import Fault
 from ..sources.bag import absolute_topic, ImuRecord, RawBagReader, RawTopics, TemperatureRecord
-from ..sources.mlx90609 import samples_due, SimulatedArray, SimulationConfig, spidev_array
+from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 
 EEPROM_READ_ATTEMPTS = 3
 # Most samples published by one timer tick: a driver catching up after a stall sends
@@ -95,10 +95,7 @@ class DriverNode(Node):
             if 'frame_id' in values and not values['frame_id']:
                 raise ParameterError('invalid parameter frame_id: must not be empty')
             if 'simulation.fault' in values:
-                if isinstance(self.stream, DeviceStream):
-                    self.stream.check_fault(values['simulation.fault'])
-                elif not isinstance(self.stream.array, SimulatedArray):
-                    raise ParameterError('simulation.fault applies only to the simulated source')
+                self.stream.check_fault(values['simulation.fault'])
         except ParameterError as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
@@ -109,11 +106,8 @@ class DriverNode(Node):
         self.frame_id = self.values['frame_id']
         self.covariance = messages.rate_covariance(self.indices,
                                                    self.values['rate_noise_rad_s'])
-        if isinstance(self.stream, DeviceStream):
-            if self.stream.simulated:
-                self.stream.set_fault(self.values['simulation.fault'])
-        elif isinstance(self.stream.array, SimulatedArray):
-            self.stream.array.fault = Fault(self.values['simulation.fault'])
+        if self.stream.simulated:
+            self.stream.set_fault(self.values['simulation.fault'])
 
     def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c, acceleration_m_s2=None,
                     acceleration_covariance=None) -> None:
@@ -140,7 +134,7 @@ class DriverNode(Node):
         return super().destroy_node()
 
 
-class SensorStream:
+class SensorStream(TimedStream):
     """An MLX90609 array, simulated or on spidev, read on a timer."""
 
     def __init__(self, node: DriverNode):
@@ -160,7 +154,7 @@ class SensorStream:
                 effects=effects_of(values))
             self.array = SimulatedArray(config, len(node.axes))
             self.array.fault = Fault(values['simulation.fault'])
-            self.real_time_factor = values['simulation.real_time_factor']
+            real_time_factor = values['simulation.real_time_factor']
             self.hardware_id = f'simulated MLX90609 x{len(node.axes)} (seed {config.seed})'
         else:
             chip_selects = values['spi.chip_selects']
@@ -171,24 +165,16 @@ class SensorStream:
             self.array = spidev_array(values['spi.bus'], chip_selects,
                                       values['spi.speed_hz'] or MLX90609_SPEED_HZ,
                                       values['spi.mode'])
-            self.real_time_factor = None
+            real_time_factor = None
             self.hardware_id = f'MLX90609 on /dev/spidev{values["spi.bus"]}.{chip_selects}'
         self.tables = sensor_tables(self._read_eeproms(), Output.DIGITAL, node.transfer,
                                     values['sensor.full_scale_dps'])
         self.nominal = NominalConversion.for_range(self.tables.full_scale_dps, Output.DIGITAL,
                                                    len(node.axes), node.transfer)
         node.eeprom_publisher.publish(messages.eeprom_message(self.images))
-        self.period_s = 1.0 / values['rate_hz']
         self.oversample = values['oversample']
-        self.published = 0
-        self.failed_reads = 0
-        self.consecutive_failures = 0
-        self.last_error = ''
-        self.start_ns = node.get_clock().now().nanoseconds
-        self.start_wall = time.monotonic()
-        tick = self.period_s if self.real_time_factor is None else \
-            max(self.period_s / self.real_time_factor, 0.002)
-        self.timer = node.create_timer(tick, self.tick)
+        self.simulated = real_time_factor is not None
+        self.start_schedule(node, real_time_factor)
         node.get_logger().info(
             f'{self.hardware_id}: EEPROM VERSION {[f.version for f in self.tables.fields]}, '
             f'full scale {self.tables.full_scale_dps:g} deg/s, publishing at '
@@ -207,31 +193,13 @@ class SensorStream:
                 self.node.get_logger().warn(f'EEPROM read failed ({err}), retrying')
                 attempt += 1
 
-    def tick(self) -> None:
-        if self.real_time_factor is None:
-            self._publish_one(self.node.get_clock().now().nanoseconds)
-            return
-        elapsed_s = (time.monotonic() - self.start_wall) * self.real_time_factor
-        for _ in range(samples_due(elapsed_s, self.period_s, self.published,
-                                   MAX_SAMPLES_PER_TICK)):
-            time_s = self.published * self.period_s
-            self.array.advance_to(time_s)
-            self._publish_one(self.start_ns + int(round(time_s * 1e9)))
+    def advance_to(self, time_s: float) -> None:
+        self.array.advance_to(time_s)
 
-    def _publish_one(self, stamp_ns: int) -> None:
-        # A failed or saturated read is skipped and counted; the schedule moves on.
-        self.published += 1
-        try:
-            sample = self.array.read(self.oversample)
-        except HardwareError as err:
-            self.failed_reads += 1
-            self.consecutive_failures += 1
-            self.last_error = str(err)
-            self.node.get_logger().warn(f'read failed: {err}', throttle_duration_sec=5.0)
-            return
-        self.consecutive_failures = 0
-        if sample.saturated:
-            return
+    def read(self):
+        return self.array.read(self.oversample)
+
+    def publish(self, stamp_ns: int, sample) -> None:
         # AN2 method 1 per axis, in plain floats (this runs once per sample).
         nominal = self.nominal
         rates_rad_s = [math.radians((code - nominal.zro) / nominal.sf)
@@ -240,6 +208,14 @@ class SensorStream:
         temperatures_c = [float(transfer.temperature_output_to_c(code, Output.DIGITAL))
                           for code in sample.temperature_code]
         self.node.publish_raw(stamp_ns, rates_rad_s, temperatures_c)
+
+    def check_fault(self, value: str) -> None:
+        """Raise `ParameterError` unless the simulated chips can take a fault."""
+        if not self.simulated:
+            refuse_fault()
+
+    def set_fault(self, value: str) -> None:
+        self.array.fault = Fault(value)
 
     def status(self) -> tuple:
         counters = self.array.counters
@@ -268,7 +244,7 @@ class BagStream:
 
     def __init__(self, node: DriverNode):
         self.node = node
-        self.array = None
+        self.simulated = False
         values = node.values
         path = values['bag.path']
         if not path:
@@ -320,6 +296,9 @@ class BagStream:
         self.timer = node.create_timer(0.002, self.tick)
         node.get_logger().info(f'{self.reader.message_count} messages in {path}, rate factor '
                                f'{self.rate_factor:g}: waiting for a subscriber')
+
+    def check_fault(self, value: str) -> None:
+        refuse_fault()
 
     def tick(self) -> None:
         if self.start_wall is None:

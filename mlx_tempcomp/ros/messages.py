@@ -108,3 +108,17 @@ def _format(value) -> str:
         return '[' + ', '.join(_format(float(v)) if isinstance(v, (float, np.floating))
                                else str(v) for v in value) + ']'
     return str(value)
+
+
+def trigger_succeeded(message: str) -> bool:
+    """Tell whether a calibration service's answer text reports success."""
+    return not message.startswith(('refused', 'applied but'))
+
+
+def log_trigger(logger, response, what: str) -> None:
+    """Log a calibration service's answer: info on success, warn otherwise."""
+    # rclpy refuses two severities from one call site: one line per severity.
+    if response.success:
+        logger.info(f'{what}: {response.message}')
+    else:
+        logger.warn(f'{what}: {response.message}')
