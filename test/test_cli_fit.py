@@ -1,8 +1,8 @@
 """``mlx-tempcomp fit``: every model, what it prints, and the parameter file the node loads."""
 
 import math
-from pathlib import Path
 
+from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.chain import ChainModel, ChainSettings, fit_chain, STAGE_NAMES
 from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
@@ -18,8 +18,6 @@ from ros_harness import by_stamp
 from sensor_msgs.msg import Imu, Temperature
 import yaml
 
-MEASURED_CSV = (Path(__file__).resolve().parents[2] / 'shared' / 'data'
-                / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv')
 TIMEOUT_S = 20.0
 NOISE_RAD_S = 0.002
 # True bias in x = (T - 22.5) / 62.5: cubic on gyro_x, quadratic on gyro_z (rad/s).

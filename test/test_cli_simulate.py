@@ -2,16 +2,14 @@
 
 import json
 import math
-from pathlib import Path
 
+from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.sources.bag import RawBagReader
 from mlx_tempcomp.sources.recording import load_recording
 import numpy as np
 import pytest
 
-MEASURED_CSV = (Path(__file__).resolve().parents[2] / 'shared' / 'data'
-                / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv')
 RAW_TOPICS = {'imu_topic': '/imu/data_raw', 'temperature_topic': '/imu/temperature_raw'}
 # One rate LSB of the nominal conversion at 75 deg/s full scale: 25/12 mV / 26.67 mV/(deg/s).
 RATE_LSB_RAD_S = math.radians(25.0 / 12.0 / (2000.0 / 75.0))

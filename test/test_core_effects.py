@@ -2,8 +2,8 @@
 
 import math
 
-from mlx_tempcomp.core.effects import (AxisTerms, EffectModel, play_state,
-                                       temperature_rate_c_s)
+from mlx_tempcomp.core.effects import (AxisTerms, EffectModel, FirstOrderLag, play_state,
+                                       PlayOperator, temperature_rate_c_s, TemperatureSlope)
 from mlx_tempcomp.core.errors import ConfigError
 import numpy as np
 import pytest
@@ -18,6 +18,7 @@ def _record(samples=2000, seed=3):
         'temperature_c': temperature_c,
         'temperature_2_c': 30.0 + 5.0 * np.cos(time_s / 70.0),
         'acceleration_m_s2': rng.normal(0.0, 1.0, (samples, 3)),
+        'supply_voltage_v': 5.0 + 0.2 * np.sin(time_s / 90.0),
         'rate_rad_s': rng.normal(0.0, 0.2, (samples, 3)),
     }
 
@@ -29,31 +30,37 @@ def _full_model():
                   bias_steps=((600.0, 0.01),), secondary=(0.001, 0.0005),
                   acceleration_rad_s_per_m_s2=(1e-4, 0.0, 2e-4), scale=(0.01, 0.001),
                   nonlinearity=(0.01, 0.002), cross_axis=(0.0, 0.01, 0.02)),
-        AxisTerms(bias=(0.02,), cross_axis=(0.01, 0.0, 0.0)),
+        AxisTerms(bias=(0.02,), cross_axis=(0.01, 0.0, 0.0), temperature_rate_rad_s_per_c_s=0.01,
+                  gradient_time_constants_s=(15.0, 120.0), gradient_rad_s_per_c=(2e-4, -1e-4),
+                  supply_voltage=(0.003, -0.001)),
         AxisTerms(bias=(0.0, 0.001), thermal_lag_s=-10.0, hysteresis_half_width_c=1.0,
-                  hysteresis_rad_s=-0.002),
+                  hysteresis_rad_s=-0.002, gradient_time_constants_s=(40.0,),
+                  gradient_rad_s_per_c=(3e-4,)),
     )
     return EffectModel(terms=terms, reference_temperature_c=25.0, temperature_scale_c=20.0,
                        temperature_min_c=0.0, temperature_max_c=44.0,
                        temperature_rate_window_s=30.0, time_reference_s=500.0,
                        secondary_reference_c=30.0, secondary_scale_c=5.0,
-                       zro_offset_rad_s=(0.001, 0.002, 0.003))
+                       supply_reference_v=5.1, zro_offset_rad_s=(0.001, 0.002, 0.003))
 
 
 def test_stream_gives_the_batch_result_sample_by_sample():
     data = _record()
     model = _full_model()
     batch = model.correct(data['rate_rad_s'], data['temperature_c'], data['time_s'],
-                          data['temperature_2_c'], data['acceleration_m_s2'])
+                          data['temperature_2_c'], data['acceleration_m_s2'],
+                          data['supply_voltage_v'])
     stream = model.stream()
     rates, clamped = [], []
     for i in range(len(data['time_s'])):
         rate, flag = stream.correct_sample(
             data['rate_rad_s'][i].tolist(), [data['temperature_c'][i]], data['time_s'][i],
-            data['temperature_2_c'][i], data['acceleration_m_s2'][i].tolist())
+            data['temperature_2_c'][i], data['acceleration_m_s2'][i].tolist(),
+            data['supply_voltage_v'][i])
         rates.append(rate)
         clamped.append(flag)
-    np.testing.assert_allclose(rates, batch.rate_rad_s, rtol=0.0, atol=1e-15)
+    # The vectorised first-order lag sums in another order than the recursion: rounding.
+    np.testing.assert_allclose(rates, batch.rate_rad_s, rtol=0.0, atol=1e-13)
     assert clamped == batch.temperature_clamped.any(axis=1).tolist()
     # The thermal lag pushes T_eff past the 44 C clamp on some samples: the flag is exercised.
     assert 0 < sum(clamped) < len(clamped)
@@ -94,6 +101,50 @@ def test_thermal_lag_recovers_the_die_temperature_of_a_first_order_lag():
     np.testing.assert_allclose(bias[settled], die_c[settled], atol=1e-3)
 
 
+def test_first_order_lag_is_exact_for_held_input_and_matches_its_runner():
+    tau_s = 7.0
+    rng = np.random.default_rng(1)
+    # Uneven steps, a gap of many time constants: stretches of the batch start anew.
+    time_s = np.concatenate([np.cumsum(rng.uniform(0.1, 0.9, 3000)), [9000.0, 9000.5]])
+    values = np.where(time_s < 500.0, 10.0, 30.0)
+    lag = FirstOrderLag(tau_s)
+    batch = lag.batch(time_s, values)
+    # A step from 10 to 30 at the first sample past 500 s: 30 - 20 exp(-(t - t_step) / tau).
+    step = np.flatnonzero(time_s >= 500.0)[0]
+    after = time_s >= 500.0
+    expected = 30.0 - 20.0 * np.exp(-(time_s[after] - time_s[step - 1]) / tau_s)
+    np.testing.assert_allclose(batch[after], expected, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(batch[~after], 10.0, rtol=1e-14)
+    runner = lag.runner()
+    np.testing.assert_allclose([runner.step(t, v) for t, v in zip(time_s, values)], batch,
+                               rtol=0.0, atol=1e-12)
+    with pytest.raises(ConfigError, match='positive time constant'):
+        FirstOrderLag(0.0)
+
+
+def test_operator_runners_give_their_batch_results():
+    data = _record()
+    time_s, temperature_c = data['time_s'], data['temperature_c']
+    slope, play = TemperatureSlope(20.0), PlayOperator(1.5)
+    slope_runner, play_runner = slope.runner(), play.runner()
+    assert [slope_runner.step(t, v) for t, v in zip(time_s, temperature_c)] == \
+        slope.batch(time_s, temperature_c).tolist()
+    assert [play_runner.step(v) for v in temperature_c] == play.batch(temperature_c).tolist()
+
+
+def test_thermal_gradient_follows_the_lagging_node():
+    # bias = g (T - L_tau(T)): on a steady ramp r it settles at g tau r.
+    tau_s, ramp_c_s, gain = 50.0, 0.05, 1e-3
+    time_s = np.arange(0.0, 1000.0, 0.5)
+    model = EffectModel(terms=(AxisTerms(bias=(0.0,), gradient_time_constants_s=(tau_s,),
+                                         gradient_rad_s_per_c=(gain,)),))
+    bias = -model.correct(np.zeros((time_s.size, 1)), 20.0 + ramp_c_s * time_s,
+                          time_s).rate_rad_s[:, 0]
+    assert bias[0] == 0.0
+    # Less half a sample: the input is held at each sample's value since the one before.
+    np.testing.assert_allclose(bias[time_s > 500.0], gain * (tau_s - 0.25) * ramp_c_s, rtol=1e-4)
+
+
 def test_play_state_follows_heating_and_cooling():
     temperature_c = np.concatenate([np.linspace(20, 40, 201), np.linspace(40, 20, 201)])
     state = play_state(temperature_c, 2.0)
@@ -121,6 +172,10 @@ def test_parameters_round_trip_and_fingerprint_ignores_the_offset():
     ({'hysteresis_rad_s': 0.1}, 'needs a positive hysteresis_half_width_c'),
     ({'acceleration_rad_s_per_m_s2': (1.0, 2.0)}, 'needs 3 values'),
     ({'thermal_lag_s': math.nan}, 'thermal_lag_s must be finite'),
+    ({'gradient_time_constants_s': (10.0,)}, 'the same number of values'),
+    ({'gradient_time_constants_s': (1.0, 2.0, 3.0), 'gradient_rad_s_per_c': (1.0, 1.0, 1.0)},
+     'at most 2'),
+    ({'gradient_time_constants_s': (-1.0,), 'gradient_rad_s_per_c': (1.0,)}, 'must be positive'),
 ])
 def test_invalid_terms_are_refused_with_the_field_named(change, message):
     with pytest.raises(ConfigError, match=message):
@@ -133,7 +188,9 @@ def test_missing_inputs_and_parameters_are_named():
     with pytest.raises(ConfigError, match='needs time_s'):
         model.correct(data['rate_rad_s'], data['temperature_c'])
     with pytest.raises(ConfigError, match='needs temperature_2_c'):
-        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, None, [0.0] * 3)
+        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, None, [0.0] * 3, 5.0)
+    with pytest.raises(ConfigError, match='needs supply_voltage_v'):
+        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, 30.0, [0.0] * 3)
     parameters = model.to_parameters(('x', 'y', 'z'))
     del parameters['bias.y']
     with pytest.raises(ConfigError, match='bias.y is missing'):

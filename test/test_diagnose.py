@@ -1,9 +1,10 @@
 """
-``mlx-tempcomp diagnose``: the loop finds an undeclared effect, adds nothing to clean data.
+``mlx-tempcomp diagnose``: the loop names an undeclared effect, adds nothing to clean data.
 
-Data come from the project's simulator (`GyroPhysics` with `Effects`): three
--20..70 C cycles at 2 C/min sampled at 1 Hz, a cubic ZRO, white rate noise,
-and one effect the diagnosis is not told about.
+Data come from the project's simulator (`GyroPhysics` with `Effects`): a
+chamber that ramps -20..70 C three times at 1, 2 and 3 C/min with 10 min
+holds, sampled at 1 Hz, a cubic ZRO, white rate noise, a wandering supply
+voltage recorded alongside, and one effect the diagnosis is not told about.
 """
 
 import contextlib
@@ -14,7 +15,7 @@ import math
 
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
-from mlx_tempcomp.core.effects import EffectModel
+from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
@@ -23,29 +24,53 @@ import numpy as np
 import pytest
 import yaml
 
-RATE_HZ = 1.0
 NOISE_DPS = 0.02
 TEMPERATURE_NOISE_C = 0.02
 STEP_TIME_S = 9000.0
 LAG_S = 200.0
+TEST_FRACTION = 0.25
+QUIET = Noise(bias_instability_dps=0.0)
 EFFECTS = {
-    'clean': Effects(),
-    'thermal_lag': Effects(thermal_lag_s=LAG_S),
-    'hysteresis': Effects(hysteresis_dps=0.2, hysteresis_width_c=5.0),
-    'bias_step': Effects(bias_steps=((STEP_TIME_S, 0.2),)),
+    'clean': (Effects(), QUIET),
+    'random_walk': (Effects(), Noise(bias_instability_dps=0.0, rate_random_walk_dps_rt_s=2e-4)),
+    'thermal_lag': (Effects(thermal_lag_s=LAG_S), QUIET),
+    'thermal_gradient': (Effects(gradient_time_constants_s=(120.0, 900.0),
+                                 gradient_dps_per_c=(0.02, 0.01)), QUIET),
+    'hysteresis': (Effects(hysteresis_dps=0.2, hysteresis_width_c=5.0), QUIET),
+    'temperature_rate': (Effects(zro_dps_per_c_s=4.0), QUIET),
+    'supply_voltage': (Effects(zro_supply_dps_per_v=0.4), QUIET),
+    'bias_step': (Effects(bias_steps=((STEP_TIME_S, 0.2),)), QUIET),
 }
-STEP_STRUCTURE = {'effect', 'parameters', 'rms_before', 'rms_after', 'peak_before',
-                  'peak_after'}
+STEP_STRUCTURE = {'effect', 'live', 'parameters', 'rms_before', 'rms_after', 'peak_before',
+                  'peak_after', 'block_rms_before', 'block_rms_after'}
+
+
+def chamber(legs, start_c=25.0, hold_s=600.0) -> ThermalProfile:
+    """Ramp to each (temperature, C/min) of ``legs`` and hold it."""
+    times, temperatures = [0.0], [start_c]
+    for target_c, rate_c_per_min in legs:
+        times.append(times[-1] + abs(target_c - temperatures[-1]) / rate_c_per_min * 60.0)
+        temperatures.append(target_c)
+        times.append(times[-1] + hold_s)
+        temperatures.append(target_c)
+    return ThermalProfile(times_s=tuple(times), temperatures_c=tuple(temperatures))
+
+
+PROFILE = chamber(((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0), (-20.0, 2.0), (70.0, 1.0),
+                   (-20.0, 3.0)))
+SUPPLY_TIMES_S = tuple(float(t) for t in np.arange(0.0, PROFILE.duration_s + 400.0, 400.0))
+SUPPLY_V = tuple(float(v) for v in 5.0 + 0.25 * np.sin(2.1 * np.arange(len(SUPPLY_TIMES_S))))
 
 
 @functools.lru_cache(maxsize=None)
 def simulated(name: str, seed: int = 0) -> tuple:
-    """Return (time s, sensor temperature C, rate rad/s) of the simulated device."""
-    profile = ThermalProfile.cycle((70.0, -20.0) * 3, rate_c_per_min=2.0, start_c=25.0)
-    truth = GyroTruth(zro_dps_coefficients=(0.5, 0.02, 2e-4, -2e-6), effects=EFFECTS[name],
-                      noise=Noise(bias_instability_dps=0.0))
-    physics = GyroPhysics(truth, Scenario(thermal=profile), seed=seed)
-    time_s = np.arange(1, int(profile.duration_s * RATE_HZ) + 1) / RATE_HZ
+    """Return (time s, sensor temperature C, rate rad/s, supply V) of the simulated device."""
+    effects, noise = EFFECTS[name]
+    truth = GyroTruth(zro_dps_coefficients=(0.5, 0.02, 2e-4, -2e-6), effects=effects,
+                      noise=noise)
+    scenario = Scenario(thermal=PROFILE, supply_times_s=SUPPLY_TIMES_S, supply_v=SUPPLY_V)
+    physics = GyroPhysics(truth, scenario, seed=seed)
+    time_s = np.arange(1.0, float(int(PROFILE.duration_s)) + 1.0)
     temperature_c = np.empty(time_s.size)
     zro_dps = np.empty(time_s.size)
     for i, t in enumerate(time_s):
@@ -54,41 +79,117 @@ def simulated(name: str, seed: int = 0) -> tuple:
         zro_dps[i] = physics.zro_offset_dps()
     rng = np.random.default_rng(seed + 1)
     rate_rad_s = np.radians(zro_dps + rng.normal(0.0, NOISE_DPS, time_s.size))
-    return time_s, temperature_c + rng.normal(0.0, TEMPERATURE_NOISE_C, time_s.size), rate_rad_s
+    supply_v = np.interp(time_s, SUPPLY_TIMES_S, SUPPLY_V) + rng.normal(0.0, 0.002, time_s.size)
+    return (time_s, temperature_c + rng.normal(0.0, TEMPERATURE_NOISE_C, time_s.size),
+            rate_rad_s, supply_v)
 
 
 def recording(name: str) -> Recording:
-    time_s, temperature_c, rate_rad_s = simulated(name)
-    return Recording(name, time_s, temperature_c, ('z',), rate_rad_s[:, None])
+    time_s, temperature_c, rate_rad_s, supply_v = simulated(name)
+    return Recording(name, time_s, temperature_c, ('z',), rate_rad_s[:, None],
+                     supply_voltage_v=supply_v)
 
 
-@pytest.mark.parametrize('effect', ['thermal_lag', 'hysteresis', 'bias_step'])
+@functools.lru_cache(maxsize=None)
+def diagnosed(name: str, record_effects: bool = False):
+    settings = DiagnosisSettings(test_fraction=TEST_FRACTION, record_effects=record_effects)
+    return diagnose(recording(name), settings)
+
+
+@pytest.mark.parametrize('effect', ['thermal_lag', 'thermal_gradient', 'hysteresis',
+                                    'temperature_rate', 'supply_voltage'])
 def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
-    result = diagnose(recording(effect))
+    result = diagnosed(effect)
     steps = result.per_axis[0].steps
     assert [s.effect for s in steps[:2]] == ['temperature_polynomial', effect]
-    assert steps[1].after.rms_rad_s <= 0.5 * steps[1].before.rms_rad_s
     # Held-out errors chain: each step starts where the one before ended.
     assert steps[1].before == steps[0].after
+    assert steps[-1].after.rms_rad_s <= 0.5 * steps[0].after.rms_rad_s
+    test = result.comparison['test']
+    assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
+    assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
+    assert not result.model.record_effects
     parameters = steps[1].parameters
     if effect == 'thermal_lag':
         assert parameters['thermal_lag_s'] == pytest.approx(LAG_S, rel=0.15)
-    elif effect == 'bias_step':
-        assert parameters['time_s'] == pytest.approx(STEP_TIME_S, abs=5.0)
-        assert parameters['step_rad_s'] == pytest.approx(math.radians(0.2), rel=0.1)
+    elif effect == 'thermal_gradient':
+        # Two time constants: the second is named too, one short and one long.
+        assert 'thermal_gradient_2' in result.per_axis[0].effects
+        short_s, long_s = result.model.terms[0].gradient_time_constants_s
+        assert short_s < 500.0 < long_s
+    elif effect == 'supply_voltage':
+        assert parameters['rad_s_per_v_k'][0] == pytest.approx(math.radians(0.4), rel=0.05)
+    elif effect == 'temperature_rate':
+        assert parameters['rad_s_per_c_s'] == pytest.approx(math.radians(4.0), rel=0.1)
     else:
         assert parameters['hysteresis_rad_s'] > 0.0
 
 
-def test_diagnose_adds_nothing_to_clean_data():
-    result = diagnose(recording('clean'))
+@pytest.mark.parametrize('name', ['clean', 'random_walk'])
+def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
+    result = diagnosed(name)
     axis = result.per_axis[0]
     assert axis.effects == ('temperature_polynomial',)
     assert axis.order == 3
-    assert {c.effect for c in axis.rejected} == {'thermal_lag', 'hysteresis', 'time_drift',
-                                                 'bias_step'}
+    # Every live effect this record can support was tried, and refused.
+    live = set(LIVE_EFFECTS) - {'temperature_polynomial', 'thermal_gradient_2',
+                                'secondary_temperature', 'acceleration_sensitivity',
+                                'scale_factor_temperature', 'rate_nonlinearity', 'cross_axis'}
+    assert {c.effect for c in axis.rejected} == live
     assert all(c.reason for c in axis.rejected)
     assert result.model.terms[0].effects == ('temperature_polynomial',)
+    # Per-block figures come with every step.
+    assert len(axis.steps[0].after.block_rms_rad_s) == result.settings.blocks
+
+
+def test_record_effects_are_findings_by_default_and_added_when_asked():
+    result = diagnosed('bias_step')
+    axis = result.per_axis[0]
+    assert 'bias_step' not in axis.effects and not result.model.record_effects
+    assert dict(result.skipped)['bias_step'].startswith("tied to the record's clock")
+    finding = {f.effect: f for f in axis.findings}['bias_step']
+    assert finding.reason == ''
+    assert finding.parameters['time_s'] == pytest.approx(STEP_TIME_S, abs=5.0)
+    assert finding.parameters['step_rad_s'] == pytest.approx(math.radians(0.2), rel=0.1)
+    asked = diagnosed('bias_step', record_effects=True)
+    steps = asked.per_axis[0].steps
+    assert [s.effect for s in steps[:2]] == ['temperature_polynomial', 'bias_step']
+    assert steps[1].after.rms_rad_s <= 0.5 * steps[1].before.rms_rad_s
+    assert asked.model.record_effects == ('bias_step',)
+    assert asked.per_axis[0].findings == ()
+    assert {f.effect for f in axis.findings} == set(RECORD_EFFECTS)
+
+
+def test_test_cycle_holds_out_the_last_full_cycle():
+    result = diagnose(recording('hysteresis'), DiagnosisSettings(test_cycle=True))
+    time_s, temperature_c = simulated('hysteresis')[:2]
+    # The last full cycle (heating, then cooling) starts in the second hold at -20 C.
+    start_s = time_s[result.rows]
+    assert temperature_c[result.rows] == pytest.approx(-20.0, abs=0.2)
+    assert PROFILE.times_s[7] <= start_s <= PROFILE.times_s[8]
+    assert result.test_rows == len(time_s) - result.rows
+    assert result.comparison['test']['diagnosed'][0].rms_rad_s < \
+        0.5 * result.comparison['test']['px4_cubic'][0].rms_rad_s
+
+
+def test_acceleration_is_searched_only_when_the_sensor_moved():
+    time_s, temperature_c, rate_rad_s, _ = simulated('clean')
+    rng = np.random.default_rng(5)
+    still = np.column_stack([0.01 * (temperature_c - 25.0), np.zeros(time_s.size),
+                             np.full(time_s.size, -9.8)]) + rng.normal(0.0, 0.02,
+                                                                       (time_s.size, 3))
+    result = diagnose(Recording('still', time_s, temperature_c, ('z',), rate_rad_s[:, None],
+                                acceleration_m_s2=still))
+    assert 'the sensor did not move' in dict(result.skipped)['acceleration_sensitivity']
+    tilt = np.radians(30.0) * np.sin(time_s / 500.0)
+    moving = np.column_stack([9.8 * np.sin(tilt), np.zeros(time_s.size), -9.8 * np.cos(tilt)]) \
+        + rng.normal(0.0, 0.02, (time_s.size, 3))
+    g_sensitive = rate_rad_s + 1e-3 * moving[:, 0]
+    result = diagnose(Recording('moving', time_s, temperature_c, ('z',), g_sensitive[:, None],
+                                acceleration_m_s2=moving))
+    assert 'acceleration_sensitivity' not in dict(result.skipped)
+    assert result.per_axis[0].effects[:2] == ('temperature_polynomial',
+                                              'acceleration_sensitivity')
 
 
 def test_diagnose_with_a_reference_rate_finds_scale_cross_axis_and_nonlinearity():
@@ -119,29 +220,43 @@ def test_diagnose_with_a_reference_rate_finds_scale_cross_axis_and_nonlinearity(
 
 
 def test_diagnose_refuses_data_it_cannot_judge():
-    time_s, temperature_c, rate_rad_s = simulated('clean')
+    time_s, temperature_c, rate_rad_s, _ = simulated('clean')
     few = Recording('few', time_s[:30], temperature_c[:30], ('z',), rate_rad_s[:30, None])
     with pytest.raises(CalibrationError, match='30 rows to diagnose'):
         diagnose(few)
     flat = Recording('flat', time_s, np.full(time_s.size, 25.0), ('z',), rate_rad_s[:, None])
     with pytest.raises(CalibrationError, match='temperature spans 0 C'):
         diagnose(flat)
+    one_cycle = Recording('one', time_s[:8000], temperature_c[:8000], ('z',),
+                          rate_rad_s[:8000, None])
+    with pytest.raises(CalibrationError, match='needs at least two cycles'):
+        diagnose(one_cycle, DiagnosisSettings(test_cycle=True))
 
 
 def write_csv(tmp_path, rows=None) -> str:
-    """Write gyro_x with a thermal lag and gyro_z clean (a cubic of the same temperature)."""
-    time_s, temperature_c, rate_x = simulated('thermal_lag')
+    """Write gyro_x with a hysteresis, gyro_y with a bias step, gyro_z clean."""
+    time_s, temperature_c, rate_x, _ = simulated('hysteresis')
+    rate_y = simulated('bias_step')[2]
     rng = np.random.default_rng(7)
     rate_z = np.radians(np.polynomial.polynomial.polyval(temperature_c - 25.0,
                                                          (-0.3, 0.01, -1e-4, 3e-6))
                         + rng.normal(0.0, NOISE_DPS, time_s.size))
     columns = {'time': time_s, 'temperature': temperature_c, 'gyro_x': rate_x,
-               'gyro_z': rate_z}
+               'gyro_y': rate_y, 'gyro_z': rate_z}
     table = np.column_stack(list(columns.values()))[slice(rows)]
     path = tmp_path / 'sweep.csv'
     np.savetxt(path, table, delimiter=',', header=','.join(columns), comments='',
                fmt='%.17g')
     return str(path)
+
+
+def run_cli(argv: list) -> tuple:
+    """Run mlx-tempcomp in this process; give (stdout, stderr) (capsys is per test)."""
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main([str(arg) for arg in argv])
+    assert code == 0, stderr.getvalue()
+    return stdout.getvalue(), stderr.getvalue()
 
 
 @pytest.fixture(scope='module')
@@ -150,13 +265,14 @@ def cli_run(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp('diagnose')
     path = write_csv(tmp_path)
     out = tmp_path / 'out'
-    # capsys is per test; this run is shared by the module.
-    stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main(['diagnose', path, '--out', str(out), '--test-fraction', '0.25',
-                     '--progress'])
-    assert code == 0, stderr.getvalue()
-    return path, out, stdout.getvalue(), stderr.getvalue()
+    stdout, stderr = run_cli(['diagnose', path, '--out', out, '--test', TEST_FRACTION,
+                              '--progress'])
+    return path, out, stdout, stderr
+
+
+def parameters_of(out) -> dict:
+    return yaml.safe_load((out / 'params.yaml').read_text())['compensation_node'][
+        'ros__parameters']
 
 
 def test_cli_writes_report_plots_and_parameters(cli_run):
@@ -165,31 +281,43 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
                  'residual_vs_time.png', 'error_per_step.png'):
         assert (out / name).stat().st_size > 0, name
     assert (out / 'error_per_step.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
-    assert 'axis x: held-out RMS' in stdout and 'thermal_lag' in stdout
+    assert 'axis x: held-out RMS' in stdout and 'hysteresis' in stdout
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
+    assert 'axis y: record-only finding bias_step: a step of' in stdout
     assert 'diagnose: round 1' in stderr, 'the progress bar was asked for'
     report_md = (out / 'report.md').read_text()
     assert '## Axis x' in report_md and '### Test set' in report_md
+    assert '### Held-out RMS per block' in report_md
+    assert "### Record-only effects (the record's clock; not in params.yaml)" in report_md
+    assert 'ZRO recalibration at rest (imu/recalibrate_zro) covers it' in report_md
 
 
 def test_cli_report_json_schema(cli_run):
     _, out, _, _ = cli_run
     report = json.loads((out / 'report.json').read_text())
-    assert set(report['axes']) == {'x', 'z'}
-    x, z = report['axes']['x'], report['axes']['z']
-    for axis in (x, z):
+    assert set(report['axes']) == {'x', 'y', 'z'}
+    assert report['effects']['record_only'] == ['bias_step', 'time_drift']
+    assert not set(report['effects']['searched']) & RECORD_EFFECTS
+    x, y, z = (report['axes'][a] for a in 'xyz')
+    for axis in (x, y, z):
         assert axis['steps'][0]['effect'] == 'temperature_polynomial'
         for step in axis['steps']:
             assert STEP_STRUCTURE <= set(step)
-            numbers = STEP_STRUCTURE - {'effect', 'parameters'}
+            assert step['live'] is True
+            numbers = {'rms_before', 'rms_after', 'peak_before', 'peak_after'}
             assert all(isinstance(step[key], float) for key in numbers)
+            assert len(step['block_rms_after']) == report['settings']['blocks']
         for candidate in axis['rejected']:
-            assert {'effect', 'round', 'held_out_gain', 'reason'} <= set(candidate)
+            assert {'effect', 'round', 'held_out_gain', 'reason', 'worst_block_change'} <= \
+                set(candidate)
         skipped = {s['effect']: s['reason'] for s in axis['skipped']}
         assert skipped['secondary_temperature'] == 'needs column temperature_2'
-        assert skipped['cross_axis'] == 'needs reference columns ref_x, ref_z'
-    assert [s['effect'] for s in x['steps']][:2] == ['temperature_polynomial', 'thermal_lag']
+        assert skipped['cross_axis'] == 'needs reference columns ref_x, ref_y, ref_z'
+        assert {f['effect'] for f in axis['findings']} == RECORD_EFFECTS
+    assert [s['effect'] for s in x['steps']][:2] == ['temperature_polynomial', 'hysteresis']
     assert [s['effect'] for s in z['steps']] == ['temperature_polynomial']
+    step = {f['effect']: f for f in y['findings']}['bias_step']
+    assert step['passes'] and step['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
     for scope in ('cross_validation', 'test'):
         methods = report['comparison'][scope]
         assert set(methods) == {'none', 'px4_cubic', 'temperature_polynomial', 'diagnosed'}
@@ -206,22 +334,27 @@ def flat_parameters(tree: dict, prefix: str = '') -> dict:
     return flat
 
 
+def csv_recording(path) -> Recording:
+    table = np.genfromtxt(path, delimiter=',', names=True)
+    return Recording('csv', table['time'], table['temperature'], ('x', 'y', 'z'),
+                     np.column_stack([table[f'gyro_{a}'] for a in 'xyz']))
+
+
 def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     path, out, _, _ = cli_run
-    values = yaml.safe_load((out / 'params.yaml').read_text())['compensation_node'][
-        'ros__parameters']
-    assert values['model'] == 'effects' and values['axes'] == ['x', 'z']
+    values = parameters_of(out)
+    assert values['model'] == 'effects' and values['axes'] == ['x', 'y', 'z']
+    # The step is a finding only: the node's file holds no stamp of this record.
+    assert values['effects']['bias_step_time_s']['y'] == []
     model = EffectModel.from_parameters(flat_parameters(values['effects']), values['axes'])
-    table = np.genfromtxt(path, delimiter=',', names=True)
-    rows = len(table)
-    recording = Recording('csv', table['time'], table['temperature'], ('x', 'z'),
-                          np.column_stack([table['gyro_x'], table['gyro_z']]))
-    expected = diagnose(recording, DiagnosisSettings(test_fraction=0.25))
+    recording = csv_recording(path)
+    rows = len(recording.time_s)
+    expected = diagnose(recording, DiagnosisSettings(test_fraction=TEST_FRACTION))
     assert model == expected.model
     # The node-side model, run from the record's start, gives the reported test error.
     corrected = model.correct(recording.gyro_rad_s, recording.temperature_c,
                               time_s=recording.time_s).rate_rad_s
-    test = slice(rows - int(math.floor(0.25 * rows)), rows)
+    test = slice(rows - int(math.floor(TEST_FRACTION * rows)), rows)
     seconds = np.floor(recording.time_s[test] - recording.time_s[test][0])
     starts = np.flatnonzero(np.concatenate(([True], seconds[1:] != seconds[:-1])))
     counts = np.diff(np.append(starts, seconds.size))
@@ -229,7 +362,18 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     rms = np.sqrt(np.sum(counts[:, None] * binned ** 2, axis=0) / counts.sum())
     report = json.loads((out / 'report.json').read_text())
     reported = report['comparison']['test']['diagnosed']
-    assert rms == pytest.approx([reported['x']['rms'], reported['z']['rms']], rel=1e-9)
+    assert rms == pytest.approx([reported[a]['rms'] for a in 'xyz'], rel=1e-9)
+
+
+def test_cli_record_effects_puts_the_step_into_the_parameter_file(tmp_path):
+    path = write_csv(tmp_path)
+    out = tmp_path / 'out'
+    stdout, _ = run_cli(['diagnose', path, '--out', out, '--test-fraction', TEST_FRACTION,
+                         '--record-effects'])
+    assert 'bias_step' in stdout
+    effects = parameters_of(out)['effects']
+    assert effects['bias_step_time_s']['y'] == [pytest.approx(STEP_TIME_S, abs=5.0)]
+    assert 'Holds record-only effects (bias_step)' in (out / 'params.yaml').read_text()
 
 
 def assert_user_error(code, capsys, needle):
@@ -250,4 +394,10 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
     short = write_csv(tmp_path, rows=25)
     assert_user_error(main(['diagnose', short, '--out', out]), capsys,
                       '25 rows to diagnose')
+    half = write_csv(tmp_path, rows=8000)
+    assert_user_error(main(['diagnose', half, '--out', out, '--test', 'cycle']), capsys,
+                      'needs at least two cycles (4 branches)')
+    with pytest.raises(SystemExit):
+        main(['diagnose', half, '--out', out, '--test', 'last'])
+    assert "expected a number in [0, 1), got 'last'" in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()

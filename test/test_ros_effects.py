@@ -21,9 +21,9 @@ from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProt
 from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
 import numpy as np
 import pytest
-from ros_harness import (COMPENSATION_DIAGNOSTIC, finish_model_replay, first_line_with,
-                         parse_list, rates, start_model_replay, status_values)
-from sensor_msgs.msg import Imu, Temperature
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
+                         first_line_with, parse_list, rates, start_model_replay, status_values)
+from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_srvs.srv import Trigger
 
 pytestmark = pytest.mark.ros
@@ -58,15 +58,17 @@ def effects_recording(samples: int, seed: int) -> dict:
 
 
 def effect_model(recording: dict) -> EffectModel:
-    """Every kind of term, on three axes: lag, hysteresis, drift, step, T2, acceleration..."""
+    """Every kind of term on three axes: lags, gradients, hysteresis, rate, drift, step..."""
     start_s = float(recording['time_s'][0])
     span_s = float(recording['time_s'][-1]) - start_s
     terms = (
         AxisTerms(bias=(0.01, 2e-3, -3e-4, 1e-5), thermal_lag_s=20.0,
-                  bias_steps=((start_s + 0.4 * span_s + 0.05, 4e-3),), scale=(0.0, 1e-3)),
+                  bias_steps=((start_s + 0.4 * span_s + 0.05, 4e-3),), scale=(0.0, 1e-3),
+                  gradient_time_constants_s=(15.0, 150.0), gradient_rad_s_per_c=(2e-4, -1e-4)),
         AxisTerms(bias=(-0.02, -1e-3, 2e-4), hysteresis_half_width_c=1.0,
-                  hysteresis_rad_s=3e-3, secondary=(2e-3, -1e-4)),
-        AxisTerms(bias=(0.005, 5e-4), time_drift_rad_s_per_s=2e-6,
+                  hysteresis_rad_s=3e-3, secondary=(2e-3, -1e-4),
+                  temperature_rate_rad_s_per_c_s=0.05),
+        AxisTerms(bias=(0.005, 5e-4), thermal_lag_s=-25.0, time_drift_rad_s_per_s=2e-6,
                   acceleration_rad_s_per_m_s2=(1e-3, -2e-3, 5e-4), secondary=(1e-3,),
                   cross_axis=(2e-3, -1e-3, 0.0)))
     return EffectModel(terms, reference_temperature_c=30.0, temperature_scale_c=15.0,
@@ -118,10 +120,14 @@ def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tm
     model = effect_model(recording)
     recording = with_effects_gyro(model, recording)
     expected = correct(model, recording)
-    # The stateful terms matter: without the lag (or the hysteresis) the output differs.
-    for axis, change in ((0, {'thermal_lag_s': 0.0}), (1, {'hysteresis_rad_s': 0.0})):
+    # The stateful terms matter: without the lags, the gradients, the hysteresis or the
+    # rate the output differs.
+    for axis, change in ((0, {'thermal_lag_s': 0.0}), (1, {'hysteresis_rad_s': 0.0}),
+                         (0, {'gradient_time_constants_s': (), 'gradient_rad_s_per_c': ()}),
+                         (1, {'temperature_rate_rad_s_per_c_s': 0.0}),
+                         (2, {'thermal_lag_s': 0.0})):
         other = correct(model.with_terms(axis, **change), recording)
-        assert np.max(np.abs(other[:, axis] - expected[:, axis])) > 1e-3
+        assert np.max(np.abs(other[:, axis] - expected[:, axis])) > 1e-5
     assert model.needs_time and model.needs_temperature_2 and model.needs_acceleration
     count = write_bag(tmp_path / 'bag', recording)
     model_file = write_model_file(tmp_path / 'effects.yaml',
@@ -298,3 +304,62 @@ def test_model_needing_acceleration_reports_imu_without_it(launcher, probe, tmp_
         return received
     probe.spin_until(compensated, TIMEOUT_S, 'samples with acceleration compensated', launcher)
     assert rates(received[0])[2] == pytest.approx(0.5 - 0.01 - 9.81e-3, abs=1e-12)
+
+
+def test_supply_voltage_model_compensates_with_the_battery_state_voltage(
+        launcher, probe, tmp_path):
+    """imu/supply_voltage (BatteryState) is paired by stamp and feeds the supply terms."""
+    model = EffectModel((AxisTerms(bias=(0.01, 2e-3), supply_voltage=(4e-3, -1e-3),
+                                   gradient_time_constants_s=(2.0,),
+                                   gradient_rad_s_per_c=(1e-3,)),),
+                        reference_temperature_c=25.0, temperature_scale_c=10.0,
+                        supply_reference_v=5.0)
+    model_file = write_model_file(tmp_path / 'effects.yaml', effect_parameters(model, ('z',)))
+    launcher.start('compensation_node', 'compensation_node',
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml')},
+                   extra_args=['--params-file', model_file])
+    received = probe.subscribe(Imu, 'imu/data')
+    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
+    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
+                                                        SENSOR_INPUT_QOS)
+    supply_publisher = probe.node.create_publisher(BatteryState, 'imu/supply_voltage',
+                                                   SENSOR_INPUT_QOS)
+    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
+                     temperature_publisher.get_subscription_count() and
+                     supply_publisher.get_subscription_count() and
+                     probe.node.count_publishers('imu/data'),
+                     TIMEOUT_S, 'the compensation node', launcher)
+    samples = 60
+    stamps_ns = [T0_NS + i * PERIOD_NS for i in range(samples)]
+    rate_rad_s = 0.1 + 0.01 * np.sin(np.arange(samples))
+    temperature_c = 20.0 + 0.2 * np.arange(samples)
+    supply_v = 5.0 + 0.3 * np.sin(np.arange(samples) / 5.0)
+    for i, stamp_ns in enumerate(stamps_ns):
+        stamp = messages.ns_to_stamp(stamp_ns)
+        supply = BatteryState()
+        supply.header.stamp = stamp
+        supply.voltage = float(supply_v[i])
+        supply_publisher.publish(supply)
+        temperature_publisher.publish(messages.temperature_message(stamp, 'imu_link',
+                                                                   temperature_c[i]))
+        imu_publisher.publish(messages.imu_message(stamp, 'imu_link', (2,), [rate_rad_s[i]],
+                                                   [0.0] * 9))
+        probe.spin_once(0.01)
+    # Best effort: the first samples may go before the node's readers match the publishers.
+    probe.spin_until(lambda: len(received) >= samples - 10 and
+                     by_stamp(received).keys() >= set(stamps_ns[10:]), TIMEOUT_S,
+                     'the samples compensated', launcher)
+    got = by_stamp(received)
+    first = min(got)
+    kept = [i for i, stamp in enumerate(stamps_ns) if stamp >= first]
+    assert [stamps_ns[i] for i in kept] == sorted(got), 'a sample in between was lost'
+    # The node's state starts at the first sample it pairs: so does the offline run.
+    time_s = np.array([stamps_ns[i] / 1e9 for i in kept])
+    rate, temperature = rate_rad_s[kept, None], temperature_c[kept]
+    expected = model.correct(rate, temperature, time_s=time_s,
+                             supply_voltage_v=np.float32(supply_v[kept]).astype(np.float64))
+    output = np.array([rates(got[stamps_ns[i]])[2] for i in kept])
+    np.testing.assert_allclose(output, expected.rate_rad_s[:, 0], rtol=0.0, atol=1e-12)
+    # The supply terms are in: without them the output differs by millirad/s.
+    assert np.max(np.abs(output - model.with_terms(0, supply_voltage=()).correct(
+        rate, temperature, time_s=time_s).rate_rad_s[:, 0])) > 5e-4

@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 import time
 
+from measured_data import MEASURED_CSV as TOFUPILOT_CSV
 from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, RawTopics, TemperatureRecord
 from mlx_tempcomp.sources.recording import (
     ColumnMap, load_bag, load_csv, load_recording, parse_column_map, PRESETS, Recording,
@@ -13,8 +14,6 @@ from mlx_tempcomp.sources.recording import (
 import numpy as np
 import pytest
 
-TOFUPILOT_CSV = (Path(__file__).resolve().parents[2] / 'shared' / 'data'
-                 / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv')
 HEADER = ['time', 'temperature', 'gyro_x', 'gyro_y', 'gyro_z', 'ref_x', 'ref_y', 'ref_z',
           'acc_x', 'acc_y', 'acc_z', 'temperature_2']
 T0_NS = 1_700_000_000_000_000_000

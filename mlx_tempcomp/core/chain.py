@@ -241,7 +241,7 @@ class ChainModel(_OffsetModel):
         return _fingerprint(self.name, self.chain.to_parameters())
 
     def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
-                acceleration_m_s2=None) -> CorrectedRate:
+                acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
         """Correct a batch; ``temperature_2_c`` (samples,) is required."""
         if temperature_2_c is None:
             raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
@@ -262,7 +262,7 @@ class _ChainStream:
         self.model = model
 
     def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None) -> tuple:
+                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
         if temperature_2_c is None:
             raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
         temperature = sum(temperatures_c) / len(temperatures_c)

@@ -8,20 +8,30 @@ seconds (0: per sample) on held-out rows: averaging keeps white noise from
 hiding a bias. The record is cut into ``blocks`` contiguous blocks dealt
 round-robin to ``folds`` folds, so training data surrounds every held-out
 block and a single thermal cycle's extremes stay covered. Bins never span
-two blocks. Stateful inputs (temperature slope, play state) are computed
-over the whole record first, then rows are split, as the node does when it
-replays the record from the start.
+two blocks. Stateful inputs (temperature slope, lags, play state) are
+computed over the whole record first, then rows are split, as the node does
+when it replays the record from the start.
 
 Step 0 fits the temperature polynomial, its order per axis chosen by the
 one-standard-error rule over the folds. Each round, every effect an axis
 lacks is fitted jointly with the terms so far (linear least squares on bin
-means, which is exact for the binned error; nonlinear parameters such as
-the thermal lag, the hysteresis width and the step time from a small grid
-or a CUSUM, scored by the folds). The best candidate is accepted if its
-relative held-out RMS reduction is at least ``min_gain`` and its mean
-per-fold improvement exceeds ``significance`` standard errors. The loop
-stops when no axis accepts anything. Every reported error of a step comes
-from `EffectModel.correct`, the code the node runs, on fold models.
+means, which is exact for the binned error). Time constants, the hysteresis
+width and the lag are found by a bounded 1-D search on a log grid, coarse
+then fine, with the linear coefficients solved at every point; the step
+time of a bias step by a CUSUM. The best candidate is accepted if its
+relative held-out RMS reduction is at least ``min_gain``, its mean per-fold
+improvement exceeds ``significance`` standard errors, and no held-out block
+but the first (where the history states start from an assumed equilibrium)
+gets worse by more than ``block_tolerance`` x the larger of its RMS and the
+axis's held-out RMS. The loop stops when no axis
+accepts anything. Every reported error of a step comes from
+`EffectModel.correct`, the code the node runs, on fold models.
+
+By default the loop searches only the effects a node can run on a live
+stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
+moved. The effects tied to the record's clock (time drift, bias steps) are
+then tested on top of the final model and reported as findings, not added,
+unless ``record_effects`` asks for them.
 """
 
 from dataclasses import dataclass, field, replace
@@ -30,22 +40,36 @@ from typing import Callable, Mapping, Optional
 
 import numpy as np
 
-from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, EffectModel, play_state,
-                      temperature_rate_c_s)
-from .errors import CalibrationError
+from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EffectModel, FirstOrderLag,
+                      LIVE_EFFECTS, play_state, temperature_rate_c_s)
+from .errors import CalibrationError, ConfigError
 from .fitting import MIN_SPAN_C, OrderScore
-from .metrics import bin_means, bin_starts, test_start_row
+from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 
 BASE_EFFECT = 'temperature_polynomial'
+SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
+RECORD_SEARCH = ('time_drift', 'bias_step')
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
 PX4_ORDER = 3
-LAG_GRID_S = (5.0, 10.0, 20.0, 40.0, 80.0, 150.0, 300.0, 600.0, 1000.0)
-WIDTH_GRID_C = (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0)
-# Golden-section evaluations that refine the best grid value, in log |value|.
-REFINE_EVALUATIONS = {'thermal_lag': 10, 'hysteresis': 6}
-GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+# Log grids of the 1-D searches: ratio 2^(1/4) between neighbours. The coarse pass
+# visits every COARSE-th point within the bounds, the fine pass the neighbours of the best.
+GRID_RATIO = 2.0 ** 0.25
+COARSE = 4
+TIME_GRID_S = tuple(float(GRID_RATIO ** k) for k in range(0, 81))        # 1 s .. 1.05e6 s
+WIDTH_GRID_C = tuple(float(0.25 * GRID_RATIO ** k) for k in range(0, 33))  # 0.25 .. 64 C
+# A time constant must fit this many times into the diagnosed part, or it is a drift.
+TIME_CONSTANTS_PER_RECORD = 4.0
+# The thermal lag's shortest time constant, in median sample intervals.
+MIN_LAG_SAMPLES = 2.0
+# Two gradient time constants closer than this ratio are one.
+MIN_GRADIENT_RATIO = 2.0
+# The record shows motion when the specific force turns by this much, or its
+# magnitude moves by MOTION_M_S2 (1 s means, 1st to 99th percentile).
+MOTION_DEG = 5.0
+MOTION_M_S2 = 1.0
 # Singular values of the scaled normal matrix below this (relative) count as rank loss.
 RANK_RCOND = 1e-12
+SUPPLY_ORDERS = (1, 2)
 SECONDARY_ORDERS = (1, 2, 3)
 SCALE_ORDERS = (0, 1, 2)
 NONLINEARITY_ORDERS = (2, 3)
@@ -63,8 +87,11 @@ class DiagnosisSettings:
     max_order: int = 8
     min_gain: float = 0.05
     significance: float = 2.0
+    block_tolerance: float = 0.5
     test_fraction: float = 0.0
+    test_cycle: bool = False
     rate_window_s: float = DEFAULT_RATE_WINDOW_S
+    record_effects: bool = False
 
     def __post_init__(self) -> None:
         checks = (
@@ -78,8 +105,12 @@ class DiagnosisSettings:
              f'min_gain must be in [0, 1), got {self.min_gain}'),
             (math.isfinite(self.significance) and self.significance >= 0.0,
              f'significance must be non-negative, got {self.significance}'),
+            (math.isfinite(self.block_tolerance) and self.block_tolerance >= 0.0,
+             f'block_tolerance must be non-negative, got {self.block_tolerance}'),
             (math.isfinite(self.test_fraction) and 0.0 <= self.test_fraction < 1.0,
              f'test_fraction must be in [0, 1), got {self.test_fraction}'),
+            (not (self.test_cycle and self.test_fraction),
+             'hold out either the last cycle or a test fraction, not both'),
             (math.isfinite(self.rate_window_s) and self.rate_window_s > 0.0,
              f'rate_window_s must be positive, got {self.rate_window_s}'),
         )
@@ -87,14 +118,20 @@ class DiagnosisSettings:
             if not ok:
                 raise CalibrationError(msg)
 
+    @property
+    def effects(self) -> tuple:
+        """Give the effects the loop searches, in the order it tries them."""
+        return SEARCH_EFFECTS + (RECORD_SEARCH if self.record_effects else ())
+
 
 @dataclass(frozen=True)
 class HeldOutError:
-    """Error of binned residuals in rad/s: RMS, peak |.|, and RMS per fold (CV only)."""
+    """Error of binned residuals in rad/s: RMS, peak |.|, and RMS per fold and per block."""
 
     rms_rad_s: float
     peak_rad_s: float
     fold_rms_rad_s: tuple = ()
+    block_rms_rad_s: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -111,7 +148,7 @@ class Step:
 
 @dataclass(frozen=True)
 class Candidate:
-    """An effect tried in a round and not added, with its held-out gain."""
+    """An effect tried in a round and not added (or a record effect's finding)."""
 
     effect: str
     round_number: int
@@ -120,17 +157,25 @@ class Candidate:
     fold_improvement_rad_s: float
     fold_improvement_se_rad_s: float
     reason: str
+    worst_block_change: float = 0.0
 
 
 @dataclass(frozen=True)
 class AxisDiagnosis:
-    """What the loop found on one axis."""
+    """
+    What the loop found on one axis.
+
+    ``findings`` holds the record effects (time drift, bias step) tested on
+    top of the final model when the search left them out; one whose
+    ``reason`` is empty passed every test.
+    """
 
     axis: str
     order: int
     order_scores: tuple
     steps: tuple
     rejected: tuple
+    findings: tuple = ()
 
     @property
     def effects(self) -> tuple:
@@ -153,8 +198,10 @@ class Diagnosis:
     """
     The result: the model, the steps per axis, and the comparison with simpler models.
 
-    ``comparison`` maps 'cross_validation' (and 'test' with a test fraction)
+    ``comparison`` maps 'cross_validation' (and 'test' with a test part)
     to a mapping of each of METHODS to one `HeldOutError` per axis.
+    ``skipped`` lists (effect, reason) for effects the data cannot support
+    or the settings leave out.
     """
 
     axes: tuple
@@ -170,35 +217,43 @@ class Diagnosis:
     truth: str
     held_out: BinnedResidual
     test: Optional[BinnedResidual] = None
+    bounds: Mapping = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class _Spec:
-    """The effects of one axis and their nonlinear parameters (-1 or None: absent)."""
+    """The effects of one axis and their nonlinear parameters (absent: 0, (), None, False)."""
 
     order: int
     thermal_lag_s: float = 0.0
+    temperature_rate: bool = False
+    gradient_s: tuple = ()
     hysteresis_half_width_c: float = 0.0
-    time_drift: bool = False
-    bias_step_time_s: Optional[float] = None
+    supply_order: int = 0
     secondary_order: int = 0
     acceleration: bool = False
     scale_order: int = -1
     nonlinearity_order: int = 0
     cross_axis: bool = False
+    time_drift: bool = False
+    bias_step_time_s: Optional[float] = None
 
     @property
     def effects(self) -> set:
         present = {BASE_EFFECT,
                    'thermal_lag' if self.thermal_lag_s else '',
+                   'temperature_rate' if self.temperature_rate else '',
+                   'thermal_gradient' if self.gradient_s else '',
+                   'thermal_gradient_2' if len(self.gradient_s) > 1 else '',
                    'hysteresis' if self.hysteresis_half_width_c else '',
-                   'time_drift' if self.time_drift else '',
-                   'bias_step' if self.bias_step_time_s is not None else '',
+                   'supply_voltage' if self.supply_order else '',
                    'secondary_temperature' if self.secondary_order else '',
                    'acceleration_sensitivity' if self.acceleration else '',
                    'scale_factor_temperature' if self.scale_order >= 0 else '',
                    'rate_nonlinearity' if self.nonlinearity_order else '',
-                   'cross_axis' if self.cross_axis else ''}
+                   'cross_axis' if self.cross_axis else '',
+                   'time_drift' if self.time_drift else '',
+                   'bias_step' if self.bias_step_time_s is not None else ''}
         return present - {''}
 
 
@@ -242,18 +297,21 @@ class _Problem:
         self.progress = progress
         self.axes = tuple(recording.axes)
         total = len(recording.time_s)
-        self.rows = test_start_row(total, settings.test_fraction)
+        self.rows = _test_start(recording, settings)
         self.full = recording
         rows = slice(0, self.rows)
-        self.time = np.asarray(recording.time_s, dtype=np.float64)[rows]
-        self.temperature = np.asarray(recording.temperature_c, dtype=np.float64)[rows]
-        self.rate = np.asarray(recording.gyro_rad_s, dtype=np.float64)[rows]
-        self.reference = None if recording.reference_rad_s is None else \
-            np.asarray(recording.reference_rad_s, dtype=np.float64)[rows]
-        self.temperature_2 = None if recording.temperature_2_c is None else \
-            np.asarray(recording.temperature_2_c, dtype=np.float64)[rows]
-        self.acceleration = None if recording.acceleration_m_s2 is None else \
-            np.asarray(recording.acceleration_m_s2, dtype=np.float64)[rows]
+
+        def head(values):
+            return None if values is None else np.asarray(values, dtype=np.float64)[rows]
+
+        self.time = head(recording.time_s)
+        self.temperature = head(recording.temperature_c)
+        self.rate = head(recording.gyro_rad_s)
+        self.reference = head(recording.reference_rad_s)
+        self.temperature_2 = head(recording.temperature_2_c)
+        self.acceleration = head(recording.acceleration_m_s2)
+        self.supply = head(recording.supply_voltage_v)
+        self.test_rows = total - self.rows
         self._check_size()
         low, high = float(np.min(self.temperature)), float(np.max(self.temperature))
         if high - low < MIN_SPAN_C:
@@ -269,19 +327,25 @@ class _Problem:
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
         self.target = self.mean(error)
-        self.secondary = None
-        if self.temperature_2 is not None:
-            low2, high2 = float(np.min(self.temperature_2)), float(np.max(self.temperature_2))
-            if high2 > low2:
-                self.secondary = (0.5 * (low2 + high2), 0.5 * (high2 - low2))
+        self.secondary = _centre_and_half_span(self.temperature_2)
+        self.supply_reference = _centre_and_half_span(self.supply)
+        self.bounds = self._bounds()
         self._cache = {}
 
     def _check_size(self) -> None:
         needed = 2 * self.settings.blocks
         if self.rows < needed:
-            msg = (f'{self.rows} rows to diagnose (after the test fraction); '
+            msg = (f'{self.rows} rows to diagnose (after the test part); '
                    f'{self.settings.blocks} blocks need at least {needed}')
             raise CalibrationError(msg)
+
+    def _bounds(self) -> dict:
+        """Give the search ranges of the nonlinear parameters (record length and span)."""
+        interval = float(np.median(np.diff(self.time)))
+        longest = self.duration_s / TIME_CONSTANTS_PER_RECORD
+        return {'thermal_lag_s': (max(MIN_LAG_SAMPLES * interval, TIME_GRID_S[0]), longest),
+                'gradient_time_constant_s': (self.settings.rate_window_s, longest),
+                'hysteresis_half_width_c': (WIDTH_GRID_C[0], self.half_span_c)}
 
     def _split(self) -> None:
         """Cut rows into blocks, bins inside blocks, and deal blocks to folds."""
@@ -299,6 +363,7 @@ class _Problem:
             boundary[:] = True
         self.starts = np.flatnonzero(boundary)
         self.counts = np.diff(np.append(self.starts, self.rows)).astype(np.float64)
+        self.bin_block = block[self.starts]
         self.bin_fold = self.row_fold[self.starts]
         self.held = tuple(self.bin_fold == fold for fold in range(settings.folds))
 
@@ -312,9 +377,16 @@ class _Problem:
             self._cache[key] = build()
         return self._cache[key]
 
+    def effective(self, lag_s: float) -> np.ndarray:
+        """T_eff of a thermal lag (`EffectModel`), row by row."""
+        if lag_s > 0.0:
+            return self.temperature + lag_s * self.slope
+        if lag_s < 0.0:
+            return FirstOrderLag(-lag_s).batch(self.time, self.temperature)
+        return self.temperature
+
     def x(self, lag_s: float) -> np.ndarray:
-        effective = self.temperature + lag_s * self.slope if lag_s else self.temperature
-        return (effective - self.centre_c) / self.half_span_c
+        return (self.effective(lag_s) - self.centre_c) / self.half_span_c
 
     def _powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
         columns = []
@@ -324,16 +396,38 @@ class _Problem:
             power = power * values
         return np.column_stack(columns)
 
+    def _lag_features(self, lag_s: float) -> tuple:
+        """Return (bin means of x^0..x^max_order, lowest T_eff, highest T_eff) of a lag."""
+        def build():
+            effective = self.effective(lag_s)
+            x = (effective - self.centre_c) / self.half_span_c
+            return (self._powers(x, 0, self.settings.max_order), float(np.min(effective)),
+                    float(np.max(effective)))
+        return self._cached(('lag', lag_s), build)
+
     def polynomial(self, lag_s: float) -> np.ndarray:
-        return self._cached(('poly', lag_s),
-                            lambda: self._powers(self.x(lag_s), 0, self.settings.max_order))
+        return self._lag_features(lag_s)[0]
 
     def raw_cubic(self) -> np.ndarray:
         return self._cached('cubic', lambda: self._powers(self.temperature, 0, PX4_ORDER))
 
+    def rate_of_change(self) -> np.ndarray:
+        return self._cached('rate', lambda: self.mean(self.slope)[:, None])
+
+    def gradient(self, time_constant_s: float) -> np.ndarray:
+        def build():
+            lagged = FirstOrderLag(time_constant_s).batch(self.time, self.temperature)
+            return self.mean(self.temperature - lagged)
+        return self._cached(('gradient', time_constant_s), build)
+
     def play(self, width_c: float) -> np.ndarray:
         return self._cached(('play', width_c),
                             lambda: self.mean(play_state(self.temperature, width_c))[:, None])
+
+    def supply_powers(self) -> np.ndarray:
+        reference, _ = self.supply_reference
+        return self._cached('supply', lambda: self._powers(self.supply - reference, 1,
+                                                           max(SUPPLY_ORDERS)))
 
     def drift(self) -> np.ndarray:
         return self._cached('drift', lambda: self.mean(
@@ -368,14 +462,15 @@ class _Problem:
         return self._cached(('cross', axis), lambda: self.mean(self.reference[:, others]))
 
     def design(self, axis: int, spec: _Spec) -> np.ndarray:
-        """Return the bin-mean design matrix of an axis; columns in `_coefficients` order."""
+        """Return the bin-mean design matrix of an axis; columns in `_terms` order."""
         blocks = [self.polynomial(spec.thermal_lag_s)[:, :spec.order + 1]]
+        if spec.temperature_rate:
+            blocks.append(self.rate_of_change())
+        blocks.extend(self.gradient(tau)[:, None] for tau in spec.gradient_s)
         if spec.hysteresis_half_width_c:
             blocks.append(self.play(spec.hysteresis_half_width_c))
-        if spec.time_drift:
-            blocks.append(self.drift())
-        if spec.bias_step_time_s is not None:
-            blocks.append(self.step(spec.bias_step_time_s))
+        if spec.supply_order:
+            blocks.append(self.supply_powers()[:, :spec.supply_order])
         if spec.secondary_order:
             blocks.append(self.secondary_powers()[:, :spec.secondary_order])
         if spec.acceleration:
@@ -386,6 +481,10 @@ class _Problem:
             blocks.append(self.nonlinearity(axis)[:, :spec.nonlinearity_order - 1])
         if spec.cross_axis:
             blocks.append(self.cross(axis))
+        if spec.time_drift:
+            blocks.append(self.drift())
+        if spec.bias_step_time_s is not None:
+            blocks.append(self.step(spec.bias_step_time_s))
         return np.column_stack(blocks)
 
     def score(self, design: np.ndarray, axis: int) -> _Score:
@@ -423,13 +522,16 @@ class _Problem:
             return tuple(next(values) for _ in range(count))
 
         terms = {'bias': take(spec.order + 1), 'thermal_lag_s': spec.thermal_lag_s}
+        if spec.temperature_rate:
+            terms['temperature_rate_rad_s_per_c_s'] = take(1)[0]
+        if spec.gradient_s:
+            terms.update(gradient_time_constants_s=spec.gradient_s,
+                         gradient_rad_s_per_c=take(len(spec.gradient_s)))
         if spec.hysteresis_half_width_c:
             terms.update(hysteresis_half_width_c=spec.hysteresis_half_width_c,
                          hysteresis_rad_s=take(1)[0])
-        if spec.time_drift:
-            terms['time_drift_rad_s_per_s'] = take(1)[0] / self.duration_s
-        if spec.bias_step_time_s is not None:
-            terms['bias_steps'] = ((spec.bias_step_time_s, take(1)[0]),)
+        if spec.supply_order:
+            terms['supply_voltage'] = take(spec.supply_order)
         if spec.secondary_order:
             terms['secondary'] = take(spec.secondary_order)
         if spec.acceleration:
@@ -442,6 +544,10 @@ class _Problem:
             others = iter(take(len(self.axes) - 1))
             terms['cross_axis'] = tuple(0.0 if j == axis else next(others)
                                         for j in range(len(self.axes)))
+        if spec.time_drift:
+            terms['time_drift_rad_s_per_s'] = take(1)[0] / self.duration_s
+        if spec.bias_step_time_s is not None:
+            terms['bias_steps'] = ((spec.bias_step_time_s, take(1)[0]),)
         return AxisTerms(**terms)
 
     def model(self, specs: tuple, fold: Optional[int] = None) -> EffectModel:
@@ -449,13 +555,14 @@ class _Problem:
         bins = None if fold is None else self.bin_fold != fold
         low, high = self.clamp_range(specs)
         secondary = self.secondary or (25.0, 1.0)
+        supply = self.supply_reference or (EffectModel.supply_reference_v, 1.0)
         return EffectModel(
             terms=tuple(self.fit_terms(axis, spec, bins) for axis, spec in enumerate(specs)),
             reference_temperature_c=self.centre_c, temperature_scale_c=self.half_span_c,
             temperature_min_c=low, temperature_max_c=high,
             temperature_rate_window_s=self.settings.rate_window_s,
             time_reference_s=self.time_reference_s, secondary_reference_c=secondary[0],
-            secondary_scale_c=secondary[1])
+            secondary_scale_c=secondary[1], supply_reference_v=supply[0])
 
     def clamp_range(self, specs: tuple) -> tuple:
         """
@@ -464,15 +571,8 @@ class _Problem:
         Fold models clamp there too (not at their training range), so the
         folds measure the fit where the deployed model applies.
         """
-        key = ('clamp', tuple(spec.thermal_lag_s for spec in specs))
-        if key not in self._cache:
-            low, high = math.inf, -math.inf
-            for lag_s in set(key[1]):
-                effective = self.temperature + lag_s * self.slope
-                low = min(low, float(np.min(effective)))
-                high = max(high, float(np.max(effective)))
-            self._cache[key] = (low, high)
-        return self._cache[key]
+        ranges = [self._lag_features(spec.thermal_lag_s)[1:] for spec in specs]
+        return min(r[0] for r in ranges), max(r[1] for r in ranges)
 
     def residual(self, model: EffectModel, axis: int, stop: Optional[int] = None) -> np.ndarray:
         """
@@ -484,18 +584,21 @@ class _Problem:
         span = slice(0, stop)
         column = axis
         rate = source.gyro_rad_s[span]
-        if not any(any(term.cross_axis) for term in model.terms):
+        if not model.has_cross_axis:
             model = replace(model, terms=(model.terms[axis],),
                             zro_offset_rad_s=(model.zro_offset_rad_s[axis],))
             rate = rate[:, axis:axis + 1]
             column = 0
-        # Inputs only when needed: the model computes a temperature slope whenever given time.
-        time_s = source.time_s[span] if model.needs_time else None
-        temperature_2 = source.temperature_2_c[span] if model.needs_temperature_2 else None
-        acceleration = source.acceleration_m_s2[span] if model.needs_acceleration else None
-        corrected = model.correct(rate, source.temperature_c[span], time_s=time_s,
-                                  temperature_2_c=temperature_2,
-                                  acceleration_m_s2=acceleration).rate_rad_s[:, column]
+
+        def given(needed: bool, values):
+            return values[span] if needed else None
+
+        corrected = model.correct(
+            rate, source.temperature_c[span], time_s=given(model.needs_time, source.time_s),
+            temperature_2_c=given(model.needs_temperature_2, source.temperature_2_c),
+            acceleration_m_s2=given(model.needs_acceleration, source.acceleration_m_s2),
+            supply_voltage_v=given(model.needs_supply_voltage, source.supply_voltage_v),
+        ).rate_rad_s[:, column]
         if source.reference_rad_s is not None:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
@@ -513,14 +616,55 @@ class _Problem:
         self.report(folds, folds, label)
         return residual, tuple(self.error(residual[:, axis]) for axis in range(len(self.axes)))
 
+    def block_rms(self, residual: np.ndarray) -> np.ndarray:
+        """RMS of binned residuals per block."""
+        weights = self.counts
+        totals = np.bincount(self.bin_block, weights=weights * np.square(residual),
+                             minlength=self.settings.blocks)
+        counts = np.bincount(self.bin_block, weights=weights, minlength=self.settings.blocks)
+        return np.sqrt(totals / counts)
+
     def error(self, residual: np.ndarray) -> HeldOutError:
         folds = tuple(_rms(residual[self.bin_fold == k], self.counts[self.bin_fold == k])
                       for k in range(self.settings.folds))
-        return HeldOutError(_rms(residual, self.counts), float(np.max(np.abs(residual))), folds)
+        return HeldOutError(_rms(residual, self.counts), float(np.max(np.abs(residual))), folds,
+                            tuple(float(v) for v in self.block_rms(residual)))
+
+    def motion(self) -> tuple:
+        """Return (turn of the specific force in deg, change of its magnitude in m/s^2)."""
+        means = self.acceleration_means()
+        magnitude = np.linalg.norm(means, axis=1)
+        usable = magnitude > 0.0
+        if not usable.any():
+            return 0.0, 0.0
+        direction = means[usable] / magnitude[usable, None]
+        centre = np.median(direction, axis=0)
+        centre /= np.linalg.norm(centre)
+        angle = np.degrees(np.arccos(np.clip(direction @ centre, -1.0, 1.0)))
+        low, high = np.percentile(magnitude[usable], (1.0, 99.0))
+        return float(np.percentile(angle, 99.0)), float(high - low)
 
     def report(self, done: int, total: int, label: str) -> None:
         if self.progress is not None:
             self.progress(done, total, label)
+
+
+def _centre_and_half_span(values) -> Optional[tuple]:
+    """Return (centre, half span) of a column, None when absent or constant."""
+    if values is None:
+        return None
+    low, high = float(np.min(values)), float(np.max(values))
+    return (0.5 * (low + high), 0.5 * (high - low)) if high > low else None
+
+
+def _test_start(recording, settings: DiagnosisSettings) -> int:
+    """Return the first row of the test part: the last fraction or the last full cycle."""
+    if not settings.test_cycle:
+        return test_start_row(len(recording.time_s), settings.test_fraction)
+    try:
+        return last_cycle_start_row(recording.temperature_c)
+    except ConfigError as err:
+        raise CalibrationError(str(err)) from None
 
 
 def _order_scores(problem: _Problem, axis: int, spec: _Spec) -> tuple:
@@ -547,20 +691,44 @@ def _choose_order(axis_name: str, scores: tuple) -> int:
 
 
 def _skipped(problem: _Problem) -> dict:
-    """Map each effect the data cannot support to the reason."""
+    """Map each effect the data cannot support, or the settings leave out, to the reason."""
     reference = ', '.join(f'ref_{a}' for a in problem.axes)
+    bounds = problem.bounds
     skipped = {}
+    low, high = bounds['gradient_time_constant_s']
+    if low > high:
+        for effect in ('thermal_gradient', 'thermal_gradient_2'):
+            skipped[effect] = (f'the diagnosed part ({problem.duration_s:.0f} s) is too short: '
+                               f'time constants from {low:g} s (the rate window) must fit '
+                               f'{TIME_CONSTANTS_PER_RECORD:g} times into it')
+    if bounds['thermal_lag_s'][0] > bounds['thermal_lag_s'][1]:
+        skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
+    if problem.supply is None:
+        skipped['supply_voltage'] = 'needs column supply_voltage'
+    elif problem.supply_reference is None:
+        skipped['supply_voltage'] = 'supply_voltage is constant'
     if problem.temperature_2 is None:
         skipped['secondary_temperature'] = 'needs column temperature_2'
     elif problem.secondary is None:
         skipped['secondary_temperature'] = 'temperature_2 is constant'
     if problem.acceleration is None:
         skipped['acceleration_sensitivity'] = 'needs columns acc_x, acc_y, acc_z'
+    else:
+        turn_deg, change_m_s2 = problem.motion()
+        if turn_deg < MOTION_DEG and change_m_s2 < MOTION_M_S2:
+            skipped['acceleration_sensitivity'] = (
+                f'the sensor did not move: the specific force turns {turn_deg:.2g} deg and '
+                f'its magnitude changes {change_m_s2:.2g} m/s^2 (needs {MOTION_DEG:g} deg or '
+                f'{MOTION_M_S2:g} m/s^2); a term would only stand in for temperature')
     for effect in ('scale_factor_temperature', 'rate_nonlinearity', 'cross_axis'):
         if problem.reference is None:
             skipped[effect] = f'needs reference columns {reference}'
     if 'cross_axis' not in skipped and len(problem.axes) < 2:
         skipped['cross_axis'] = 'needs at least 2 gyro axes'
+    if not problem.settings.record_effects:
+        for effect in RECORD_SEARCH:
+            skipped[effect] = ("tied to the record's clock, a live node cannot run it: tested "
+                               'as a finding only (--record-effects adds it)')
     return skipped
 
 
@@ -588,93 +756,130 @@ def _step_time(problem: _Problem, axis: int, spec: _Spec) -> float:
     return float(problem.time[problem.starts[int(np.argmax(gain))]])
 
 
-def _trials(problem: _Problem, axis: int, spec: _Spec, effect: str):
-    """Yield the specs to try for one effect (a generator: grids refine on results)."""
+def _grid_search(grid: tuple, low: float, high: float, evaluate) -> None:
+    """
+    Bounded 1-D search of ``evaluate`` over the grid points in [low, high].
+
+    Every COARSE-th point first, then the neighbours of the best at half the
+    stride, down to the grid's own spacing.
+    """
+    points = [value for value in grid if low <= value <= high]
+    if not points:
+        return
+    seen = {}
+
+    def rms(index: int) -> float:
+        if index not in seen:
+            seen[index] = evaluate(points[index])
+        return seen[index]
+
+    coarse = sorted(set(range(0, len(points), COARSE)) | {len(points) - 1})
+    best = min(coarse, key=rms)
+    stride = COARSE // 2
+    while stride >= 1:
+        for index in (best - stride, best + stride):
+            if 0 <= index < len(points) and rms(index) < rms(best):
+                best = index
+        stride //= 2
+
+
+class _Search:
+    """Keeps the best (spec, score) of the trials of one effect."""
+
+    def __init__(self, problem: _Problem, axis: int):
+        self.problem, self.axis, self.best = problem, axis, None
+
+    def __call__(self, spec: _Spec) -> float:
+        score = self.problem.score(self.problem.design(self.axis, spec), self.axis)
+        if self.best is None or score.rms < self.best[1].rms:
+            self.best = (spec, score)
+        return score.rms
+
+
+def _available(effect: str, spec: _Spec) -> bool:
+    """Whether ``effect`` can be added to ``spec`` this round."""
+    if effect in spec.effects:
+        return False
+    return effect != 'thermal_gradient_2' or len(spec.gradient_s) == 1
+
+
+def _best_trial(problem: _Problem, axis: int, spec: _Spec, effect: str) -> Optional[tuple]:
+    """Return (best spec, its score) for one effect, None if none fits the search bounds."""
+    search = _Search(problem, axis)
+    bounds = problem.bounds
     if effect == 'thermal_lag':
-        yield from (replace(spec, thermal_lag_s=s * v) for s in (1.0, -1.0) for v in LAG_GRID_S)
+        low, high = bounds['thermal_lag_s']
+        for sign in (1.0, -1.0):
+            _grid_search(TIME_GRID_S, low, high,
+                         lambda tau: search(replace(spec, thermal_lag_s=sign * tau)))
+    elif effect == 'temperature_rate':
+        search(replace(spec, temperature_rate=True))
+    elif effect == 'thermal_gradient':
+        low, high = bounds['gradient_time_constant_s']
+        _grid_search(TIME_GRID_S, low, high, lambda tau: search(replace(spec, gradient_s=(tau,))))
+    elif effect == 'thermal_gradient_2':
+        _second_gradient(search, spec, bounds['gradient_time_constant_s'])
     elif effect == 'hysteresis':
-        yield from (replace(spec, hysteresis_half_width_c=w) for w in WIDTH_GRID_C)
-    elif effect == 'time_drift':
-        yield replace(spec, time_drift=True)
-    elif effect == 'bias_step':
-        yield replace(spec, bias_step_time_s=_step_time(problem, axis, spec))
+        low, high = bounds['hysteresis_half_width_c']
+        _grid_search(WIDTH_GRID_C, low, high,
+                     lambda width: search(replace(spec, hysteresis_half_width_c=width)))
+    elif effect == 'supply_voltage':
+        for order in SUPPLY_ORDERS:
+            search(replace(spec, supply_order=order))
     elif effect == 'secondary_temperature':
-        yield from (replace(spec, secondary_order=k) for k in SECONDARY_ORDERS)
+        for order in SECONDARY_ORDERS:
+            search(replace(spec, secondary_order=order))
     elif effect == 'acceleration_sensitivity':
-        yield replace(spec, acceleration=True)
+        search(replace(spec, acceleration=True))
     elif effect == 'scale_factor_temperature':
-        yield from (replace(spec, scale_order=k) for k in SCALE_ORDERS)
+        for order in SCALE_ORDERS:
+            search(replace(spec, scale_order=order))
     elif effect == 'rate_nonlinearity':
-        yield from (replace(spec, nonlinearity_order=k) for k in NONLINEARITY_ORDERS)
+        for order in NONLINEARITY_ORDERS:
+            search(replace(spec, nonlinearity_order=order))
     elif effect == 'cross_axis':
-        yield replace(spec, cross_axis=True)
+        search(replace(spec, cross_axis=True))
+    elif effect == 'time_drift':
+        search(replace(spec, time_drift=True))
+    elif effect == 'bias_step':
+        search(replace(spec, bias_step_time_s=_step_time(problem, axis, spec)))
+    return search.best
 
 
-_GRID_SIZES = {'thermal_lag': 2 * len(LAG_GRID_S) + REFINE_EVALUATIONS['thermal_lag'],
-               'hysteresis': len(WIDTH_GRID_C) + REFINE_EVALUATIONS['hysteresis'],
-               'secondary_temperature': len(SECONDARY_ORDERS),
-               'scale_factor_temperature': len(SCALE_ORDERS),
-               'rate_nonlinearity': len(NONLINEARITY_ORDERS)}
+def _second_gradient(search: _Search, spec: _Spec, bounds: tuple) -> None:
+    """Search a second gradient time constant, then the first again beside it."""
+    (first,) = spec.gradient_s
+
+    def pair(kept: float, tau: float) -> float:
+        if max(kept, tau) < MIN_GRADIENT_RATIO * min(kept, tau):
+            return math.inf
+        return search(replace(spec, gradient_s=tuple(sorted((kept, tau)))))
+
+    _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(first, tau))
+    if search.best is not None:
+        second = next(t for t in search.best[0].gradient_s if t != first)
+        _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(second, tau))
 
 
-class _Counter:
-    """Count candidate fits and report them as progress."""
+def _unbounded(problem: _Problem, effect: str, spec: _Spec) -> str:
+    """
+    Return why a time constant found at the upper search bound is refused, or ''.
 
-    def __init__(self, problem: _Problem, total: int, label: str):
-        self.problem, self.total, self.label, self.done = problem, total, label, 0
-
-    def __call__(self) -> None:
-        self.done += 1
-        self.problem.report(self.done, self.total, self.label)
-
-
-def _best_trial(problem: _Problem, axis: int, spec: _Spec, effect: str, tick) -> tuple:
-    """Return (best spec, its score) for one effect; thermal lag and hysteresis refined."""
-    best = None
-    for trial in _trials(problem, axis, spec, effect):
-        best = _better(best, trial, problem.score(problem.design(axis, trial), axis))
-        tick()
-    if effect in REFINE_EVALUATIONS:
-        name = 'thermal_lag_s' if effect == 'thermal_lag' else 'hysteresis_half_width_c'
-        grid = LAG_GRID_S if effect == 'thermal_lag' else WIDTH_GRID_C
-        value = getattr(best[0], name)
-        index = grid.index(abs(value))
-        # Bracket by the neighbours; past the grid's ends by one more grid ratio.
-        low = grid[index - 1] if index else grid[0] * grid[0] / grid[1]
-        high = grid[index + 1] if index + 1 < len(grid) else grid[-1] * grid[-1] / grid[-2]
-
-        def evaluate(magnitude: float) -> float:
-            nonlocal best
-            trial = replace(spec, **{name: math.copysign(magnitude, value)})
-            score = problem.score(problem.design(axis, trial), axis)
-            best = _better(best, trial, score)
-            tick()
-            return score.rms
-
-        _golden(evaluate, low, high, REFINE_EVALUATIONS[effect])
-    return best
-
-
-def _golden(evaluate, low: float, high: float, evaluations: int) -> None:
-    """Golden-section search of ``evaluate`` over [low, high] > 0 in log scale."""
-    a, b = math.log(low), math.log(high)
-    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
-    fc, fd = evaluate(math.exp(c)), evaluate(math.exp(d))
-    for _ in range(evaluations - 2):
-        if fc < fd:
-            b, d, fd = d, c, fc
-            c = b - GOLDEN * (b - a)
-            fc = evaluate(math.exp(c))
-        else:
-            a, c, fc = c, d, fd
-            d = a + GOLDEN * (b - a)
-            fd = evaluate(math.exp(d))
-
-
-def _better(best, trial: _Spec, score: _Score):
-    if best is None or score.rms < best[1].rms:
-        return trial, score
-    return best
+    There the record would take a longer one: a slow trend the record cannot
+    tell from a drift.
+    """
+    if effect == 'thermal_lag':
+        values, high = (abs(spec.thermal_lag_s),), problem.bounds['thermal_lag_s'][1]
+    elif effect in ('thermal_gradient', 'thermal_gradient_2'):
+        values, high = spec.gradient_s, problem.bounds['gradient_time_constant_s'][1]
+    else:
+        return ''
+    top = max(v for v in TIME_GRID_S if v <= high)
+    if max(values) < top:
+        return ''
+    return (f'time constant {max(values):.4g} s at the upper search bound (the diagnosed '
+            f'part / {TIME_CONSTANTS_PER_RECORD:g}): a slow trend this record cannot tell '
+            'from a drift')
 
 
 def _parameters(effect: str, terms: AxisTerms, problem: _Problem) -> dict:
@@ -684,16 +889,29 @@ def _parameters(effect: str, terms: AxisTerms, problem: _Problem) -> dict:
                 'reference_temperature_c': problem.centre_c,
                 'temperature_scale_c': problem.half_span_c}
     if effect == 'thermal_lag':
-        return {'thermal_lag_s': terms.thermal_lag_s,
+        lag = terms.thermal_lag_s
+        return {'thermal_lag_s': lag,
+                'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
+                         'the element lags: T_eff = first-order lag of T'),
                 'temperature_rate_window_s': problem.settings.rate_window_s}
+    if effect == 'temperature_rate':
+        return {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
+                'temperature_rate_window_s': problem.settings.rate_window_s}
+    if effect in ('thermal_gradient', 'thermal_gradient_2'):
+        return {'time_constants_s': list(terms.gradient_time_constants_s),
+                'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
     if effect == 'hysteresis':
         return {'half_width_c': terms.hysteresis_half_width_c,
                 'hysteresis_rad_s': terms.hysteresis_rad_s}
+    if effect == 'supply_voltage':
+        return {'rad_s_per_v_k': list(terms.supply_voltage),
+                'supply_reference_v': problem.supply_reference[0]}
     if effect == 'time_drift':
         return {'rad_s_per_s': terms.time_drift_rad_s_per_s,
                 'time_reference_s': problem.time_reference_s}
     if effect == 'bias_step':
-        return {'time_s': terms.bias_steps[0][0], 'step_rad_s': terms.bias_steps[0][1]}
+        return {'time_s': terms.bias_steps[0][0], 'step_rad_s': terms.bias_steps[0][1],
+                'after_start_s': terms.bias_steps[0][0] - problem.time_reference_s}
     if effect == 'secondary_temperature':
         return {'coefficients_rad_s': list(terms.secondary)}
     if effect == 'acceleration_sensitivity':
@@ -705,31 +923,60 @@ def _parameters(effect: str, terms: AxisTerms, problem: _Problem) -> dict:
     return {'coefficients': list(terms.cross_axis)}
 
 
-def _judge(settings: DiagnosisSettings, base: _Score, score: _Score) -> tuple:
-    """Return (relative gain, mean fold improvement, its standard error, why rejected)."""
+def _judge(problem: _Problem, base: _Score, score: _Score) -> tuple:
+    """
+    Return (relative gain, mean fold improvement, its SE, worst block change, why rejected).
+
+    A block's change is the rise of its held-out RMS over the larger of that
+    RMS and the axis's overall held-out RMS; the worst is the largest.
+    """
+    settings = problem.settings
     gain = (base.rms - score.rms) / base.rms if base.rms > 0.0 else 0.0
     improvement = base.fold_rms - score.fold_rms
     mean = float(np.mean(improvement))
     error = float(np.std(improvement, ddof=1) / math.sqrt(improvement.size))
+    before, after = problem.block_rms(base.residual), problem.block_rms(score.residual)
+    # A block near zero cannot lose by a ratio: rises count against the axis's error too.
+    # Block 0 is not judged: there every history state starts from an assumed equilibrium.
+    change = (after - before) / np.maximum(before, base.rms)
+    change[0] = -math.inf
+    worst = int(np.argmax(change))
     if not math.isfinite(gain) or gain < settings.min_gain:
         reason = f'held-out gain {gain:.3f} below --min-gain {settings.min_gain:g}'
     elif not mean > settings.significance * error:
         reason = (f'mean fold improvement {mean:.3g} rad/s not above '
                   f'{settings.significance:g} standard errors ({error:.3g} rad/s)')
+    elif change[worst] > settings.block_tolerance:
+        reason = (f'held-out block {worst} loses: {before[worst]:.3g} -> {after[worst]:.3g} '
+                  f'rad/s, a rise of {change[worst]:.2f} x max(its RMS, the axis RMS '
+                  f'{base.rms:.3g}); --block-tolerance {settings.block_tolerance:g}')
     else:
         reason = ''
-    return gain, mean, error, reason
+    return gain, mean, error, float(change[worst]), reason
+
+
+def _candidate(problem: _Problem, axis: int, effect: str, trial: _Spec, judged: tuple,
+               number: int, reason: str) -> Candidate:
+    gain, mean, error, worst, _ = judged
+    parameters = _parameters(effect, problem.fit_terms(axis, trial), problem)
+    return Candidate(effect, number, parameters, gain, mean, error, reason, worst)
+
+
+def _findings(problem: _Problem, axis: int, spec: _Spec, number: int) -> tuple:
+    """Test the record effects on top of the final model of an axis; report, do not add."""
+    current = problem.score(problem.design(axis, spec), axis)
+    findings = []
+    for effect in RECORD_SEARCH:
+        trial, score = _best_trial(problem, axis, spec, effect)  # always one trial
+        judged = _judge(problem, current, score)
+        findings.append(_candidate(problem, axis, effect, trial, judged, number, judged[4]))
+    return tuple(findings)
 
 
 def _heating(problem: _Problem, rows: slice, starts: np.ndarray) -> np.ndarray:
     slope = temperature_rate_c_s(problem.full.time_s, problem.full.temperature_c,
                                  problem.settings.rate_window_s)[rows]
     return np.add.reduceat(slope, starts) >= 0.0
-
-
-def _test_bins(problem: _Problem) -> np.ndarray:
-    """Bin starts of the test part (relative to its first row)."""
-    return bin_starts(problem.full.time_s[problem.rows:], problem.settings.average_s)
 
 
 def _binned_error(residual: np.ndarray, starts: np.ndarray) -> tuple:
@@ -744,7 +991,7 @@ def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel
     full = problem.full
     test = slice(problem.rows, len(full.time_s))
     rows = len(full.time_s) - problem.rows
-    starts = _test_bins(problem)
+    starts = bin_starts(full.time_s[test], problem.settings.average_s)
     shape = (rows, len(problem.axes))
     none, cubic, before, after = (np.empty(shape) for _ in range(4))
     for axis in range(len(problem.axes)):
@@ -774,14 +1021,15 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     Run the loop on a recording and return the `Diagnosis`.
 
     ``recording`` has time_s, temperature_c, axes, gyro_rad_s and optional
-    reference_rad_s, acceleration_m_s2 and temperature_2_c (a
-    `mlx_tempcomp.sources.recording.Recording`). ``progress(done, total,
+    reference_rad_s, acceleration_m_s2, temperature_2_c and supply_voltage_v
+    (a `mlx_tempcomp.sources.recording.Recording`). ``progress(done, total,
     label)`` is called as work advances. Raise `CalibrationError` when the
     data cannot support the diagnosis.
     """
     problem = _Problem(recording, settings, progress)
     axes = problem.axes
     skipped = _skipped(problem)
+    searched = tuple(e for e in settings.effects if e not in skipped)
     scores = tuple(_order_scores(problem, axis, _Spec(0)) for axis in range(len(axes)))
     specs = [_Spec(_choose_order(name, s)) for name, s in zip(axes, scores)]
     none_errors = tuple(problem.error(problem.target[:, a]) for a in range(len(axes)))
@@ -792,31 +1040,38 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                    none_errors[a], errors[a], 0)] for a in range(len(axes))]
     rejected = [[] for _ in axes]
     active = set(range(len(axes)))
-    for number in range(1, len(EFFECT_NAMES)):
-        if not active:
-            break
+    number = 0
+    while active:
+        number += 1
         accepted = {}
-        work = sum(_GRID_SIZES.get(e, 1) for a in active for e in EFFECT_NAMES
-                   if e not in specs[a].effects and e not in skipped)
-        tick = _Counter(problem, work, f'round {number}: candidate effects')
+        work = sum(1 for a in active for e in searched if _available(e, specs[a]))
+        done = 0
         for axis in sorted(active):
             current = problem.score(problem.design(axis, specs[axis]), axis)
             tried = []
-            for effect in EFFECT_NAMES:
-                if effect in specs[axis].effects or effect in skipped:
+            for effect in searched:
+                if not _available(effect, specs[axis]):
                     continue
-                trial, score = _best_trial(problem, axis, specs[axis], effect, tick)
-                tried.append((effect, trial, score, _judge(settings, current, score)))
-            tried.sort(key=lambda item: (bool(item[3][3]), -item[3][0]))
-            for rank, (effect, trial, score, (gain, mean, error, reason)) in enumerate(tried):
+                best = _best_trial(problem, axis, specs[axis], effect)
+                done += 1
+                problem.report(done, work, f'round {number}: candidate effects')
+                if best is None:
+                    continue
+                trial, score = best
+                judged = _judge(problem, current, score)
+                bound = _unbounded(problem, effect, trial)
+                if bound and not judged[4]:
+                    judged = judged[:4] + (bound,)
+                tried.append((effect, trial, judged))
+            tried.sort(key=lambda item: (bool(item[2][4]), -item[2][0]))
+            for rank, (effect, trial, judged) in enumerate(tried):
+                reason = judged[4]
                 if rank == 0 and not reason:
-                    accepted[axis] = (effect, trial, gain)
+                    accepted[axis] = (effect, trial, judged[0])
                     continue
-                if not reason:
-                    reason = 'significant, but another effect gained more this round'
-                parameters = _parameters(effect, problem.fit_terms(axis, trial), problem)
-                rejected[axis].append(Candidate(effect, number, parameters, gain, mean, error,
-                                                reason))
+                reason = reason or 'significant, but another effect gained more this round'
+                rejected[axis].append(_candidate(problem, axis, effect, trial, judged, number,
+                                                 reason))
         if not accepted:
             break
         for axis, (effect, trial, gain) in accepted.items():
@@ -833,6 +1088,8 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                                     gain))
         residual, errors = new_residual, new_errors
         active = set(accepted)
+    findings = [() if settings.record_effects else _findings(problem, a, specs[a], number)
+                for a in range(len(axes))]
     model = problem.model(tuple(specs))
     cubic = [problem.score(problem.raw_cubic(), a).residual for a in range(len(axes))]
     comparison = {'cross_validation': {
@@ -846,13 +1103,14 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         heating=_heating(problem, held_rows, problem.starts), before_rad_s=base_residual,
         after_rad_s=residual)
     test = None
-    if problem.rows < len(recording.time_s):
+    if problem.test_rows:
         comparison['test'], test = _compare_test(problem, base_model, model)
     per_axis = tuple(AxisDiagnosis(name, specs[a].order, scores[a], tuple(steps[a]),
-                                   tuple(rejected[a])) for a, name in enumerate(axes))
+                                   tuple(rejected[a]), findings[a])
+                     for a, name in enumerate(axes))
     return Diagnosis(axes=axes, settings=settings, model=model, base_model=base_model,
                      per_axis=per_axis, skipped=tuple(sorted(skipped.items())),
-                     comparison=comparison, rows=problem.rows,
-                     test_rows=len(recording.time_s) - problem.rows, bins=len(problem.starts),
+                     comparison=comparison, rows=problem.rows, test_rows=problem.test_rows,
+                     bins=len(problem.starts),
                      truth='reference' if problem.truth_is_reference else 'zero (at rest)',
-                     held_out=held_out, test=test)
+                     held_out=held_out, test=test, bounds=problem.bounds)

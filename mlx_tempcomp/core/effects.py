@@ -4,28 +4,38 @@ Bias effects beyond a temperature polynomial, and `EffectModel`, the model that 
 `mlx-tempcomp diagnose` adds these effects one by one; the compensation node
 runs the result sample by sample through `EffectModel.stream`, which gives the
 same numbers as the batch `EffectModel.correct` (to rounding). Per axis, on
-raw rate r in rad/s, temperature T in degC and time t in s:
+raw rate r in rad/s, temperature T in degC, time t in s and supply voltage V:
 
 - ``temperature_polynomial``: P(x), x = (T_eff - reference) / scale, T_eff
   clamped to the fitted range;
-- ``thermal_lag``: T_eff = T + lag x dT/dt, the die temperature when the
-  sensor lags it by a first-order lag (negative: the bias follows a lagged
-  temperature); dT/dt is the slope of T over the last ``window`` seconds;
+- ``thermal_lag``: T_eff is the temperature of the sensing element when it
+  and the temperature sensor are one first-order lag of time constant tau
+  apart. lag > 0, the sensor lags the element: T_eff = T + lag x dT/dt, dT/dt
+  the slope of T over the last ``window`` seconds; lag < 0, the element lags
+  the sensor: T_eff = L_|lag|(T), the first-order lag of T;
+- ``temperature_rate``: + c x dT/dt (the same windowed slope);
+- ``thermal_gradient`` (and ``thermal_gradient_2``, a second time constant):
+  + sum over k of g_k x (T - L_tau_k(T)), the bias following the temperature
+  difference between the die and parts of the package that lag it by tau_k;
 - ``hysteresis``: + h x s, s in [-1, 1] the state of a play operator of
   half width w on T: +1 after heating by 2w, -1 after cooling by 2w;
-- ``time_drift``: + d x (t - time_reference);
-- ``bias_step``: + the sum of the steps whose time has come;
+- ``supply_voltage``: + sum over k >= 1 of v_k (V - supply_reference)^k;
 - ``secondary_temperature``: + Q(x2), x2 = (T2 - reference_2) / scale_2, no
   constant term;
 - ``acceleration_sensitivity``: + g . a, a the specific force in m/s^2;
+- ``time_drift``: + d x (t - time_reference);
+- ``bias_step``: + the sum of the steps whose time has come;
 - ``scale_factor_temperature``: u = (r - bias) / (1 + S(x));
 - ``rate_nonlinearity``: v = u - (n2 u^2 + n3 u^3 + ...);
 - ``cross_axis``: w = v - sum over the other axes j of m_j v_j;
 
 and last the ZRO offset learned at rest: corrected = w - offset.
 
-Stateful inputs (the temperature slope and the play state) start at the first
-sample a batch or stream sees, with dT/dt = 0 and s = 0.
+``time_drift`` and ``bias_step`` are tied to the clock of the record they were
+found in (RECORD_EFFECTS); every other effect runs causally on a live stream.
+The history operators (`TemperatureSlope`, `FirstOrderLag`, `PlayOperator`)
+start at the first sample a batch or stream sees: slope 0, lag and play at
+the first temperature (the device in equilibrium at power-up).
 """
 
 import collections
@@ -39,43 +49,196 @@ import numpy as np
 from .errors import ConfigError
 from .models import _columns, _fingerprint, _finite_tuple, _OffsetModel, CorrectedRate
 
-EFFECT_NAMES = ('temperature_polynomial', 'thermal_lag', 'hysteresis',
-                'scale_factor_temperature', 'rate_nonlinearity', 'cross_axis',
-                'acceleration_sensitivity', 'time_drift', 'bias_step', 'secondary_temperature')
+EFFECT_NAMES = ('temperature_polynomial', 'thermal_lag', 'temperature_rate', 'thermal_gradient',
+                'thermal_gradient_2', 'hysteresis', 'supply_voltage', 'secondary_temperature',
+                'acceleration_sensitivity', 'scale_factor_temperature', 'rate_nonlinearity',
+                'cross_axis', 'time_drift', 'bias_step')
+# Effects that need the clock of the record they were fitted on: not for a live node.
+RECORD_EFFECTS = frozenset({'time_drift', 'bias_step'})
+LIVE_EFFECTS = tuple(name for name in EFFECT_NAMES if name not in RECORD_EFFECTS)
+MAX_GRADIENT_TERMS = 2
 
 DEFAULT_RATE_WINDOW_S = 60.0
+DEFAULT_SUPPLY_REFERENCE_V = 5.0
 
 
-def temperature_rate_c_s(time_s, temperature_c, window_s: float) -> np.ndarray:
+@dataclass(frozen=True)
+class TemperatureSlope:
     """
-    Return the slope of temperature over the last ``window_s`` seconds, degC/s.
+    Slope of temperature over the last ``window_s`` seconds, degC/s.
 
     At sample n: (T[n] - T(t[n] - window_s)) / (t[n] - max(t[n] - window_s, t[0])),
     T between samples by linear interpolation; 0 at the first sample.
-    ``temperature_c`` has shape (samples,) or (samples, columns).
     """
-    time = np.asarray(time_s, dtype=np.float64)
-    temperature = np.asarray(temperature_c, dtype=np.float64)
-    columns = temperature.reshape(len(time), -1)
-    start = np.maximum(time - window_s, time[0])
-    rate = np.empty(columns.shape)
-    span = time - start
-    for column in range(columns.shape[1]):
-        then = np.interp(start, time, columns[:, column])
-        with np.errstate(invalid='ignore', divide='ignore'):
-            rate[:, column] = np.where(span > 0.0, (columns[:, column] - then) / span, 0.0)
-    return rate.reshape(temperature.shape)
+
+    window_s: float
+
+    def batch(self, time_s, temperature_c) -> np.ndarray:
+        """Return the slope at every sample; ``temperature_c`` (samples,) or (samples, k)."""
+        time = np.asarray(time_s, dtype=np.float64)
+        temperature = np.asarray(temperature_c, dtype=np.float64)
+        columns = temperature.reshape(len(time), -1)
+        start = np.maximum(time - self.window_s, time[0])
+        rate = np.empty(columns.shape)
+        span = time - start
+        for column in range(columns.shape[1]):
+            then = np.interp(start, time, columns[:, column])
+            with np.errstate(invalid='ignore', divide='ignore'):
+                rate[:, column] = np.where(span > 0.0, (columns[:, column] - then) / span, 0.0)
+        return rate.reshape(temperature.shape)
+
+    def runner(self) -> '_SlopeRunner':
+        return _SlopeRunner(self.window_s)
+
+
+class _SlopeRunner:
+    """`TemperatureSlope` one sample at a time."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self.history = collections.deque()
+
+    def step(self, time_s: float, temperature_c: float) -> float:
+        history = self.history
+        history.append((time_s, temperature_c))
+        start_s = max(time_s - self.window_s, history[0][0])
+        # Keep one sample at or before the window start, for the interpolation.
+        while len(history) > 2 and history[1][0] <= start_s:
+            history.popleft()
+        span = time_s - start_s
+        if span <= 0.0:
+            return 0.0
+        (t0, v0), (t1, v1) = history[0], history[1]
+        then = v0 if start_s <= t0 else v0 + (v1 - v0) / (t1 - t0) * (start_s - t0)
+        return (temperature_c - then) / span
+
+
+def temperature_rate_c_s(time_s, temperature_c, window_s: float) -> np.ndarray:
+    """Return the slope of temperature over the last ``window_s`` seconds (`TemperatureSlope`)."""
+    return TemperatureSlope(window_s).batch(time_s, temperature_c)
+
+
+# Rows of one vectorised stretch of the first-order lag span at most this many time
+# constants, so exp(span / tau) stays far from overflow.
+_LAG_SPAN = 400.0
+
+
+@dataclass(frozen=True)
+class FirstOrderLag:
+    """
+    A first-order lag of time constant ``time_constant_s``: y' = (x - y) / tau.
+
+    Discretised as y[n] = a y[n-1] + (1 - a) x[n], a = exp(-(t[n] - t[n-1]) / tau),
+    y[0] = x[0]: exact for an input held at each sample's value since the one
+    before, and the same recursion sample by sample and in a batch.
+    """
+
+    time_constant_s: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.time_constant_s) and self.time_constant_s > 0.0):
+            msg = f'a first-order lag needs a positive time constant, got {self.time_constant_s}'
+            raise ConfigError(msg)
+
+    def batch(self, time_s, values) -> np.ndarray:
+        """
+        Return the lagged values, vectorised.
+
+        Inside a stretch from row s: y[n] = A[n] (y[s] + sum over s < k <= n of
+        (1 - a[k]) x[k] / A[k]), A[n] = exp(-(t[n] - t[s]) / tau); stretches are
+        chained by the plain recursion.
+        """
+        time = np.asarray(time_s, dtype=np.float64)
+        x = np.asarray(values, dtype=np.float64)
+        lagged = np.empty(x.shape)
+        if x.size == 0:
+            return lagged
+        elapsed = (time - time[0]) / self.time_constant_s
+        weight = -np.expm1(-np.maximum(np.diff(elapsed), 0.0))   # 1 - a[k], k >= 1
+        stretch = np.floor(elapsed / _LAG_SPAN).astype(np.int64)
+        edges = np.flatnonzero(np.diff(stretch)) + 1
+        previous = float(x[0])
+        lagged[0] = previous
+        for start, stop in zip(np.concatenate(([1], edges)), np.append(edges, x.size)):
+            if start >= stop:
+                continue
+            first = previous + weight[start - 1] * (x[start] - previous)
+            lagged[start] = first
+            if stop - start > 1:
+                decay = elapsed[start:stop] - elapsed[start]
+                growth = np.exp(decay[1:])
+                total = np.cumsum(weight[start:stop - 1] * x[start + 1:stop] * growth)
+                lagged[start + 1:stop] = (first + total) / growth
+            previous = float(lagged[stop - 1])
+        return lagged
+
+    def runner(self) -> '_LagRunner':
+        return _LagRunner(self.time_constant_s)
+
+
+class _LagRunner:
+    """`FirstOrderLag` one sample at a time."""
+
+    def __init__(self, time_constant_s: float):
+        self.time_constant_s = time_constant_s
+        self.time_s = None
+        self.value = None
+
+    def step(self, time_s: float, value: float) -> float:
+        if self.value is None:
+            self.value = value
+        else:
+            weight = -math.expm1(-max(time_s - self.time_s, 0.0) / self.time_constant_s)
+            self.value += weight * (value - self.value)
+        self.time_s = time_s
+        return self.value
+
+
+@dataclass(frozen=True)
+class PlayOperator:
+    """
+    Play operator of half width ``half_width_c`` on temperature; state s in [-1, 1].
+
+    y starts at the first temperature; y[n] = clip(y[n-1], T[n] - w, T[n] + w);
+    s = (T - y) / w: +1 after heating by 2w, -1 after cooling by 2w.
+    """
+
+    half_width_c: float
+
+    def batch(self, temperature_c) -> np.ndarray:
+        return play_state(temperature_c, self.half_width_c)
+
+    def runner(self) -> '_PlayRunner':
+        return _PlayRunner(self.half_width_c)
+
+
+class _PlayRunner:
+    """`PlayOperator` one sample at a time."""
+
+    def __init__(self, half_width_c: float):
+        self.half_width_c = half_width_c
+        self.played = None
+
+    def step(self, temperature_c: float) -> float:
+        width = self.half_width_c
+        y = temperature_c if self.played is None else self.played
+        if y < temperature_c - width:
+            y = temperature_c - width
+        elif y > temperature_c + width:
+            y = temperature_c + width
+        self.played = y
+        return (temperature_c - y) / width
 
 
 def play_state(temperature_c, half_width_c: float) -> np.ndarray:
     """
     Return the state s in [-1, 1] of a play operator of half width ``half_width_c``.
 
-    y starts at the first temperature; y[n] = clip(y[n-1], T[n] - w, T[n] + w);
-    s = (T - y) / w. ``temperature_c`` has shape (samples,). Vectorised: until
-    y is pushed down, y[n] = max(y_start, running max of T - w), and the mirror
-    image after, so numpy works run by run; when runs are short (T reverses by
-    2w every few samples) a plain loop finishes, which is then faster.
+    See `PlayOperator`. ``temperature_c`` has shape (samples,). Vectorised:
+    until y is pushed down, y[n] = max(y_start, running max of T - w), and the
+    mirror image after, so numpy works run by run; when runs are short (T
+    reverses by 2w every few samples) a plain loop finishes, which is then
+    faster.
     """
     temperature = np.asarray(temperature_c, dtype=np.float64)
     played = np.empty(temperature.shape)
@@ -145,16 +308,23 @@ class AxisTerms:
     The bias terms of one axis; empty tuples and zeros mean the effect is absent.
 
     ``bias`` is the temperature polynomial in rad/s, lowest order first;
-    ``secondary`` starts at the power 1 of x2; ``nonlinearity`` at u^2 (rad/s
-    per (rad/s)^k); ``cross_axis`` has one coefficient per model axis (its
-    own 0); ``acceleration_rad_s_per_m_s2`` one per x, y, z of the specific
-    force; ``bias_steps`` holds (time_s, rad_s) pairs.
+    ``gradient_time_constants_s`` and ``gradient_rad_s_per_c`` pair up (at
+    most two: ``thermal_gradient`` and ``thermal_gradient_2``);
+    ``supply_voltage`` starts at the power 1 of (V - V_ref) (rad/s per V^k);
+    ``secondary`` at the power 1 of x2; ``nonlinearity`` at u^2 (rad/s per
+    (rad/s)^k); ``cross_axis`` has one coefficient per model axis (its own 0);
+    ``acceleration_rad_s_per_m_s2`` one per x, y, z of the specific force;
+    ``bias_steps`` holds (time_s, rad_s) pairs.
     """
 
     bias: tuple
     thermal_lag_s: float = 0.0
+    temperature_rate_rad_s_per_c_s: float = 0.0
+    gradient_time_constants_s: tuple = ()
+    gradient_rad_s_per_c: tuple = ()
     hysteresis_half_width_c: float = 0.0
     hysteresis_rad_s: float = 0.0
+    supply_voltage: tuple = ()
     time_drift_rad_s_per_s: float = 0.0
     bias_steps: tuple = ()
     secondary: tuple = ()
@@ -168,8 +338,7 @@ class AxisTerms:
         if not bias:
             raise ConfigError('bias needs at least one coefficient')
         object.__setattr__(self, 'bias', bias)
-        for name in ('thermal_lag_s', 'hysteresis_half_width_c', 'hysteresis_rad_s',
-                     'time_drift_rad_s_per_s'):
+        for name in _AXIS_SCALARS:
             value = float(getattr(self, name))
             if not math.isfinite(value):
                 msg = f'{name} must be finite, got {value}'
@@ -185,9 +354,18 @@ class AxisTerms:
         if any(len(pair) != 2 for pair in steps):
             raise ConfigError('bias_steps must be (time_s, rad_s) pairs')
         object.__setattr__(self, 'bias_steps', steps)
-        for name in ('secondary', 'scale', 'nonlinearity', 'cross_axis',
+        for name in ('gradient_time_constants_s', 'gradient_rad_s_per_c', 'supply_voltage',
+                     'secondary', 'scale', 'nonlinearity', 'cross_axis',
                      'acceleration_rad_s_per_m_s2'):
             object.__setattr__(self, name, _polynomial(name, getattr(self, name)))
+        taus, gains = self.gradient_time_constants_s, self.gradient_rad_s_per_c
+        if len(taus) != len(gains) or len(taus) > MAX_GRADIENT_TERMS:
+            msg = (f'gradient_time_constants_s and gradient_rad_s_per_c need the same number '
+                   f'of values, at most {MAX_GRADIENT_TERMS}; got {len(taus)} and {len(gains)}')
+            raise ConfigError(msg)
+        if any(tau <= 0.0 for tau in taus):
+            msg = f'gradient_time_constants_s must be positive, got {list(taus)}'
+            raise ConfigError(msg)
         if self.acceleration_rad_s_per_m_s2 and len(self.acceleration_rad_s_per_m_s2) != 3:
             msg = ('acceleration_rad_s_per_m_s2 needs 3 values (x, y, z), got '
                    f'{len(self.acceleration_rad_s_per_m_s2)}')
@@ -199,16 +377,24 @@ class AxisTerms:
         present = {
             'temperature_polynomial': True,
             'thermal_lag': self.thermal_lag_s != 0.0,
+            'temperature_rate': self.temperature_rate_rad_s_per_c_s != 0.0,
+            'thermal_gradient': len(self.gradient_time_constants_s) >= 1,
+            'thermal_gradient_2': len(self.gradient_time_constants_s) >= 2,
             'hysteresis': self.hysteresis_rad_s != 0.0,
+            'supply_voltage': any(self.supply_voltage),
+            'secondary_temperature': any(self.secondary),
+            'acceleration_sensitivity': any(self.acceleration_rad_s_per_m_s2),
             'scale_factor_temperature': any(self.scale),
             'rate_nonlinearity': any(self.nonlinearity),
             'cross_axis': any(self.cross_axis),
-            'acceleration_sensitivity': any(self.acceleration_rad_s_per_m_s2),
             'time_drift': self.time_drift_rad_s_per_s != 0.0,
             'bias_step': bool(self.bias_steps),
-            'secondary_temperature': any(self.secondary),
         }
         return tuple(name for name in EFFECT_NAMES if present[name])
+
+    @property
+    def needs_slope(self) -> bool:
+        return self.thermal_lag_s > 0.0 or self.temperature_rate_rad_s_per_c_s != 0.0
 
 
 @dataclass(frozen=True)
@@ -229,6 +415,7 @@ class EffectModel(_OffsetModel):
     time_reference_s: float = 0.0
     secondary_reference_c: float = 25.0
     secondary_scale_c: float = 1.0
+    supply_reference_v: float = DEFAULT_SUPPLY_REFERENCE_V
     zro_offset_rad_s: tuple = field(default=())
 
     name = 'effects'
@@ -241,7 +428,7 @@ class EffectModel(_OffsetModel):
         object.__setattr__(self, 'terms', terms)
         for name in ('reference_temperature_c', 'temperature_scale_c',
                      'temperature_rate_window_s', 'time_reference_s', 'secondary_reference_c',
-                     'secondary_scale_c'):
+                     'secondary_scale_c', 'supply_reference_v'):
             value = float(getattr(self, name))
             if not math.isfinite(value):
                 msg = f'{name} must be finite, got {value}'
@@ -276,7 +463,8 @@ class EffectModel(_OffsetModel):
     # Cached (the model is frozen): the stream asks for these on every sample.
     @functools.cached_property
     def needs_time(self) -> bool:
-        return any(t.thermal_lag_s or t.time_drift_rad_s_per_s or t.bias_steps
+        return any(t.thermal_lag_s or t.temperature_rate_rad_s_per_c_s or
+                   t.gradient_time_constants_s or t.time_drift_rad_s_per_s or t.bias_steps
                    for t in self.terms)
 
     @functools.cached_property
@@ -288,8 +476,17 @@ class EffectModel(_OffsetModel):
         return any(any(t.acceleration_rad_s_per_m_s2) for t in self.terms)
 
     @functools.cached_property
+    def needs_supply_voltage(self) -> bool:
+        return any(any(t.supply_voltage) for t in self.terms)
+
+    @functools.cached_property
     def has_cross_axis(self) -> bool:
         return any(any(t.cross_axis) for t in self.terms)
+
+    @functools.cached_property
+    def record_effects(self) -> tuple:
+        """Give the effects of RECORD_EFFECTS the model holds (tied to its record's clock)."""
+        return tuple(sorted({e for t in self.terms for e in t.effects} & RECORD_EFFECTS))
 
     def fingerprint(self) -> str:
         content = {f.name: getattr(self, f.name) for f in fields(self)
@@ -298,14 +495,15 @@ class EffectModel(_OffsetModel):
         return _fingerprint(self.name, content)
 
     def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
-                acceleration_m_s2=None) -> CorrectedRate:
+                acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
         """
         Correct a batch; stateful inputs start at its first sample.
 
         rate (samples, axes) rad/s; temperature (samples,) or (samples, axes)
-        degC; time (samples,) s, needed by thermal_lag, time_drift and
-        bias_step; temperature_2 (samples,) by secondary_temperature;
-        acceleration (samples, 3) m/s^2 by acceleration_sensitivity.
+        degC; time (samples,) s, needed by the thermal history effects,
+        time_drift and bias_step; temperature_2 (samples,) by
+        secondary_temperature; acceleration (samples, 3) m/s^2 by
+        acceleration_sensitivity; supply_voltage (samples,) V by supply_voltage.
         """
         rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
         samples = rate.shape[0]
@@ -314,22 +512,34 @@ class EffectModel(_OffsetModel):
                                     self.needs_temperature_2)
         acceleration = self._input('acceleration_m_s2', acceleration_m_s2, (samples, 3),
                                    self.needs_acceleration)
-        slope = None if time is None else \
-            temperature_rate_c_s(time, temperature, self.temperature_rate_window_s)
+        supply = self._input('supply_voltage_v', supply_voltage_v, (samples,),
+                             self.needs_supply_voltage)
+        slope = TemperatureSlope(self.temperature_rate_window_s)
         bias = np.empty(rate.shape)
         x = np.empty(rate.shape)
         clamped = np.isnan(temperature)
         for axis, term in enumerate(self.terms):
-            effective = temperature[:, axis]
-            if term.thermal_lag_s:
-                effective = effective + term.thermal_lag_s * slope[:, axis]
+            measured = temperature[:, axis]
+            axis_slope = slope.batch(time, measured) if term.needs_slope else None
+            effective = measured
+            if term.thermal_lag_s > 0.0:
+                effective = measured + term.thermal_lag_s * axis_slope
+            elif term.thermal_lag_s < 0.0:
+                effective = FirstOrderLag(-term.thermal_lag_s).batch(time, measured)
             limited = np.clip(effective, self.temperature_min_c, self.temperature_max_c)
             clamped[:, axis] |= limited != effective
             x[:, axis] = (limited - self.reference_temperature_c) / self.temperature_scale_c
             total = np.polynomial.polynomial.polyval(x[:, axis], term.bias)
+            if term.temperature_rate_rad_s_per_c_s:
+                total = total + term.temperature_rate_rad_s_per_c_s * axis_slope
+            for tau, gain in zip(term.gradient_time_constants_s, term.gradient_rad_s_per_c):
+                total = total + gain * (measured - FirstOrderLag(tau).batch(time, measured))
             if term.hysteresis_rad_s:
                 total = total + term.hysteresis_rad_s * play_state(
-                    temperature[:, axis], term.hysteresis_half_width_c)
+                    measured, term.hysteresis_half_width_c)
+            if any(term.supply_voltage):
+                dv = supply - self.supply_reference_v
+                total = total + dv * np.polynomial.polynomial.polyval(dv, term.supply_voltage)
             if term.time_drift_rad_s_per_s:
                 total = total + term.time_drift_rad_s_per_s * (time - self.time_reference_s)
             for when_s, step_rad_s in term.bias_steps:
@@ -372,7 +582,7 @@ class EffectModel(_OffsetModel):
         return EffectStream(self)
 
     def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None) -> tuple:
+                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
         """Refuse: this model has state; use `stream` to correct sample by sample."""
         raise ConfigError('the effects model keeps state: correct samples through stream()')
 
@@ -425,7 +635,8 @@ class EffectModel(_OffsetModel):
             except ConfigError as err:
                 msg = f'effects parameters of axis {axis}: {err}'
                 raise ConfigError(msg) from None
-        return cls(terms=tuple(terms), **{name: get(name) for name in _SCALARS})
+        scalars = {name: get(name, _SCALAR_DEFAULTS.get(name)) for name in _SCALARS}
+        return cls(terms=tuple(terms), **scalars)
 
     def with_terms(self, axis: int, **changes) -> 'EffectModel':
         """Return a copy whose terms of ``axis`` (an index) have ``changes``."""
@@ -433,14 +644,33 @@ class EffectModel(_OffsetModel):
         terms[axis] = replace(terms[axis], **changes)
         return replace(self, terms=tuple(terms))
 
+    def live(self) -> 'EffectModel':
+        """Return the model without its RECORD_EFFECTS (time drift, bias steps)."""
+        return replace(self, terms=tuple(replace(t, time_drift_rad_s_per_s=0.0, bias_steps=())
+                                         for t in self.terms))
+
 
 _SCALARS = ('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
             'temperature_max_c', 'temperature_rate_window_s', 'time_reference_s',
-            'secondary_reference_c', 'secondary_scale_c')
-_AXIS_SCALARS = ('thermal_lag_s', 'hysteresis_half_width_c', 'hysteresis_rad_s',
-                 'time_drift_rad_s_per_s')
-_AXIS_LISTS = ('bias', 'secondary', 'acceleration_rad_s_per_m_s2', 'scale', 'nonlinearity',
+            'secondary_reference_c', 'secondary_scale_c', 'supply_reference_v')
+# Scalars a parameter file written before they existed may lack.
+_SCALAR_DEFAULTS = {'supply_reference_v': DEFAULT_SUPPLY_REFERENCE_V}
+_AXIS_SCALARS = ('thermal_lag_s', 'temperature_rate_rad_s_per_c_s', 'hysteresis_half_width_c',
+                 'hysteresis_rad_s', 'time_drift_rad_s_per_s')
+_AXIS_LISTS = ('bias', 'gradient_time_constants_s', 'gradient_rad_s_per_c', 'supply_voltage',
+               'secondary', 'acceleration_rad_s_per_m_s2', 'scale', 'nonlinearity',
                'cross_axis')
+
+
+class _AxisRunner:
+    """The history operators of one axis, one sample at a time."""
+
+    def __init__(self, term: AxisTerms, window_s: float):
+        self.slope = _SlopeRunner(window_s) if term.needs_slope else None
+        self.lag = _LagRunner(-term.thermal_lag_s) if term.thermal_lag_s < 0.0 else None
+        self.gradients = [_LagRunner(tau) for tau in term.gradient_time_constants_s]
+        self.play = _PlayRunner(term.hysteresis_half_width_c) if term.hysteresis_rad_s \
+            else None
 
 
 class EffectStream:
@@ -452,26 +682,11 @@ class EffectStream:
 
     def __init__(self, model: EffectModel):
         self.model = model
-        self.history = [collections.deque() for _ in model.terms]
-        self.played = [None] * model.axes
-
-    def _slope(self, axis: int, time_s: float, temperature_c: float) -> float:
-        history = self.history[axis]
-        history.append((time_s, temperature_c))
-        first_s = history[0][0]
-        start_s = max(time_s - self.model.temperature_rate_window_s, first_s)
-        # Keep one sample at or before the window start, for the interpolation.
-        while len(history) > 2 and history[1][0] <= start_s:
-            history.popleft()
-        span = time_s - start_s
-        if span <= 0.0:
-            return 0.0
-        (t0, v0), (t1, v1) = history[0], history[1]
-        then = v0 if start_s <= t0 else v0 + (v1 - v0) / (t1 - t0) * (start_s - t0)
-        return (temperature_c - then) / span
+        self.runners = [_AxisRunner(term, model.temperature_rate_window_s)
+                        for term in model.terms]
 
     def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None) -> tuple:
+                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
         """
         Return (corrected rad/s per axis as a list, whether a temperature was clamped).
 
@@ -488,7 +703,9 @@ class EffectStream:
                                     ('temperature_2_c', temperature_2_c,
                                      model.needs_temperature_2),
                                     ('acceleration_m_s2', acceleration_m_s2,
-                                     model.needs_acceleration)):
+                                     model.needs_acceleration),
+                                    ('supply_voltage_v', supply_voltage_v,
+                                     model.needs_supply_voltage)):
             if needed and value is None:
                 msg = f'the effects model needs {name} for its effects'
                 raise ConfigError(msg)
@@ -496,18 +713,28 @@ class EffectStream:
         xs = []
         clamped = False
         for axis, term in enumerate(model.terms):
+            runner = self.runners[axis]
             temperature = float(temperatures[axis])
+            slope = runner.slope.step(float(time_s), temperature) if runner.slope else 0.0
             effective = temperature
-            if term.thermal_lag_s:
-                effective += term.thermal_lag_s * self._slope(axis, float(time_s), temperature)
+            if runner.lag is not None:
+                effective = runner.lag.step(float(time_s), temperature)
+            elif term.thermal_lag_s:
+                effective += term.thermal_lag_s * slope
             limited = min(max(effective, model.temperature_min_c), model.temperature_max_c)
             clamped = clamped or limited != effective or math.isnan(temperature)
             x = (limited - model.reference_temperature_c) / model.temperature_scale_c
             xs.append(x)
             bias = float(np.polynomial.polynomial.polyval(x, term.bias))
-            if term.hysteresis_rad_s:
-                bias += term.hysteresis_rad_s * self._play(axis, temperature,
-                                                           term.hysteresis_half_width_c)
+            if term.temperature_rate_rad_s_per_c_s:
+                bias += term.temperature_rate_rad_s_per_c_s * slope
+            for lag, gain in zip(runner.gradients, term.gradient_rad_s_per_c):
+                bias += gain * (temperature - lag.step(float(time_s), temperature))
+            if runner.play is not None:
+                bias += term.hysteresis_rad_s * runner.play.step(temperature)
+            if any(term.supply_voltage):
+                dv = supply_voltage_v - model.supply_reference_v
+                bias += dv * float(np.polynomial.polynomial.polyval(dv, term.supply_voltage))
             if term.time_drift_rad_s_per_s:
                 bias += term.time_drift_rad_s_per_s * (time_s - model.time_reference_s)
             for when_s, step_rad_s in term.bias_steps:
@@ -535,14 +762,3 @@ class EffectStream:
                     corrected[axis] = before[axis] - sum(m * v for m, v in
                                                          zip(term.cross_axis, before))
         return [v - o for v, o in zip(corrected, model.zro_offset_rad_s)], clamped
-
-    def _play(self, axis: int, temperature_c: float, half_width_c: float) -> float:
-        y = self.played[axis]
-        if y is None:
-            y = temperature_c
-        if y < temperature_c - half_width_c:
-            y = temperature_c - half_width_c
-        elif y > temperature_c + half_width_c:
-            y = temperature_c + half_width_c
-        self.played[axis] = y
-        return (temperature_c - y) / half_width_c

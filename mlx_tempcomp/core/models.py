@@ -82,7 +82,7 @@ class _StatelessStream:
         self.model = model
 
     def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None) -> tuple:
+                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
         return self.model.correct_sample(rates_rad_s, temperatures_c)
 
 

@@ -3,7 +3,8 @@ Compensation node: raw rate and temperature in, temperature-compensated rate out
 
 Subscribes to ``imu/data_raw``, ``imu/temperature_raw`` (with several MLX90609
 chips and the eeprom model, ``imu/temperature_raw/<axis>``), ``imu/eeprom`` and,
-while the model needs a second temperature, ``imu/temperature_2_raw``; pairs
+while the model needs them, ``imu/temperature_2_raw`` (a second temperature)
+and ``imu/supply_voltage`` (sensor_msgs/BatteryState, its voltage); pairs
 samples by stamp, runs them through the stream of the model named by ``model``
 (which keeps the state of stateful effects) and publishes ``imu/data`` and
 ``imu/temperature``. The ``imu/recalibrate_zro`` service
@@ -19,7 +20,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
 
@@ -39,6 +40,15 @@ from ..state_file import read_state, StateFileError, write_state
 # Parameters whose change rebuilds the model.
 _MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
 _TEMPERATURE_2 = 'temperature_2'
+_SUPPLY = 'supply_voltage'
+# Inputs beyond rate and temperature, subscribed while the model needs them:
+# stream -> (model flag, message type, topic, value of a message).
+_AUXILIARY = {
+    _TEMPERATURE_2: ('needs_temperature_2', Temperature, 'imu/temperature_2_raw',
+                     lambda msg: msg.temperature),
+    _SUPPLY: ('needs_supply_voltage', BatteryState, 'imu/supply_voltage',
+              lambda msg: msg.voltage),
+}
 _POLL_S = 0.05
 
 
@@ -96,7 +106,7 @@ class CompensationNode(Node):
             if per_axis else ('temperature',)
         self.pairer = StampPairer(('imu',) + self.temperature_streams)
         self.dropped_before = 0   # by pairers replaced on a model change
-        self.temperature_2_subscription = None
+        self.auxiliary_subscriptions = {}
         self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
         self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
                                                            SENSOR_QOS)
@@ -171,14 +181,17 @@ class CompensationNode(Node):
         self.model = model
         # Read once here, not per sample: what the model needs besides rate and temperature.
         self.needs_acceleration = getattr(model, 'needs_acceleration', False)
-        needs_2 = self.needs_temperature_2 = getattr(model, 'needs_temperature_2', False)
-        if needs_2 != (_TEMPERATURE_2 in self.pairer.streams):
-            if needs_2 and self.temperature_2_subscription is None:
-                self.temperature_2_subscription = self.create_subscription(
-                    Temperature, 'imu/temperature_2_raw',
-                    lambda msg: self.on_temperature(_TEMPERATURE_2, msg), SENSOR_INPUT_QOS)
+        self.auxiliary = tuple(stream for stream, (flag, *_) in _AUXILIARY.items()
+                               if getattr(model, flag, False))
+        for stream in self.auxiliary:
+            if stream not in self.auxiliary_subscriptions:
+                _, kind, topic, _ = _AUXILIARY[stream]
+                self.auxiliary_subscriptions[stream] = self.create_subscription(
+                    kind, topic, lambda msg, s=stream: self.on_temperature(s, msg),
+                    SENSOR_INPUT_QOS)
+        streams = ('imu',) + self.temperature_streams + self.auxiliary
+        if streams != self.pairer.streams:
             self.dropped_before += self.pairer.dropped
-            streams = ('imu',) + self.temperature_streams + ((_TEMPERATURE_2,) if needs_2 else ())
             self.pairer = StampPairer(streams)
 
     # Stream.
@@ -213,9 +226,9 @@ class CompensationNode(Node):
                                                msg):
             self.process(stamp_ns, parts)
 
-    def on_temperature(self, stream: str, msg: Temperature) -> None:
+    def on_temperature(self, stream: str, msg) -> None:
         if stream not in self.pairer.streams:
-            return   # the second temperature, subscribed for an earlier model
+            return   # an auxiliary input, subscribed for an earlier model
         for stamp_ns, parts in self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
                                                msg):
             self.process(stamp_ns, parts)
@@ -236,12 +249,13 @@ class CompensationNode(Node):
                 return
             vector = imu.linear_acceleration
             acceleration = (vector.x, vector.y, vector.z)
-        temperature_2 = parts[_TEMPERATURE_2].temperature if self.needs_temperature_2 else None
+        extra = {stream: _AUXILIARY[stream][3](parts[stream]) for stream in self.auxiliary}
         # Plain floats on this per-message path: numpy's per-call overhead would dominate.
         raw = messages.imu_rates(imu, self.indices)
         temperatures = [parts[s].temperature for s in self.temperature_streams]
-        rate, clamped = stream.correct_sample(raw, temperatures, stamp_ns / 1e9, temperature_2,
-                                              acceleration)
+        rate, clamped = stream.correct_sample(raw, temperatures, stamp_ns / 1e9,
+                                              extra.get(_TEMPERATURE_2), acceleration,
+                                              extra.get(_SUPPLY))
         if clamped:
             self.clamped_samples += 1
             self.clamped_recent = True

@@ -7,7 +7,7 @@ integrates the state (die temperature, sensor lag, hysteresis, bias
 instability) and gives the analog outputs at any later time.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 from typing import Optional
 
@@ -95,6 +95,10 @@ class Effects:
     hysteresis_dps: float = 0.0             # ZRO differs by this between heating and cooling
     hysteresis_width_c: float = 5.0         # temperature change that flips the branch
     zro_supply_dps_per_v: float = 0.0       # ZRO shift per volt off the nominal 5 V
+    zro_dps_per_c_s: float = 0.0            # ZRO shift per degC/s of die temperature change
+    # ZRO + g_k x (die - node_k), node_k a part of the package lagging the die by tau_k.
+    gradient_time_constants_s: tuple = ()
+    gradient_dps_per_c: tuple = ()
     bias_steps: tuple = ()                  # ((time_s, step_dps), ...)
     acceleration_dps_per_m_s2: tuple = (0.0, 0.0, 0.0)   # g-sensitivity per axis
 
@@ -107,6 +111,7 @@ class Noise:
     bandwidth_hz: float = 75.0
     bias_instability_dps: float = 0.01      # first-order Gauss-Markov, 1 sigma
     bias_correlation_s: float = 100.0
+    rate_random_walk_dps_rt_s: float = 0.0  # bias random walk, deg/s per sqrt(s)
     temperature_noise_mv: float = 0.5
 
     @property
@@ -173,6 +178,9 @@ class GyroState:
     sensor_c: float
     hysteresis_dps: float
     bias_dps: float
+    die_rate_c_s: float = 0.0
+    walk_dps: float = 0.0
+    nodes_c: list = field(default_factory=list)
 
 
 class GyroPhysics:
@@ -186,7 +194,8 @@ class GyroPhysics:
         noise = truth.noise
         self.state = GyroState(time_s=0.0, die_c=start_c, sensor_c=start_c,
                                hysteresis_dps=0.0,
-                               bias_dps=self.rng.normal(0.0, noise.bias_instability_dps))
+                               bias_dps=self.rng.normal(0.0, noise.bias_instability_dps),
+                               nodes_c=[start_c] * len(truth.effects.gradient_time_constants_s))
 
     def advance(self, t: float) -> None:
         """Move the state to time ``t`` (never backwards)."""
@@ -210,7 +219,13 @@ class GyroPhysics:
                 s.hysteresis_dps
             fraction = min(1.0, abs(change) / effects.hysteresis_width_c)
             s.hysteresis_dps += (target - s.hysteresis_dps) * fraction
+        s.nodes_c = [node + (die - node) * -math.expm1(-dt / tau) for node, tau in
+                     zip(s.nodes_c, effects.gradient_time_constants_s)]
+        s.die_rate_c_s = (die - s.die_c) / dt
         noise = self.truth.noise
+        if noise.rate_random_walk_dps_rt_s > 0.0:
+            s.walk_dps += noise.rate_random_walk_dps_rt_s * math.sqrt(dt) * \
+                self.rng.standard_normal()
         if noise.bias_instability_dps > 0.0:
             decay = math.exp(-dt / noise.bias_correlation_s)
             s.bias_dps = s.bias_dps * decay + noise.bias_instability_dps * \
@@ -222,7 +237,10 @@ class GyroPhysics:
         """Everything at zero rate beyond the nominal ZRO, in deg/s of equivalent rate."""
         s = self.state
         effects = self.truth.effects
-        offset = self.truth.zro_dps(s.die_c) + s.hysteresis_dps + s.bias_dps
+        offset = self.truth.zro_dps(s.die_c) + s.hysteresis_dps + s.bias_dps + s.walk_dps
+        offset += effects.zro_dps_per_c_s * s.die_rate_c_s
+        offset += sum(g * (s.die_c - node)
+                      for g, node in zip(effects.gradient_dps_per_c, s.nodes_c))
         offset += effects.zro_supply_dps_per_v * (
             self.scenario.supply_voltage_v(s.time_s) - NOMINAL_SUPPLY_V)
         offset += sum(step for when, step in effects.bias_steps if s.time_s >= when)

@@ -10,9 +10,9 @@ with a message naming the file and what is wrong.
 CSV files have one header row. Canonical columns: ``time`` (s),
 ``temperature`` (degC), any of ``gyro_x``, ``gyro_y``, ``gyro_z`` (rad/s);
 optional ``ref_x|y|z`` (turntable reference rate, rad/s), ``acc_x|y|z``
-(m/s^2) and ``temperature_2`` (degC). A `ColumnMap` names the file's column
-for each (`parse_column_map` reads the command-line form); `PRESETS` holds
-the maps of known data sets. The delimiter (tab, comma or semicolon) is
+(m/s^2), ``temperature_2`` (degC) and ``supply_voltage`` (V). A `ColumnMap`
+names the file's column for each (`parse_column_map` reads the command-line
+form); `PRESETS` holds the maps of known data sets. The delimiter (tab, comma or semicolon) is
 detected from the header unless the map sets it.
 
 Bags (sqlite3 or mcap) are read with `RawBagReader`: ``sensor_msgs/Imu``
@@ -48,8 +48,10 @@ SKIP_CORRUPT = 'corrupt messages'
 _GROUPS = (('gyro', 'gyro'), ('reference', 'ref'), ('acceleration', 'acc'))
 CANONICAL_COLUMNS = (('time', 'temperature')
                      + tuple(f'{prefix}_{a}' for _, prefix in _GROUPS for a in AXES)
-                     + ('temperature_2',))
+                     + ('temperature_2', 'supply_voltage'))
 _ALWAYS_REQUIRED = ('time', 'temperature')
+# Optional columns of one value per row, by canonical name.
+_SINGLE_COLUMNS = ('temperature_2', 'supply_voltage')
 _DELIMITER_NAMES = {'tab': '\t', 'comma': ',', 'semicolon': ';'}
 _NS_PER_S = 1_000_000_000
 
@@ -97,6 +99,7 @@ class Recording:
     reference_rad_s: Optional[np.ndarray] = None
     acceleration_m_s2: Optional[np.ndarray] = None
     temperature_2_c: Optional[np.ndarray] = None
+    supply_voltage_v: Optional[np.ndarray] = None
     skipped: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self):
@@ -119,7 +122,7 @@ class Recording:
         object.__setattr__(self, 'time_s', time_s)
         shapes = (('temperature_c', (rows,)), ('gyro_rad_s', (rows, len(axes))),
                   ('reference_rad_s', (rows, len(axes))), ('acceleration_m_s2', (rows, 3)),
-                  ('temperature_2_c', (rows,)))
+                  ('temperature_2_c', (rows,)), ('supply_voltage_v', (rows,)))
         for name, shape in shapes:
             value = getattr(self, name)
             if value is not None or name in ('temperature_c', 'gyro_rad_s'):
@@ -165,7 +168,8 @@ class Recording:
                        gyro_rad_s=self.gyro_rad_s[index],
                        reference_rad_s=take(self.reference_rad_s),
                        acceleration_m_s2=take(self.acceleration_m_s2),
-                       temperature_2_c=take(self.temperature_2_c))
+                       temperature_2_c=take(self.temperature_2_c),
+                       supply_voltage_v=take(self.supply_voltage_v))
 
 
 def _axis_columns(prefix: str) -> Dict[str, str]:
@@ -204,6 +208,7 @@ class ColumnMap:
     acceleration: Mapping[str, str] = field(
         default_factory=functools.partial(_axis_columns, 'acc'))
     temperature_2: Optional[str] = 'temperature_2'
+    supply_voltage: Optional[str] = 'supply_voltage'
     delimiter: Optional[str] = None
     skip_rows: int = 0
     required: frozenset = frozenset()
@@ -222,9 +227,9 @@ class ColumnMap:
         if not self.gyro:
             msg = 'column map: no gyro column (map at least one of gyro_x, gyro_y, gyro_z)'
             raise RecordingError(msg)
-        if self.temperature_2 is not None:
-            object.__setattr__(self, 'temperature_2',
-                               _column_name(self.temperature_2, 'temperature_2'))
+        for name in _SINGLE_COLUMNS:
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _column_name(getattr(self, name), name))
         try:
             time_scale = float(self.time_scale)
         except (TypeError, ValueError):
@@ -253,8 +258,8 @@ class ColumnMap:
         sources = {'time': self.time, 'temperature': self.temperature}
         for group, prefix in _GROUPS:
             sources.update((f'{prefix}_{a}', name) for a, name in getattr(self, group).items())
-        if self.temperature_2 is not None:
-            sources['temperature_2'] = self.temperature_2
+        sources.update((name, getattr(self, name)) for name in _SINGLE_COLUMNS
+                       if getattr(self, name) is not None)
         return sources
 
 
@@ -262,7 +267,8 @@ def _map_from_sources(sources: Dict[str, str], **options) -> ColumnMap:
     groups = {group: {a: sources[f'{prefix}_{a}'] for a in AXES if f'{prefix}_{a}' in sources}
               for group, prefix in _GROUPS}
     return ColumnMap(time=sources.get('time', ''), temperature=sources.get('temperature', ''),
-                     temperature_2=sources.get('temperature_2'), **groups, **options)
+                     **{name: sources.get(name) for name in _SINGLE_COLUMNS}, **groups,
+                     **options)
 
 
 PRESETS = MappingProxyType({
@@ -417,13 +423,15 @@ def _recording(source: str, columns: Dict[str, np.ndarray], non_numeric: np.ndar
             return None
         return np.column_stack([columns[f'{prefix}_{a}'][keep] for a in group_axes])
 
-    temperature_2 = columns.get('temperature_2')
+    def single(name: str) -> Optional[np.ndarray]:
+        return None if name not in columns else columns[name][keep]
+
     return Recording(source=source, time_s=columns['time'][keep],
                      temperature_c=columns['temperature'][keep], axes=axes,
                      gyro_rad_s=stack('gyro', axes), reference_rad_s=stack('ref', axes),
                      acceleration_m_s2=stack('acc', AXES),
-                     temperature_2_c=None if temperature_2 is None else temperature_2[keep],
-                     skipped=skipped)
+                     temperature_2_c=single('temperature_2'),
+                     supply_voltage_v=single('supply_voltage'), skipped=skipped)
 
 
 def _read_csv_rows(path: Path, delimiter: Optional[str]):

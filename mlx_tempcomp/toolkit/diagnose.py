@@ -3,9 +3,11 @@
 
 Runs `mlx_tempcomp.core.diagnosis.diagnose` on a recording and writes into
 ``--out DIR``: report.md, report.json (per axis the ordered steps with their
-held-out error before and after, the rejected and skipped candidates),
+held-out error before and after, per fold and per block, the rejected and
+skipped candidates, the findings of the record-only effects),
 residual_vs_temperature.png, residual_vs_time.png, error_per_step.png and
-params.yaml, which compensation_node loads.
+params.yaml, which compensation_node loads: live-runnable effects only,
+unless --record-effects put time drift and bias steps into the search.
 """
 
 import argparse
@@ -17,6 +19,7 @@ from .common import (add_recording_options, float_type, load, non_negative_float
                      non_negative_int, UserError)
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
+from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..model_params import effect_parameters, parameter_file, write_parameter_file
 
@@ -29,6 +32,11 @@ METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bi
 
 
 _fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
+
+
+def _test_part(text: str):
+    """Parse --test: 'cycle' or a fraction in [0, 1) (argparse type)."""
+    return 'cycle' if text == 'cycle' else _fraction(text)
 
 
 def add_parser(commands) -> None:
@@ -59,9 +67,20 @@ def add_parser(commands) -> None:
     parser.add_argument('--min-gain', type=_fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
-    parser.add_argument('--test-fraction', type=_fraction, default=defaults.test_fraction,
-                        metavar='F', help='keep the last F of the record as a final test set '
-                                          '(default: %(default)s)')
+    parser.add_argument('--block-tolerance', type=non_negative_float,
+                        default=defaults.block_tolerance, metavar='F',
+                        help='refuse an effect when a held-out block gets worse by more than F '
+                             'x the larger of its RMS and the axis RMS (default: %(default)s)')
+    test = parser.add_mutually_exclusive_group()
+    test.add_argument('--test', type=_test_part, metavar='F|cycle',
+                      help="keep a final test set: the last F of the record, or 'cycle' for "
+                           'the last full heating/cooling cycle (the record needs two)')
+    test.add_argument('--test-fraction', type=_fraction, metavar='F',
+                      help='same as --test F')
+    parser.add_argument('--record-effects', action='store_true',
+                        help='also search time drift and bias steps, which are tied to the '
+                             "record's clock, and write them into params.yaml (default: "
+                             'report them as findings only)')
     parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
                         help='node section of params.yaml (default: %(default)s)')
     add_progress_option(parser)
@@ -94,10 +113,13 @@ def diagnose_command(args: argparse.Namespace) -> int:
     recording = load(args)
     bars = _Bars(True if args.progress else None)
     try:
+        test = args.test if args.test is not None else args.test_fraction or 0.0
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
-            test_fraction=args.test_fraction)
+            block_tolerance=args.block_tolerance, test_cycle=test == 'cycle',
+            test_fraction=0.0 if test == 'cycle' else test,
+            record_effects=args.record_effects)
         diagnosis = run_diagnosis(recording, settings, progress=bars)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
@@ -113,8 +135,11 @@ def diagnose_command(args: argparse.Namespace) -> int:
         _plots(out, diagnosis)
         content = parameter_file(args.node_name, effect_parameters(diagnosis.model,
                                                                    diagnosis.axes))
+        record = diagnosis.model.record_effects
         header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {args.input}\n'
-                  f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
+                  + (f'Holds record-only effects ({", ".join(record)}): they use the stamps '
+                     'of that record\n' if record else 'Live-runnable effects only\n')
+                  + f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
         write_parameter_file(out / 'params.yaml', content, header)
     except OSError as err:
         msg = f'cannot write to {out}: {err.strerror}'
@@ -128,9 +153,13 @@ def _number(value):
     return float(value) if math.isfinite(value) else None
 
 
+def _numbers(values) -> list:
+    return [_number(v) for v in values]
+
+
 def _error(error) -> dict:
     return {'rms': _number(error.rms_rad_s), 'peak': _number(error.peak_rad_s),
-            'fold_rms': [_number(v) for v in error.fold_rms_rad_s]}
+            'fold_rms': _numbers(error.fold_rms_rad_s)}
 
 
 def _plain(value):
@@ -143,6 +172,21 @@ def _plain(value):
     return value
 
 
+def _finding_text(finding) -> str:
+    """One sentence on a record-only effect tested on top of the final model."""
+    parameters = finding.parameters
+    if finding.effect == 'bias_step':
+        what = (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
+                f'{parameters["after_start_s"]:.1f} s after the record start (stamp '
+                f'{parameters["time_s"]:.1f} s)')
+    else:
+        what = f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+    if finding.reason:
+        return f'{what} would not pass: {finding.reason}'
+    return (f'{what}, held-out gain {finding.held_out_gain:.3f}; ZRO recalibration at rest '
+            '(imu/recalibrate_zro) covers it on a live node')
+
+
 def _report(source: str, recording, diagnosis) -> dict:
     """Return the content of report.json (all errors in rad/s)."""
     settings = diagnosis.settings
@@ -151,11 +195,16 @@ def _report(source: str, recording, diagnosis) -> dict:
     axes = {}
     for axis in diagnosis.per_axis:
         axes[axis.axis] = {
-            'steps': [{'effect': s.effect, 'parameters': _plain(dict(s.parameters)),
+            'steps': [{'effect': s.effect, 'live': s.effect not in RECORD_EFFECTS,
+                       'parameters': _plain(dict(s.parameters)),
                        'rms_before': _number(s.before.rms_rad_s),
                        'rms_after': _number(s.after.rms_rad_s),
                        'peak_before': _number(s.before.peak_rad_s),
                        'peak_after': _number(s.after.peak_rad_s),
+                       'fold_rms_before': _numbers(s.before.fold_rms_rad_s),
+                       'fold_rms_after': _numbers(s.after.fold_rms_rad_s),
+                       'block_rms_before': _numbers(s.before.block_rms_rad_s),
+                       'block_rms_after': _numbers(s.after.block_rms_rad_s),
                        'round': s.round_number,
                        'held_out_gain': None if s.held_out_gain is None else
                        _number(s.held_out_gain)} for s in axis.steps],
@@ -165,12 +214,17 @@ def _report(source: str, recording, diagnosis) -> dict:
                           'mean_fold_improvement': _number(c.fold_improvement_rad_s),
                           'fold_improvement_standard_error':
                               _number(c.fold_improvement_se_rad_s),
+                          'worst_block_change': _number(c.worst_block_change),
                           'reason': c.reason} for c in axis.rejected],
+            'findings': [{'effect': f.effect, 'parameters': _plain(dict(f.parameters)),
+                          'held_out_gain': _number(f.held_out_gain),
+                          'passes': not f.reason, 'text': _finding_text(f)}
+                         for f in axis.findings],
             'skipped': skipped,
             'polynomial_order': axis.order,
             'order_scores': [{'order': s.order, 'mean_fold_rms': _number(s.mean_rms_rad_s),
                               'standard_error': _number(s.standard_error_rad_s),
-                              'fold_rms': [_number(v) for v in s.block_rms_rad_s]}
+                              'fold_rms': _numbers(s.block_rms_rad_s)}
                              for s in axis.order_scores],
         }
     comparison = {scope: {method: {name: _error(error) for name, error in
@@ -188,8 +242,16 @@ def _report(source: str, recording, diagnosis) -> dict:
         'settings': {'folds': settings.folds, 'blocks': settings.blocks,
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
-                     'test_fraction': settings.test_fraction,
+                     'block_tolerance': settings.block_tolerance,
+                     'test': 'cycle' if settings.test_cycle else settings.test_fraction,
+                     'record_effects': settings.record_effects,
                      'temperature_rate_window_s': settings.rate_window_s},
+        'effects': {'searched': list(settings.effects),
+                    'record_only': sorted(RECORD_EFFECTS),
+                    'in_params_yaml': sorted({e for a in diagnosis.per_axis
+                                              for e in a.effects})},
+        'search_bounds': {name: [float(low), float(high)]
+                          for name, (low, high) in diagnosis.bounds.items()},
         'axes': axes,
         'skipped': skipped,
         'comparison': comparison,
@@ -225,23 +287,63 @@ def _comparison_lines(report: dict) -> list:
     lines = []
     names = list(report['axes'])
     header = ('method', *(f'{a} RMS' for a in names), *(f'{a} peak' for a in names))
+    test = report['settings']['test']
     scopes = {'cross_validation': 'Fold cross-validation over the diagnosed part',
-              'test': 'Test set (the last --test-fraction of the record, never seen by '
-                      'the diagnosis)'}
+              'test': 'Test set (' + ('the last full heating/cooling cycle' if test == 'cycle'
+                                      else f'the last {test:g} of the record')
+                      + ', never seen by the diagnosis)'}
     for scope, methods in report['comparison'].items():
         lines += ['', f'### {scopes[scope]}', '']
         rows = [(_METHOD_TEXT[m], *(_e(methods[m][a]['rms']) for a in names),
                  *(_e(methods[m][a]['peak']) for a in names)) for m in METHODS]
         lines += _table(header, rows)
+        cubic, diagnosed = methods['px4_cubic'], methods['diagnosed']
+        lines += ['', 'Diagnosed / PX4-style cubic, RMS: ' + ', '.join(
+            f'{a} {diagnosed[a]["rms"] / cubic[a]["rms"]:.2f}x' for a in names
+            if cubic[a]['rms'])]
     lines += ['', 'The cubic in cross-validation is least squares of T^0..T^3 (raw '
                   'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
                   '3) on every row of the diagnosed part, as the PX4 script does.']
     return lines
 
 
+def _axis_lines(name: str, axis: dict) -> list:
+    lines = [f'## Axis {name}', '', '### Effects added', '']
+    lines += _table(('round', 'effect', 'runs on', 'fitted constants', 'RMS before',
+                     'RMS after', 'peak before', 'peak after'),
+                    [(s['round'], s['effect'], 'live node' if s['live'] else 'this record',
+                      _parameter_text({k: v for k, v in s['parameters'].items()
+                                       if k != 'bias_rad_s'}),
+                      _e(s['rms_before']), _e(s['rms_after']), _e(s['peak_before']),
+                      _e(s['peak_after'])) for s in axis['steps']])
+    first, last = axis['steps'][0], axis['steps'][-1]
+    lines += ['', '### Held-out RMS per block (step 0 -> final model)', '']
+    lines += _table(('block', 'fold', 'step 0', 'final', 'change'),
+                    [(k, k % len(first['fold_rms_after']), _e(before), _e(after),
+                      f'{(after - before) / before:+.0%}' if before else '-')
+                     for k, (before, after) in enumerate(zip(first['block_rms_after'],
+                                                             last['block_rms_after']))])
+    lines += ['', '### Candidates rejected', '']
+    lines += _table(('round', 'effect', 'held-out gain', 'why'),
+                    [(c['round'], c['effect'], f'{c["held_out_gain"]:.3f}'
+                      if c['held_out_gain'] is not None else '-', c['reason'])
+                     for c in axis['rejected']]) if axis['rejected'] else ['none']
+    if axis['findings']:
+        lines += ['', "### Record-only effects (the record's clock; not in params.yaml)", '']
+        lines += [f'- {f["effect"]}: {f["text"]}' for f in axis['findings']]
+    lines += ['', '### Polynomial order (step 0, one-standard-error rule)', '']
+    lines += _table(('order', 'mean fold RMS', 'standard error', 'chosen'),
+                    [(s['order'], _e(s['mean_fold_rms']), _e(s['standard_error']),
+                      '*' if s['order'] == first['parameters']['order'] else '')
+                     for s in axis['order_scores']])
+    return lines + ['']
+
+
 def _markdown(report: dict) -> str:
     rows = report['rows']
     settings = report['settings']
+    effects = report['effects']
+    bounds = report['search_bounds']
     lines = [f'# Diagnosis of {report["source"]}', '',
              f'- rows diagnosed: {rows["diagnosed"]} ({rows["bins"]} bins); test rows: '
              f'{rows["test"]}; skipped while loading: '
@@ -250,12 +352,21 @@ def _markdown(report: dict) -> str:
              f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
              f'- held-out scheme: {settings["blocks"]} contiguous blocks dealt round-robin '
              f'to {settings["folds"]} folds; stateful inputs (temperature slope over '
-             f'{settings["temperature_rate_window_s"]:g} s, play state) are computed over the '
-             'whole record before rows are split.',
+             f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
+             'over the whole record before rows are split.',
              f'- an effect is added when its relative held-out RMS reduction is at least '
-             f'{settings["min_gain"]:g} and its mean per-fold improvement exceeds '
-             f'{settings["significance"]:g} standard errors; the significant candidate with '
-             'the largest gain wins the round; the polynomial order is then chosen again.',
+             f'{settings["min_gain"]:g}, its mean per-fold improvement exceeds '
+             f'{settings["significance"]:g} standard errors and no held-out block but the '
+             f'first gets worse by more than {settings["block_tolerance"]:g} x the larger of '
+             'its RMS and the axis RMS; the candidate with the largest gain wins the round; '
+             'the polynomial order is then chosen again.',
+             '- effects searched (all run causally on a live node): '
+             + ', '.join(effects['searched']) + "; record-only (tied to the record's clock): "
+             + ', '.join(effects['record_only'])
+             + (' -- searched too (--record-effects)' if settings['record_effects'] else
+                ' -- tested as findings, not added'),
+             '- search bounds: ' + '; '.join(f'{name} {low:.3g} .. {high:.3g}'
+                                             for name, (low, high) in bounds.items()),
              '- step errors come from EffectModel.correct (the code the node runs) on fold '
              'models; all values in rad/s.', '']
     if report['skipped']:
@@ -263,25 +374,7 @@ def _markdown(report: dict) -> str:
         lines += [f'- {s["effect"]}: {s["reason"]}' for s in report['skipped']]
         lines.append('')
     for name, axis in report['axes'].items():
-        lines += [f'## Axis {name}', '', '### Steps', '']
-        lines += _table(('round', 'effect', 'parameters', 'RMS before', 'RMS after',
-                         'peak before', 'peak after'),
-                        [(s['round'], s['effect'],
-                          _parameter_text({k: v for k, v in s['parameters'].items()
-                                           if k != 'bias_rad_s'}),
-                          _e(s['rms_before']), _e(s['rms_after']), _e(s['peak_before']),
-                          _e(s['peak_after'])) for s in axis['steps']])
-        lines += ['', '### Candidates rejected', '']
-        lines += _table(('round', 'effect', 'held-out gain', 'why'),
-                        [(c['round'], c['effect'], f'{c["held_out_gain"]:.3f}'
-                          if c['held_out_gain'] is not None else '-', c['reason'])
-                         for c in axis['rejected']]) if axis['rejected'] else ['none']
-        lines += ['', '### Polynomial order (step 0, one-standard-error rule)', '']
-        lines += _table(('order', 'mean fold RMS', 'standard error', 'chosen'),
-                        [(s['order'], _e(s['mean_fold_rms']), _e(s['standard_error']),
-                          '*' if s['order'] == axis['steps'][0]['parameters']['order'] else '')
-                         for s in axis['order_scores']])
-        lines.append('')
+        lines += _axis_lines(name, axis)
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
@@ -301,6 +394,8 @@ def _summary(report: dict) -> str:
         chain = ' -> '.join([_e(steps[0]['rms_before'])]
                             + [f'{s["effect"]} {_e(s["rms_after"])}' for s in steps])
         lines.append(f'axis {name}: held-out RMS {chain}')
+        lines.extend(f'axis {name}: record-only finding {f["effect"]}: {f["text"]}'
+                     for f in axis['findings'] if f['passes'])
     for scope, methods in report['comparison'].items():
         for method in METHODS:
             values = ', '.join(f'{a} {_e(e["rms"])}' for a, e in methods[method].items())
@@ -312,6 +407,9 @@ def _every(count: int) -> slice:
     return slice(None, None, max(1, math.ceil(count / MAX_PLOT_POINTS)))
 
 
+_BRANCHES = ((True, 'tab:red', 'heating'), (False, 'tab:blue', 'cooling'))
+
+
 def _plots(out: Path, diagnosis) -> None:
     import matplotlib
     matplotlib.use('Agg')
@@ -319,48 +417,52 @@ def _plots(out: Path, diagnosis) -> None:
     from matplotlib.ticker import MaxNLocator
 
     axes = diagnosis.axes
-    held = diagnosis.held_out
-    pick = _every(len(held.time_s))
+    parts = [(diagnosis.held_out, 'held-out folds', 'o')]
+    if diagnosis.test is not None:
+        parts.append((diagnosis.test, 'test set', 'x'))
+    titles = (('temperature polynomial', 'before_rad_s'), ('diagnosed', 'after_rad_s'))
     figure, grid = pyplot.subplots(len(axes), 2, figsize=(11.0, 3.2 * len(axes)),
                                    squeeze=False, sharex=True)
     for row, name in enumerate(axes):
-        for column, (title, values) in enumerate((('temperature polynomial',
-                                                   held.before_rad_s),
-                                                  ('diagnosed', held.after_rad_s))):
+        for column, (title, values) in enumerate(titles):
             plot = grid[row][column]
-            for mask, colour, label in ((held.heating, 'tab:red', 'heating'),
-                                        (~held.heating, 'tab:blue', 'cooling')):
-                plot.scatter(held.temperature_c[pick][mask[pick]],
-                             values[pick, row][mask[pick]], s=2, c=colour, label=label)
-            plot.set_title(f'{name}: {title} (held-out)')
+            for part, label, marker in parts:
+                pick = _every(len(part.time_s))
+                for heating, colour, branch in _BRANCHES:
+                    mask = part.heating[pick] == heating
+                    plot.scatter(part.temperature_c[pick][mask],
+                                 getattr(part, values)[pick, row][mask], s=3, c=colour,
+                                 marker=marker, label=f'{branch}, {label}')
+            plot.set_title(f'{name}: {title}')
             plot.set_ylabel('residual (rad/s)')
             plot.grid(True, alpha=0.3)
-        grid[row][0].legend(markerscale=4)
+        grid[row][0].legend(markerscale=3, fontsize='small')
     for plot in grid[-1]:
         plot.set_xlabel('temperature (C)')
     _save(pyplot, figure, out / PLOTS[0])
-    figure, grid = pyplot.subplots(len(axes), 1, figsize=(11.0, 3.0 * len(axes)),
-                                   squeeze=False, sharex=True)
-    start_s = held.time_s[0]
-    parts = [(held, 'held-out')]  # fold-held-out residuals, then the test set
-    if diagnosis.test is not None:
-        parts.append((diagnosis.test, 'test'))
+    figure, grid = pyplot.subplots(len(axes), 2, figsize=(13.0, 3.0 * len(axes)),
+                                   squeeze=False, sharex=True, sharey='row')
+    start_s = diagnosis.held_out.time_s[0]
     for row, name in enumerate(axes):
-        plot = grid[row][0]
-        for part, label in parts:
-            take = _every(len(part.time_s))
-            first = label == 'held-out'
-            plot.plot(part.time_s[take] - start_s, part.before_rad_s[take, row], lw=0.7,
-                      color='tab:orange', label='temperature polynomial' if first else None)
-            plot.plot(part.time_s[take] - start_s, part.after_rad_s[take, row], lw=0.7,
-                      color='tab:green', label='diagnosed' if first else None)
-        if diagnosis.test is not None:
-            plot.axvspan(diagnosis.test.time_s[0] - start_s, diagnosis.test.time_s[-1] - start_s,
-                         color='0.9', zorder=0, label='test set')
-        plot.set_ylabel(f'{name} residual (rad/s)')
-        plot.grid(True, alpha=0.3)
-    grid[0][0].legend(fontsize='small', ncol=2)
-    grid[-1][0].set_xlabel('time since start (s)')
+        for column, (title, values) in enumerate(titles):
+            plot = grid[row][column]
+            for part, label, _ in parts:
+                pick = _every(len(part.time_s))
+                for heating, colour, branch in _BRANCHES:
+                    mask = part.heating[pick] == heating
+                    plot.scatter(part.time_s[pick][mask] - start_s,
+                                 getattr(part, values)[pick, row][mask], s=2, c=colour,
+                                 label=branch if label == parts[0][1] else None)
+            if diagnosis.test is not None:
+                plot.axvspan(diagnosis.test.time_s[0] - start_s,
+                             diagnosis.test.time_s[-1] - start_s, color='0.9', zorder=0,
+                             label='test set')
+            plot.set_title(f'{name}: {title}')
+            plot.set_ylabel('residual (rad/s)')
+            plot.grid(True, alpha=0.3)
+        grid[row][0].legend(fontsize='small', markerscale=3)
+    for plot in grid[-1]:
+        plot.set_xlabel('time since start (s)')
     _save(pyplot, figure, out / PLOTS[1])
     figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
     for row, axis in enumerate(diagnosis.per_axis):

@@ -35,7 +35,8 @@ from ..sources.bag import BagError, RawBagReader, RawTopics
 _WILDCARDS = ('/**', '**')
 _INPUTS = (('needs_time', 'time_s', 'time'),
            ('needs_temperature_2', 'temperature_2_c', 'a temperature_2 column'),
-           ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'))
+           ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'),
+           ('needs_supply_voltage', 'supply_voltage_v', 'a supply_voltage column'))
 
 
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')

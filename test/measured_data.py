@@ -1,0 +1,35 @@
+"""
+Where the measured data set lies: ``shared/`` beside the repository, never copied into it.
+
+Looked up in order: the folder named by MLX_TEMPCOMP_SHARED; ``shared`` beside
+this checkout; ``shared`` beside the checkout this one was cloned from (CI
+clones the repository into a scratch folder). Tests skip when none holds it.
+"""
+
+import os
+from pathlib import Path
+import subprocess
+
+RELATIVE = Path('data') / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv'
+_ROOT = Path(__file__).resolve().parents[1]
+
+
+def _origin() -> list:
+    try:
+        url = subprocess.run(['git', '-C', str(_ROOT), 'config', '--get', 'remote.origin.url'],
+                             capture_output=True, text=True, check=False).stdout.strip()
+    except OSError:
+        return []
+    return [Path(url).parent / 'shared'] if url and Path(url).is_dir() else []
+
+
+def _measured_csv() -> Path:
+    folders = ([Path(os.environ['MLX_TEMPCOMP_SHARED'])] if 'MLX_TEMPCOMP_SHARED' in os.environ
+               else []) + [_ROOT.parent / 'shared'] + _origin()
+    for folder in folders:
+        if (folder / RELATIVE).is_file():
+            return folder / RELATIVE
+    return folders[0] / RELATIVE
+
+
+MEASURED_CSV = _measured_csv()
