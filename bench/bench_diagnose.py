@@ -19,7 +19,8 @@ and runs the job alone, timed: ``cubic`` is np.polyfit(T, rate, 3) per
 axis, what PX4's script does (best of --repeats); ``fit`` is what
 ``mlx-tempcomp fit`` does (select_orders with its defaults, then
 fit_polynomial); ``diagnose`` is core.diagnosis.diagnose with the default
-settings on a Recording of the data. Peak RSS (VmHWM) therefore counts
+settings on a Recording of the data (live-runnable effects; the bias step
+on y can only show as a record-only finding). Peak RSS (VmHWM) therefore counts
 the resident data plus what the job allocates, not the transient copies of
 loading. Targets (issue 4): diagnose within 20x the cubic's time; peak
 memory under 2 GB.
@@ -158,7 +159,12 @@ def _diagnose(data: dict) -> tuple:
         step.before.rms_rad_s), 'rms_after_dps': math.degrees(step.after.rms_rad_s),
         'parameters': _brief(step.parameters)} for step in axis.steps]
         for axis in diagnosis.per_axis}
-    return seconds, {'cpu_s': cpu_s, 'found': found}
+    # Record-only effects (time drift, bias steps) tested on top, reported, not added.
+    findings = {axis.axis: [{'effect': f.effect, 'gain': f.held_out_gain,
+                             'parameters': _brief(f.parameters)}
+                            for f in axis.findings if not f.reason]
+                for axis in diagnosis.per_axis}
+    return seconds, {'cpu_s': cpu_s, 'found': found, 'findings': findings}
 
 
 def _brief(parameters) -> str:
@@ -251,6 +257,9 @@ def report(args: argparse.Namespace, data_mb: float, results: dict) -> None:
         for step in steps:
             print(f'  {axis}  {step["effect"]:<24}{step["rms_before_dps"]:9.4f} -> '
                   f'{step["rms_after_dps"]:.4f}  ({step["parameters"]})')
+        for finding in results['diagnose']['findings'][axis]:
+            print(f'  {axis}  finding, not added: {finding["effect"]}, held-out gain '
+                  f'{finding["gain"]:.3f} ({finding["parameters"]})')
 
 
 def main() -> None:

@@ -101,11 +101,16 @@ def diagnosed(name: str, record_effects: bool = False):
 def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     result = diagnosed(effect)
     steps = result.per_axis[0].steps
+    test = result.comparison['test']
+    print(f'{effect}: added {", ".join(s.effect for s in steps[1:])}; cross-validated RMS '
+          f'{steps[0].after.rms_rad_s:.3e} -> {steps[-1].after.rms_rad_s:.3e}, test '
+          f'{test["temperature_polynomial"][0].rms_rad_s:.3e} -> '
+          f'{test["diagnosed"][0].rms_rad_s:.3e} rad/s (PX4 cubic '
+          f'{test["px4_cubic"][0].rms_rad_s:.3e})')
     assert [s.effect for s in steps[:2]] == ['temperature_polynomial', effect]
     # Held-out errors chain: each step starts where the one before ended.
     assert steps[1].before == steps[0].after
     assert steps[-1].after.rms_rad_s <= 0.5 * steps[0].after.rms_rad_s
-    test = result.comparison['test']
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
     assert not result.model.record_effects

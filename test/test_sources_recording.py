@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 HEADER = ['time', 'temperature', 'gyro_x', 'gyro_y', 'gyro_z', 'ref_x', 'ref_y', 'ref_z',
-          'acc_x', 'acc_y', 'acc_z', 'temperature_2']
+          'acc_x', 'acc_y', 'acc_z', 'temperature_2', 'supply_voltage']
 T0_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 10_000_000
 
@@ -27,6 +27,7 @@ def canonical_table(rows: int = 50) -> np.ndarray:
     table[:, 1] = np.linspace(-40.0, 85.0, rows)
     table[:, 10] -= 9.81
     table[:, 11] = table[:, 1] + 3.0
+    table[:, 12] += 5.0
     return table
 
 
@@ -57,6 +58,7 @@ def test_canonical_csv_round_trip(tmp_path, delimiter):
     np.testing.assert_array_equal(recording.reference_rad_s, table[:, 5:8])
     np.testing.assert_array_equal(recording.acceleration_m_s2, table[:, 8:11])
     np.testing.assert_array_equal(recording.temperature_2_c, table[:, 11])
+    np.testing.assert_array_equal(recording.supply_voltage_v, table[:, 12])
     assert recording.gyro_rad_s.dtype == np.float64
     assert recording.duration_s == pytest.approx(4.9)
     with pytest.raises(ValueError):
@@ -71,6 +73,7 @@ def test_single_axis_csv_without_optional_columns(tmp_path):
     assert recording.reference_rad_s is None
     assert recording.acceleration_m_s2 is None
     assert recording.temperature_2_c is None
+    assert recording.supply_voltage_v is None
 
 
 def test_blank_lines_bom_and_crlf_are_tolerated(tmp_path):
@@ -256,6 +259,7 @@ def test_slice_selects_rows(tmp_path):
     np.testing.assert_array_equal(train.acceleration_m_s2, table[:5, 8:11])
     picked = recording.slice([1, 4, 7])
     np.testing.assert_array_equal(picked.temperature_2_c, table[[1, 4, 7], 11])
+    np.testing.assert_array_equal(picked.supply_voltage_v, table[[1, 4, 7], 12])
     assert picked.axes == recording.axes and picked.source == recording.source
     assert len(recording.slice(3)) == 1
     with pytest.raises(RecordingError, match='at least one row|one or more rows'):
