@@ -44,24 +44,36 @@ def _full_model():
                        supply_reference_v=5.1, zro_offset_rad_s=(0.001, 0.002, 0.003))
 
 
-def test_stream_gives_the_batch_result_sample_by_sample():
-    data = _record()
-    model = _full_model()
-    batch = model.correct(data['rate_rad_s'], data['temperature_c'], data['time_s'],
-                          data['temperature_2_c'], data['acceleration_m_s2'],
-                          data['supply_voltage_v'])
+INPUTS = ('rate_rad_s', 'temperature_c', 'time_s', 'temperature_2_c', 'acceleration_m_s2',
+          'supply_voltage_v')
+
+
+def _through_stream(model, data: dict, edges) -> tuple:
+    """Run the record through a new stream in blocks cut at ``edges``."""
     stream = model.stream()
     rates, clamped = [], []
-    for i in range(len(data['time_s'])):
-        rate, flag = stream.correct_sample(
-            data['rate_rad_s'][i].tolist(), [data['temperature_c'][i]], data['time_s'][i],
-            data['temperature_2_c'][i], data['acceleration_m_s2'][i].tolist(),
-            data['supply_voltage_v'][i])
-        rates.append(rate)
-        clamped.append(flag)
+    for start, stop in zip(edges[:-1], edges[1:]):
+        result = stream.correct_block(*(data[name][start:stop] for name in INPUTS))
+        rates.append(result.rate_rad_s)
+        clamped.append(result.temperature_clamped)
+    return np.concatenate(rates), np.concatenate(clamped)
+
+
+def test_stream_gives_the_batch_result_in_any_blocks():
+    data = _record()
+    model = _full_model()
+    batch = model.correct(*(data[name] for name in INPUTS))
+    samples = len(data['time_s'])
+    one_by_one, clamped = _through_stream(model, data, list(range(samples + 1)))
+    rng = np.random.default_rng(4)
+    edges = np.unique(np.concatenate([[0, samples], rng.integers(1, samples, 60)]))
+    blocks, _ = _through_stream(model, data, edges)
+    # Bit for bit, whatever the blocks: the node may take one message or many per call.
+    np.testing.assert_array_equal(blocks, one_by_one)
     # The vectorised first-order lag sums in another order than the recursion: rounding.
-    np.testing.assert_allclose(rates, batch.rate_rad_s, rtol=0.0, atol=1e-13)
-    assert clamped == batch.temperature_clamped.any(axis=1).tolist()
+    np.testing.assert_allclose(one_by_one, batch.rate_rad_s, rtol=0.0, atol=1e-13)
+    np.testing.assert_array_equal(clamped, batch.temperature_clamped)
+    clamped = clamped.any(axis=1).tolist()
     # The thermal lag pushes T_eff past the 44 C clamp on some samples: the flag is exercised.
     assert 0 < sum(clamped) < len(clamped)
 
@@ -188,9 +200,9 @@ def test_missing_inputs_and_parameters_are_named():
     with pytest.raises(ConfigError, match='needs time_s'):
         model.correct(data['rate_rad_s'], data['temperature_c'])
     with pytest.raises(ConfigError, match='needs temperature_2_c'):
-        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, None, [0.0] * 3, 5.0)
+        model.stream().correct_block([[0.0] * 3], [25.0], [1.0], None, [[0.0] * 3], [5.0])
     with pytest.raises(ConfigError, match='needs supply_voltage_v'):
-        model.stream().correct_sample([0.0] * 3, [25.0], 1.0, 30.0, [0.0] * 3)
+        model.stream().correct_block([[0.0] * 3], [25.0], [1.0], [30.0], [[0.0] * 3])
     parameters = model.to_parameters(('x', 'y', 'z'))
     del parameters['bias.y']
     with pytest.raises(ConfigError, match='bias.y is missing'):

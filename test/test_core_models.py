@@ -116,7 +116,7 @@ def test_models_refuse_bad_coefficients():
 
 
 @pytest.mark.parametrize('interpolation', ['quadratic', 'step'])
-def test_one_sample_path_equals_the_array_path(interpolation):
+def test_stream_rows_one_by_one_equal_the_array_path(interpolation):
     table = factory_table(FIELDS, Output.DIGITAL)
     tables = [table, None, table]
     compensation = table_compensation(tables, 75.0, Output.DIGITAL,
@@ -131,10 +131,12 @@ def test_one_sample_path_equals_the_array_path(interpolation):
     temperatures[0, :] = np.nan
     for model in (eeprom, polynomial, btc):
         expected = model.correct(rates, temperatures)
+        stream = model.stream()
         for i in range(300):
-            rate, clamped = model.correct_sample(rates[i].tolist(), temperatures[i].tolist())
-            np.testing.assert_allclose(rate, expected.rate_rad_s[i], rtol=1e-12, atol=1e-15)
-            assert clamped == bool(expected.temperature_clamped[i].any())
-        shared = model.correct_sample(rates[1].tolist(), [temperatures[1, 0]])[0]
-        np.testing.assert_allclose(shared, model.correct(rates[1:2], temperatures[1:2, 0])
-                                   .rate_rad_s[0], rtol=1e-12)
+            result = stream.correct_block(rates[i:i + 1], temperatures[i:i + 1])
+            np.testing.assert_array_equal(result.rate_rad_s[0], expected.rate_rad_s[i])
+            np.testing.assert_array_equal(result.temperature_clamped[0],
+                                          expected.temperature_clamped[i])
+        shared = stream.correct_block(rates[1:2], temperatures[1:2, :1]).rate_rad_s[0]
+        np.testing.assert_array_equal(shared, model.correct(rates[1:2], temperatures[1:2, 0])
+                                      .rate_rad_s[0])

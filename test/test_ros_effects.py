@@ -22,7 +22,8 @@ from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
-                         first_line_with, parse_list, rates, start_model_replay, status_values)
+                         first_line_with, parse_list, Probe, rates, start_model_replay,
+                         status_values)
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_srvs.srv import Trigger
 
@@ -143,6 +144,41 @@ def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tm
     values = status_values(status)
     assert values['model'] == 'effects' and values['fingerprint'] == model.fingerprint()
     assert values['unpaired_dropped'] == '0' and values['no_acceleration_samples'] == '0'
+
+
+@pytest.mark.slow
+def test_blocks_of_waiting_messages_give_the_one_sample_output_bit_for_bit(
+        launcher, tmp_path):
+    """max_block 1 compensates one message per callback; the default takes what waits."""
+    recording = effects_recording(3000, seed=6)
+    model = effect_model(recording)
+    recording = with_effects_gyro(model, recording)
+    count = write_bag(tmp_path / 'bag', recording)
+    model_file = write_model_file(tmp_path / 'effects.yaml',
+                                  effect_parameters(model, ('x', 'y', 'z')))
+    outputs, largest = {}, {}
+    for max_block in (1, 500):
+        folder = tmp_path / f'block_{max_block}'
+        folder.mkdir()
+        listener = Probe(f'block_{max_block}')   # a fresh one: nothing left of the other run
+        try:
+            start_model_replay(launcher, listener, folder, tmp_path / 'bag', model_file,
+                               T2_DRIVER, max_block=max_block)
+            outputs[max_block] = np.array(finish_model_replay(
+                launcher, listener, recording['stamps_ns'], count))
+            status = listener.wait_status(
+                COMPENSATION_DIAGNOSTIC,
+                lambda s: status_values(s)['samples_out'] == str(len(recording['stamps_ns'])),
+                TIMEOUT_S, 'the final compensation status', launcher)
+            largest[max_block] = int(status_values(status)['largest_block'])
+        finally:
+            launcher.stop_all()
+            listener.close()
+    print(f'largest block: {largest}')
+    assert largest[1] == 1 and largest[500] > 1
+    np.testing.assert_array_equal(outputs[500], outputs[1])
+    # And both are the model: the offline batch to rounding.
+    assert np.max(np.abs(outputs[1] - correct(model, recording))) <= 1e-9
 
 
 @pytest.mark.slow

@@ -175,7 +175,11 @@ class CalibrationChain:
                                          self.sensitivity_intercept_rad_s)
         offset_2 = _apply_offset(sensitivity, delta_2_c, self.offset_2_rad_s,
                                  self.offset_2_gradient_rad_s_per_c)
-        return linear, offset, sensitivity, offset_2, offset_2 @ np.asarray(self.misalignment).T
+        # Sums of products, not a matrix product: a block then gives, bit for bit, what
+        # its rows give one at a time.
+        aligned = np.column_stack([sum(offset_2[:, j] * m for j, m in enumerate(row))
+                                   for row in self.misalignment])
+        return linear, offset, sensitivity, offset_2, aligned
 
     def correct(self, rate_rad_s, temperature_c, temperature_2_c) -> np.ndarray:
         """Return the corrected rate in rad/s, shape (samples, 3); no reference needed."""
@@ -261,14 +265,9 @@ class _ChainStream:
     def __init__(self, model: ChainModel):
         self.model = model
 
-    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
-        if temperature_2_c is None:
-            raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
-        temperature = sum(temperatures_c) / len(temperatures_c)
-        result = self.model.correct([rates_rad_s], [temperature],
-                                    temperature_2_c=[temperature_2_c])
-        return result.rate_rad_s[0].tolist(), False
+    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
+                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
+        return self.model.correct(rates_rad_s, temperatures_c, temperature_2_c=temperature_2_c)
 
 
 @dataclass(frozen=True)

@@ -179,37 +179,6 @@ class TableCompensation:
             return CompensatedRate(rate[:, 0], clamped[:, 0])
         return CompensatedRate(rate, clamped)
 
-    def compensate_sample(self, outar, tempout) -> tuple:
-        """
-        Compensate one reading with plain floats: (rate in deg/s per axis, any clamped).
-
-        The per-message path of the compensation node, where numpy's per-call overhead
-        would dominate; the quadratic case evaluates the same coefficients as
-        `compensate`, the others fall back to it.
-        """
-        if self.interpolation is not Interpolation.QUADRATIC:
-            # One shared TEMPOUT is a (samples,) array, one per axis a (samples, axes) one.
-            shared = tempout if len(tempout) == 1 else [tempout]
-            result = self.compensate(np.asarray([outar], dtype=np.float64),
-                                     np.asarray(shared, dtype=np.float64))
-            return result.rate_dps[0].tolist(), bool(result.temperature_clamped.any())
-        shared = len(tempout) == 1
-        rates, clamped = [], False
-        for axis, quadratics in enumerate(self._quadratics):
-            t = tempout[0] if shared else tempout[axis]
-            if quadratics is None:
-                rates.append((outar[axis] - self.nominal.zro - self.zro_shift[axis])
-                             / self.nominal.sf)
-                continue
-            table = self.tables[axis]
-            if not table.tc[0] <= t <= table.tc[2]:   # NaN fails both comparisons
-                clamped = True
-                t = table.tc[0] if t < table.tc[0] else table.tc[2] if t > table.tc[2] else t
-            (az, bz, cz), (a_s, b_s, c_s) = quadratics
-            zro = (az * t + bz) * t + cz + self.zro_shift[axis]
-            rates.append((outar[axis] - zro) / ((a_s * t + b_s) * t + c_s))
-        return rates, clamped
-
     def _compensate_quadratic(self, axis: int, outar: np.ndarray, tempout: np.ndarray,
                               rate: np.ndarray, clamped: np.ndarray) -> None:
         """Horner evaluation of formulas (3) and (4) block by block, in place."""

@@ -505,38 +505,64 @@ class EffectModel(_OffsetModel):
         secondary_temperature; acceleration (samples, 3) m/s^2 by
         acceleration_sensitivity; supply_voltage (samples,) V by supply_voltage.
         """
+        inputs = self._inputs(rate_rad_s, temperature_c, time_s, temperature_2_c,
+                              acceleration_m_s2, supply_voltage_v)
+        time, temperature = inputs[2], inputs[1]
+        slope = TemperatureSlope(self.temperature_rate_window_s)
+        histories = []
+        for axis, term in enumerate(self.terms):
+            measured = temperature[:, axis]
+            histories.append(_History(
+                slope=slope.batch(time, measured) if term.needs_slope else None,
+                lagged=FirstOrderLag(-term.thermal_lag_s).batch(time, measured)
+                if term.thermal_lag_s < 0.0 else None,
+                gradients=[measured - FirstOrderLag(tau).batch(time, measured)
+                           for tau in term.gradient_time_constants_s],
+                play=play_state(measured, term.hysteresis_half_width_c)
+                if term.hysteresis_rad_s else None))
+        return self._assemble(inputs, histories)
+
+    def _inputs(self, rate_rad_s, temperature_c, time_s, temperature_2_c, acceleration_m_s2,
+                supply_voltage_v) -> tuple:
+        """Check and convert the inputs: (rate, temperature, time, T2, acceleration, V)."""
         rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
         samples = rate.shape[0]
-        time = self._input('time_s', time_s, (samples,), self.needs_time)
-        temperature_2 = self._input('temperature_2_c', temperature_2_c, (samples,),
-                                    self.needs_temperature_2)
-        acceleration = self._input('acceleration_m_s2', acceleration_m_s2, (samples, 3),
-                                   self.needs_acceleration)
-        supply = self._input('supply_voltage_v', supply_voltage_v, (samples,),
-                             self.needs_supply_voltage)
-        slope = TemperatureSlope(self.temperature_rate_window_s)
+        return (rate, temperature,
+                self._input('time_s', time_s, (samples,), self.needs_time),
+                self._input('temperature_2_c', temperature_2_c, (samples,),
+                            self.needs_temperature_2),
+                self._input('acceleration_m_s2', acceleration_m_s2, (samples, 3),
+                            self.needs_acceleration),
+                self._input('supply_voltage_v', supply_voltage_v, (samples,),
+                            self.needs_supply_voltage))
+
+    def _assemble(self, inputs: tuple, histories: list) -> CorrectedRate:
+        """
+        Correct rows from their inputs and the history operators' outputs per axis.
+
+        Element by element only (no matrix products), so a block gives, bit for
+        bit, what its rows give one at a time.
+        """
+        rate, temperature, time, temperature_2, acceleration, supply = inputs
         bias = np.empty(rate.shape)
         x = np.empty(rate.shape)
         clamped = np.isnan(temperature)
-        for axis, term in enumerate(self.terms):
-            measured = temperature[:, axis]
-            axis_slope = slope.batch(time, measured) if term.needs_slope else None
-            effective = measured
+        for axis, (term, history) in enumerate(zip(self.terms, histories)):
+            effective = temperature[:, axis]
             if term.thermal_lag_s > 0.0:
-                effective = measured + term.thermal_lag_s * axis_slope
+                effective = effective + term.thermal_lag_s * history.slope
             elif term.thermal_lag_s < 0.0:
-                effective = FirstOrderLag(-term.thermal_lag_s).batch(time, measured)
+                effective = history.lagged
             limited = np.clip(effective, self.temperature_min_c, self.temperature_max_c)
             clamped[:, axis] |= limited != effective
             x[:, axis] = (limited - self.reference_temperature_c) / self.temperature_scale_c
             total = np.polynomial.polynomial.polyval(x[:, axis], term.bias)
             if term.temperature_rate_rad_s_per_c_s:
-                total = total + term.temperature_rate_rad_s_per_c_s * axis_slope
-            for tau, gain in zip(term.gradient_time_constants_s, term.gradient_rad_s_per_c):
-                total = total + gain * (measured - FirstOrderLag(tau).batch(time, measured))
+                total = total + term.temperature_rate_rad_s_per_c_s * history.slope
+            for gain, difference in zip(term.gradient_rad_s_per_c, history.gradients):
+                total = total + gain * difference
             if term.hysteresis_rad_s:
-                total = total + term.hysteresis_rad_s * play_state(
-                    measured, term.hysteresis_half_width_c)
+                total = total + term.hysteresis_rad_s * history.play
             if any(term.supply_voltage):
                 dv = supply - self.supply_reference_v
                 total = total + dv * np.polynomial.polynomial.polyval(dv, term.supply_voltage)
@@ -547,8 +573,8 @@ class EffectModel(_OffsetModel):
             if any(term.secondary):
                 x2 = (temperature_2 - self.secondary_reference_c) / self.secondary_scale_c
                 total = total + x2 * np.polynomial.polynomial.polyval(x2, term.secondary)
-            if any(term.acceleration_rad_s_per_m_s2):
-                total = total + acceleration @ np.asarray(term.acceleration_rad_s_per_m_s2)
+            for column, gain in enumerate(term.acceleration_rad_s_per_m_s2):
+                total = total + gain * acceleration[:, column]
             bias[:, axis] = total
         corrected = rate - bias
         for axis, term in enumerate(self.terms):
@@ -560,8 +586,10 @@ class EffectModel(_OffsetModel):
                 corrected[:, axis] = u - u * u * np.polynomial.polynomial.polyval(
                     u, term.nonlinearity)
         if self.has_cross_axis:
-            matrix = np.array([t.cross_axis or (0.0,) * self.axes for t in self.terms])
-            corrected = corrected - corrected @ matrix.T
+            before = corrected.copy()
+            for axis, term in enumerate(self.terms):
+                for other, gain in enumerate(term.cross_axis):
+                    corrected[:, axis] -= gain * before[:, other]
         return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s), clamped)
 
     @staticmethod
@@ -580,11 +608,6 @@ class EffectModel(_OffsetModel):
     def stream(self) -> 'EffectStream':
         """Return a sample-by-sample runner whose state starts empty."""
         return EffectStream(self)
-
-    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
-        """Refuse: this model has state; use `stream` to correct sample by sample."""
-        raise ConfigError('the effects model keeps state: correct samples through stream()')
 
     def to_parameters(self, axis_names) -> dict:
         """
@@ -662,8 +685,18 @@ _AXIS_LISTS = ('bias', 'gradient_time_constants_s', 'gradient_rad_s_per_c', 'sup
                'cross_axis')
 
 
+@dataclass(frozen=True)
+class _History:
+    """What the history operators give one axis for a block of rows (None: not needed)."""
+
+    slope: Optional[np.ndarray]
+    lagged: Optional[np.ndarray]
+    gradients: list
+    play: Optional[np.ndarray]
+
+
 class _AxisRunner:
-    """The history operators of one axis, one sample at a time."""
+    """The history operators of one axis, run one sample at a time across blocks."""
 
     def __init__(self, term: AxisTerms, window_s: float):
         self.slope = _SlopeRunner(window_s) if term.needs_slope else None
@@ -672,12 +705,29 @@ class _AxisRunner:
         self.play = _PlayRunner(term.hysteresis_half_width_c) if term.hysteresis_rad_s \
             else None
 
+    def run(self, time, temperature: np.ndarray) -> _History:
+        values = temperature.tolist()
+        times = None if time is None else time.tolist()
+
+        def each(step, *columns) -> np.ndarray:
+            return np.array([step(*row) for row in zip(*columns)], dtype=np.float64)
+
+        return _History(
+            slope=None if self.slope is None else each(self.slope.step, times, values),
+            lagged=None if self.lag is None else each(self.lag.step, times, values),
+            gradients=[temperature - each(lag.step, times, values) for lag in self.gradients],
+            play=None if self.play is None else each(self.play.step, values))
+
 
 class EffectStream:
     """
-    Runs an `EffectModel` one sample at a time, keeping the temperature history and play state.
+    Runs an `EffectModel` block by block, keeping the temperature history and play state.
 
-    Gives what `EffectModel.correct` gives on the same samples as one batch.
+    The history operators step sample by sample (their runners); the rest is
+    numpy on the block, element by element, so any split of a stream into
+    blocks gives the same numbers bit for bit. The whole stream gives what
+    `EffectModel.correct` gives on it as one batch, to rounding (the batch
+    first-order lag sums in another order).
     """
 
     def __init__(self, model: EffectModel):
@@ -685,80 +735,17 @@ class EffectStream:
         self.runners = [_AxisRunner(term, model.temperature_rate_window_s)
                         for term in model.terms]
 
-    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
+    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
+                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
         """
-        Return (corrected rad/s per axis as a list, whether a temperature was clamped).
+        Correct the next rows of the stream; arguments as for `EffectModel.correct`.
 
-        ``temperatures_c`` holds one temperature, or one per axis.
+        ``temperatures_c`` has one column, or one per axis.
         """
         model = self.model
-        axes = model.axes
-        if len(rates_rad_s) != axes:
-            msg = f'{len(rates_rad_s)} rates for {axes} axes'
-            raise ConfigError(msg)
-        temperatures = list(temperatures_c) if len(temperatures_c) == axes else \
-            [temperatures_c[0]] * axes
-        for name, value, needed in (('time_s', time_s, model.needs_time),
-                                    ('temperature_2_c', temperature_2_c,
-                                     model.needs_temperature_2),
-                                    ('acceleration_m_s2', acceleration_m_s2,
-                                     model.needs_acceleration),
-                                    ('supply_voltage_v', supply_voltage_v,
-                                     model.needs_supply_voltage)):
-            if needed and value is None:
-                msg = f'the effects model needs {name} for its effects'
-                raise ConfigError(msg)
-        corrected = []
-        xs = []
-        clamped = False
-        for axis, term in enumerate(model.terms):
-            runner = self.runners[axis]
-            temperature = float(temperatures[axis])
-            slope = runner.slope.step(float(time_s), temperature) if runner.slope else 0.0
-            effective = temperature
-            if runner.lag is not None:
-                effective = runner.lag.step(float(time_s), temperature)
-            elif term.thermal_lag_s:
-                effective += term.thermal_lag_s * slope
-            limited = min(max(effective, model.temperature_min_c), model.temperature_max_c)
-            clamped = clamped or limited != effective or math.isnan(temperature)
-            x = (limited - model.reference_temperature_c) / model.temperature_scale_c
-            xs.append(x)
-            bias = float(np.polynomial.polynomial.polyval(x, term.bias))
-            if term.temperature_rate_rad_s_per_c_s:
-                bias += term.temperature_rate_rad_s_per_c_s * slope
-            for lag, gain in zip(runner.gradients, term.gradient_rad_s_per_c):
-                bias += gain * (temperature - lag.step(float(time_s), temperature))
-            if runner.play is not None:
-                bias += term.hysteresis_rad_s * runner.play.step(temperature)
-            if any(term.supply_voltage):
-                dv = supply_voltage_v - model.supply_reference_v
-                bias += dv * float(np.polynomial.polynomial.polyval(dv, term.supply_voltage))
-            if term.time_drift_rad_s_per_s:
-                bias += term.time_drift_rad_s_per_s * (time_s - model.time_reference_s)
-            for when_s, step_rad_s in term.bias_steps:
-                if time_s >= when_s:
-                    bias += step_rad_s
-            if any(term.secondary):
-                x2 = (temperature_2_c - model.secondary_reference_c) / model.secondary_scale_c
-                bias += x2 * float(np.polynomial.polynomial.polyval(x2, term.secondary))
-            if any(term.acceleration_rad_s_per_m_s2):
-                bias += sum(g * a for g, a in zip(term.acceleration_rad_s_per_m_s2,
-                                                  acceleration_m_s2))
-            corrected.append(float(rates_rad_s[axis]) - bias)
-        for axis, term in enumerate(model.terms):
-            if any(term.scale):
-                corrected[axis] /= 1.0 + float(np.polynomial.polynomial.polyval(xs[axis],
-                                                                                term.scale))
-            if any(term.nonlinearity):
-                u = corrected[axis]
-                corrected[axis] = u - u * u * float(np.polynomial.polynomial.polyval(
-                    u, term.nonlinearity))
-        if model.has_cross_axis:
-            before = list(corrected)
-            for axis, term in enumerate(model.terms):
-                if term.cross_axis:
-                    corrected[axis] = before[axis] - sum(m * v for m, v in
-                                                         zip(term.cross_axis, before))
-        return [v - o for v, o in zip(corrected, model.zro_offset_rad_s)], clamped
+        inputs = model._inputs(rates_rad_s, temperatures_c, time_s, temperature_2_c,
+                               acceleration_m_s2, supply_voltage_v)
+        temperature, time = inputs[1], inputs[2]
+        histories = [runner.run(time, temperature[:, axis])
+                     for axis, runner in enumerate(self.runners)]
+        return model._assemble(inputs, histories)

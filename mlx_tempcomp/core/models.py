@@ -61,29 +61,28 @@ def _finite_tuple(name: str, values, length: int) -> tuple:
     return values
 
 
-class _SampleCorrection:
-    """One-sample correction for the per-message path of the node."""
+class _Streamed:
+    """A model without state: its stream is its batch correction."""
 
     def stream(self) -> '_StatelessStream':
-        """Return the sample-by-sample runner the node uses; this model keeps no state."""
+        """Return the block-by-block runner the node uses; this model keeps no state."""
         return _StatelessStream(self)
-
-    def correct_sample(self, rates_rad_s, temperatures_c) -> tuple:
-        """Return (corrected rad/s per axis as a list, whether the temperature was clamped)."""
-        result = self.correct(np.asarray([rates_rad_s], dtype=np.float64),
-                              np.asarray([temperatures_c], dtype=np.float64))
-        return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
 
 
 class _StatelessStream:
-    """The `EffectStream` interface for a model without state: extra inputs are unused."""
+    """
+    The `EffectStream` interface for a model without state: extra inputs are unused.
 
-    def __init__(self, model: _SampleCorrection):
+    Every operation of the models is element by element, so a block gives,
+    bit for bit, what its rows give one at a time.
+    """
+
+    def __init__(self, model: _Streamed):
         self.model = model
 
-    def correct_sample(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                       acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
-        return self.model.correct_sample(rates_rad_s, temperatures_c)
+    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
+                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
+        return self.model.correct(rates_rad_s, temperatures_c)
 
 
 def _fingerprint(name: str, content: dict) -> str:
@@ -92,7 +91,7 @@ def _fingerprint(name: str, content: dict) -> str:
 
 
 @dataclass(frozen=True)
-class _OffsetModel(_SampleCorrection):
+class _OffsetModel(_Streamed):
     """ZRO offset handling shared by the models whose offset is in rad/s."""
 
     offset_unit = 'rad/s'
@@ -246,7 +245,7 @@ class LinearBtcModel(_OffsetModel):
 
 
 @dataclass(frozen=True)
-class EepromModel(_SampleCorrection):
+class EepromModel(_Streamed):
     """
     AN2 method 4 on rate published by the nominal conversion.
 
@@ -292,17 +291,6 @@ class EepromModel(_SampleCorrection):
         outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
         result = self.compensation.compensate(outar, tempout)
         return CorrectedRate(np.deg2rad(result.rate_dps), result.temperature_clamped)
-
-    def correct_sample(self, rates_rad_s, temperatures_c) -> tuple:
-        """Return (corrected rad/s per axis, clamped) for one reading, in plain floats."""
-        nominal = self.compensation.nominal
-        transfer = self.transfer
-        outar = [math.degrees(r) * nominal.sf + nominal.zro for r in rates_rad_s]
-        tempout = [float(transfer.temperature_to_output(transfer.temperature_mv_from_c(t),
-                                                        nominal.output))
-                   for t in temperatures_c]
-        rates_dps, clamped = self.compensation.compensate_sample(outar, tempout)
-        return [math.radians(r) for r in rates_dps], clamped
 
     def with_zro_offset(self, offset) -> 'EepromModel':
         return replace(self, compensation=self.compensation.with_zro_shift(offset))

@@ -93,6 +93,8 @@ class CompensationNode(Node):
         self.last_recalibration = self.saved_state or {}
         self.window = None
         self.samples_out = 0
+        self.blocks = 0
+        self.largest_block = 0
         self.samples_waiting = 0
         self.clamped_samples = 0
         self.clamped_recent = False
@@ -106,7 +108,8 @@ class CompensationNode(Node):
             if per_axis else ('temperature',)
         self.pairer = StampPairer(('imu',) + self.temperature_streams)
         self.dropped_before = 0   # by pairers replaced on a model change
-        self.auxiliary_subscriptions = {}
+        # Pairer stream -> subscription: what on_input takes waiting messages from.
+        self.input_subscriptions = {}
         self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
         self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
                                                            SENSOR_QOS)
@@ -114,16 +117,14 @@ class CompensationNode(Node):
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
-        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
-        if per_axis:
-            for axis, stream in zip(self.axes, self.temperature_streams):
-                self.create_subscription(
-                    Temperature, f'imu/temperature_raw/{axis}',
-                    lambda msg, s=stream: self.on_temperature(s, msg), SENSOR_INPUT_QOS)
-        else:
-            self.create_subscription(
-                Temperature, 'imu/temperature_raw',
-                lambda msg: self.on_temperature('temperature', msg), SENSOR_INPUT_QOS)
+        self.input_subscriptions['imu'] = self.create_subscription(
+            Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
+        topics = [f'imu/temperature_raw/{axis}' for axis in self.axes] if per_axis else \
+            ['imu/temperature_raw']
+        for stream, topic in zip(self.temperature_streams, topics):
+            self.input_subscriptions[stream] = self.create_subscription(
+                Temperature, topic, lambda msg, s=stream: self.on_temperature(s, msg),
+                SENSOR_INPUT_QOS)
         # Its own group: while the service awaits its window, the default group (stream,
         # timers) keeps running in the same single thread. Reentrant, so a second request
         # is taken (and refused) while the first awaits: a mutually exclusive group would
@@ -184,9 +185,9 @@ class CompensationNode(Node):
         self.auxiliary = tuple(stream for stream, (flag, *_) in _AUXILIARY.items()
                                if getattr(model, flag, False))
         for stream in self.auxiliary:
-            if stream not in self.auxiliary_subscriptions:
+            if stream not in self.input_subscriptions:
                 _, kind, topic, _ = _AUXILIARY[stream]
-                self.auxiliary_subscriptions[stream] = self.create_subscription(
+                self.input_subscriptions[stream] = self.create_subscription(
                     kind, topic, lambda msg, s=stream: self.on_temperature(s, msg),
                     SENSOR_INPUT_QOS)
         streams = ('imu',) + self.temperature_streams + self.auxiliary
@@ -222,54 +223,97 @@ class CompensationNode(Node):
         return build_model(values, self.sensor.tables, self.sensor.full_scale_dps)
 
     def on_imu(self, msg: Imu) -> None:
-        for stamp_ns, parts in self.pairer.add('imu', messages.stamp_to_ns(msg.header.stamp),
-                                               msg):
-            self.process(stamp_ns, parts)
+        self.on_input('imu', msg)
 
     def on_temperature(self, stream: str, msg) -> None:
         if stream not in self.pairer.streams:
             return   # an auxiliary input, subscribed for an earlier model
-        for stamp_ns, parts in self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
-                                               msg):
-            self.process(stamp_ns, parts)
+        self.on_input(stream, msg)
 
-    def process(self, stamp_ns: int, parts: dict) -> None:
+    def on_input(self, stream: str, msg) -> None:
+        """
+        Pair ``msg``, then take what else waits on the inputs, and compensate it as one block.
+
+        Taking the waiting messages here, up to ``max_block``, saves the executor a
+        wake-up per message: that, not the model, limits a Python node's rate.
+        """
+        complete = self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp), msg)
+        budget = self.values['max_block'] - 1
+        while budget > 0:
+            taken = 0
+            for name, subscription in self.inputs():
+                while budget > 0:
+                    with subscription.handle:
+                        message = subscription.handle.take_message(subscription.msg_type,
+                                                                   subscription.raw)
+                    if message is None:
+                        break
+                    complete += self.pairer.add(name, messages.stamp_to_ns(
+                        message[0].header.stamp), message[0])
+                    taken += 1
+                    budget -= 1
+            if not taken:
+                break
+        if complete:
+            self.process(complete)
+
+    def inputs(self):
+        """Yield (pairer stream, subscription) of every input the model uses now."""
+        for stream, subscription in self.input_subscriptions.items():
+            if stream in self.pairer.streams:
+                yield stream, subscription
+
+    def process(self, samples: list) -> None:
+        """Compensate paired samples [(stamp_ns, {stream: message})] as one block; publish."""
         self.last_input = time.monotonic()
         stream = self.stream
         if stream is None:
-            self.samples_waiting += 1
+            self.samples_waiting += len(samples)
             return
-        imu = parts['imu']
-        acceleration = None
         if self.needs_acceleration:
             # REP-145: covariance[0] = -1 says the message has no acceleration.
-            if imu.linear_acceleration_covariance[0] == -1.0:
-                self.no_acceleration_samples += 1
+            usable = [s for s in samples if s[1]['imu'].linear_acceleration_covariance[0] != -1.0]
+            if len(usable) < len(samples):
+                self.no_acceleration_samples += len(samples) - len(usable)
                 self.no_acceleration_recent = True
+            samples = usable
+            if not samples:
                 return
-            vector = imu.linear_acceleration
-            acceleration = (vector.x, vector.y, vector.z)
-        extra = {stream: _AUXILIARY[stream][3](parts[stream]) for stream in self.auxiliary}
-        # Plain floats on this per-message path: numpy's per-call overhead would dominate.
-        raw = messages.imu_rates(imu, self.indices)
-        temperatures = [parts[s].temperature for s in self.temperature_streams]
-        rate, clamped = stream.correct_sample(raw, temperatures, stamp_ns / 1e9,
-                                              extra.get(_TEMPERATURE_2), acceleration,
-                                              extra.get(_SUPPLY))
+        raw = np.array([messages.imu_rates(parts['imu'], self.indices) for _, parts in samples])
+        temperatures = np.array([[parts[s].temperature for s in self.temperature_streams]
+                                 for _, parts in samples])
+        extra = {name: np.array([_AUXILIARY[name][3](parts[name]) for _, parts in samples])
+                 for name in self.auxiliary}
+        acceleration = None
+        if self.needs_acceleration:
+            acceleration = np.array([[parts['imu'].linear_acceleration.x,
+                                      parts['imu'].linear_acceleration.y,
+                                      parts['imu'].linear_acceleration.z]
+                                     for _, parts in samples])
+        result = stream.correct_block(raw, temperatures,
+                                      np.array([stamp for stamp, _ in samples]) / 1e9,
+                                      extra.get(_TEMPERATURE_2), acceleration,
+                                      extra.get(_SUPPLY))
+        clamped = int(np.count_nonzero(result.temperature_clamped.any(axis=1)))
         if clamped:
-            self.clamped_samples += 1
+            self.clamped_samples += clamped
             self.clamped_recent = True
-        stamp = imu.header.stamp
-        frame_id = imu.header.frame_id
-        self.temperature_publisher.publish(messages.temperature_message(
-            stamp, frame_id, sum(temperatures) / len(temperatures),
-            parts[self.temperature_streams[0]].variance))
-        self.imu_publisher.publish(messages.imu_message(stamp, frame_id, self.indices, rate,
-                                                        self.covariance))
-        self.samples_out += 1
         window = self.window
-        if window is not None:
-            window.add(stamp_ns, raw, temperatures, rate)
+        mean_temperatures = temperatures.mean(axis=1).tolist()
+        for row, ((stamp_ns, parts), rate) in enumerate(zip(samples,
+                                                            result.rate_rad_s.tolist())):
+            imu = parts['imu']
+            stamp, frame_id = imu.header.stamp, imu.header.frame_id
+            self.temperature_publisher.publish(messages.temperature_message(
+                stamp, frame_id, mean_temperatures[row],
+                parts[self.temperature_streams[0]].variance))
+            self.imu_publisher.publish(messages.imu_message(stamp, frame_id, self.indices,
+                                                            rate, self.covariance))
+            if window is not None:
+                window.add(stamp_ns, raw[row].tolist(), temperatures[row].tolist(), rate)
+        self.samples_out += len(samples)
+        self.blocks += 1
+        self.largest_block = max(self.largest_block, len(samples))
 
     # Recalibration.
     async def recalibrate(self, request, response):
@@ -380,6 +424,7 @@ class CompensationNode(Node):
             'zro_offset': [] if model is None else list(model.zro_offset),
             'offset_unit': '' if model is None else model.offset_unit,
             'samples_out': self.samples_out, 'samples_waiting': self.samples_waiting,
+            'blocks': self.blocks, 'largest_block': self.largest_block,
             'unpaired_dropped': self.dropped_before + self.pairer.dropped,
             'temperature_clamped_samples': self.clamped_samples,
             'no_acceleration_samples': self.no_acceleration_samples,

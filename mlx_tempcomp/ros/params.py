@@ -326,6 +326,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          "ZRO state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_zro.yaml)", read_only=True),
     Spec('stale_timeout_s', 1.0, 'no input for this long is reported as stale', low=0.01,
          high=3600.0),
+    Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
+         'block (1: one message per callback)', read_only=True, low=1, high=100000),
 )
 
 
