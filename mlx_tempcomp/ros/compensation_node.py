@@ -279,9 +279,9 @@ class CompensationNode(Node):
             samples = usable
             if not samples:
                 return
-        raw = np.array([messages.imu_rates(parts['imu'], self.indices) for _, parts in samples])
-        temperatures = np.array([[parts[s].temperature for s in self.temperature_streams]
-                                 for _, parts in samples])
+        raw = [messages.imu_rates(parts['imu'], self.indices) for _, parts in samples]
+        temperatures = [[parts[s].temperature for s in self.temperature_streams]
+                        for _, parts in samples]
         extra = {name: np.array([_AUXILIARY[name][3](parts[name]) for _, parts in samples])
                  for name in self.auxiliary}
         acceleration = None
@@ -294,23 +294,27 @@ class CompensationNode(Node):
                                       np.array([stamp for stamp, _ in samples]) / 1e9,
                                       extra.get(_TEMPERATURE_2), acceleration,
                                       extra.get(_SUPPLY))
-        clamped = int(np.count_nonzero(result.temperature_clamped.any(axis=1)))
-        if clamped:
-            self.clamped_samples += clamped
+        if result.temperature_clamped.any():
+            self.clamped_samples += int(np.count_nonzero(
+                result.temperature_clamped.any(axis=1)))
             self.clamped_recent = True
         window = self.window
-        mean_temperatures = temperatures.mean(axis=1).tolist()
+        first = self.temperature_streams[0]
         for row, ((stamp_ns, parts), rate) in enumerate(zip(samples,
                                                             result.rate_rad_s.tolist())):
+            # The input messages go out again, rate rewritten (the rest passes through
+            # unchanged): building new ones would cost more than the model.
             imu = parts['imu']
-            stamp, frame_id = imu.header.stamp, imu.header.frame_id
-            self.temperature_publisher.publish(messages.temperature_message(
-                stamp, frame_id, mean_temperatures[row],
-                parts[self.temperature_streams[0]].variance))
-            self.imu_publisher.publish(messages.imu_message(stamp, frame_id, self.indices,
-                                                            rate, self.covariance))
+            if len(self.temperature_streams) == 1:
+                self.temperature_publisher.publish(parts[first])
+            else:
+                self.temperature_publisher.publish(messages.temperature_message(
+                    imu.header.stamp, imu.header.frame_id,
+                    sum(temperatures[row]) / len(temperatures[row]), parts[first].variance))
+            self.imu_publisher.publish(messages.set_rates(imu, self.indices, rate,
+                                                          self.covariance))
             if window is not None:
-                window.add(stamp_ns, raw[row].tolist(), temperatures[row].tolist(), rate)
+                window.add(stamp_ns, raw[row], temperatures[row], rate)
         self.samples_out += len(samples)
         self.blocks += 1
         self.largest_block = max(self.largest_block, len(samples))

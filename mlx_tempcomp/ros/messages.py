@@ -55,6 +55,11 @@ def imu_message(stamp: Time, frame_id: str, indices, rate_rad_s,
         msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = \
             (float(v) for v in acceleration_m_s2)
         msg.linear_acceleration_covariance = acceleration_covariance
+    return set_rates(msg, indices, rate_rad_s, covariance)
+
+
+def set_rates(msg: Imu, indices, rate_rad_s, covariance: list) -> Imu:
+    """Write angular rate and its covariance into ``msg`` (NaN on unmeasured axes); return it."""
     vector = [NAN, NAN, NAN]
     for index, value in zip(indices, rate_rad_s):
         vector[index] = float(value)
