@@ -438,7 +438,8 @@ def rates(msg: Imu) -> list:
 
 def simulated_driver_params(**overrides) -> dict:
     """Return parameters of a fast simulated driver: 100 Hz, 5 x real time."""
-    return {'rate_hz': 100.0, 'simulation.real_time_factor': 5.0, **overrides}
+    return {'publish_rate_hz': 100.0, 'sample_rate_hz': 100.0,
+            'simulation.real_time_factor': 5.0, **overrides}
 
 
 def first_line_with(text: str, needle: str) -> str:

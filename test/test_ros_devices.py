@@ -232,7 +232,8 @@ def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
     # The temperature ramps 2 C/min: 1.5 C between the points, 0.45 deg/s of bias change
     # against 0.05 deg/s of noise in the difference of two 2 s means at 20 Hz.
     launcher.driver(simulated_driver_params(**{
-        'device': 'adis16130', 'rate_hz': 20.0, 'simulation.real_time_factor': 20.0,
+        'device': 'adis16130', 'publish_rate_hz': 20.0, 'sample_rate_hz': 20.0,
+        'simulation.real_time_factor': 20.0,
         'simulation.bias_dps_per_c': slope_dps_per_c,
         'simulation.cycle_temperatures_c': [60.0], 'simulation.ramp_c_per_min': 2.0,
         prefix + 'average_s': 2.0, prefix + 'self_heat_s': 45.0, prefix + 'settle_s': 12.0,

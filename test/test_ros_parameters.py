@@ -10,9 +10,13 @@ TIMEOUT_S = 20.0
 
 # (node, parameters, text the fatal line must hold: it names the parameter)
 INVALID = {
-    'rate_hz_not_a_number': ('driver_node', {'rate_hz': 'fast'},
-                             "invalid parameter rate_hz: Trying to set parameter 'rate_hz' to "
-                             "'fast' of type 'STRING', expecting type 'DOUBLE'"),
+    'rate_not_a_number': ('driver_node', {'publish_rate_hz': 'fast'},
+                          'invalid parameter publish_rate_hz: Trying to set parameter '
+                          "'publish_rate_hz' to 'fast' of type 'STRING', expecting type 'DOUBLE'"),
+    'sampling_below_publishing': ('driver_node', {'publish_rate_hz': 100.0,
+                                                  'sample_rate_hz': 50.0},
+                                  'invalid parameter sample_rate_hz: 50 Hz is below '
+                                  'publish_rate_hz (100 Hz)'),
     'oversample_zero': ('driver_node', {'oversample': 0},
                         'invalid parameter oversample: Invalid parameter value (0) for parameter. '
                         'Reason: Parameter oversample out of range. Min: 1, Max: 256'),
@@ -129,7 +133,7 @@ def test_read_only_parameters_cannot_change_at_runtime(launcher, probe, tmp_path
     launcher.driver(simulated_driver_params())
     launcher.compensation({'recalibration.state_file': str(tmp_path / 'zro.yaml')})
     for node, name, value in (('driver_node', 'source', 'bag'),
-                              ('driver_node', 'rate_hz', 10.0),
+                              ('driver_node', 'publish_rate_hz', 10.0),
                               ('compensation_node', 'axes', ['x', 'y', 'z']),
                               ('compensation_node', 'recalibration.state_file', '/tmp/x')):
         before = probe.get_parameters(node, [name])

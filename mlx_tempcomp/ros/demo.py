@@ -98,7 +98,7 @@ def main(argv=None) -> int:
         yaml.safe_dump({
             '/**': {'ros__parameters': {'rate_noise_rad_s': NOISE_RAD_S}},
             'driver_node': {'ros__parameters': {
-                'rate_hz': 10.0, 'oversample': 8,
+                'publish_rate_hz': 10.0, 'sample_rate_hz': 10.0, 'oversample': 8,
                 'simulation': {'seed': args.seed, 'real_time_factor': args.real_time_factor,
                                'cycle_temperatures_c': list(CYCLE_C),
                                'ramp_c_per_min': RAMP_C_PER_MIN, 'hold_s': HOLD_S,

@@ -37,7 +37,7 @@ from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..simulation.physics import ThermalProfile
 from ..sources import adis16130, mpu6000
-from ..sources.mlx90609 import samples_due
+from ..sources.decimation import Decimator
 from ..state_file import read_state, StateFileError, write_state
 from ..toolkit.common import UserError
 from ..toolkit.evaluate import node_values
@@ -45,8 +45,13 @@ from ..toolkit.evaluate import node_values
 # Faults both parts can simulate: MISO stuck high or low.
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
-# Most samples published by one timer tick (as for the MLX90609).
-MAX_SAMPLES_PER_TICK = 20
+# A sampling driver that falls this far behind skips the older samples (missed reads).
+MAX_BACKLOG_S = 0.25
+# Shortest timer period of a driver: each tick costs the executor a wake-up.
+MIN_TICK_S = 0.001
+# Natural sample rates: the ADIS16130 refreshes RATE and TEMP at 5.7 kHz (AN-1042); the
+# MPU-6000's gyro runs at 8 kHz with DLPF_CFG 0 or 7, else 1 kHz, over 1 + SMPLRT_DIV.
+ADIS16130_SAMPLE_RATE_HZ = 5700.0
 # A service window that gets no sample for this long (wall time) gives up.
 STALL_TIMEOUT_S = 5.0
 _POLL_S = 0.1
@@ -79,18 +84,36 @@ def refuse_fault() -> None:
 
 class TimedStream:
     """
-    A part read on a timer; a failed or saturated read is skipped and counted.
+    A part sampled at its own rate and published at a lower one, each message the mean.
 
     Subclasses give `read`, `publish` and `advance_to` (simulated time) and call
-    `start_schedule` once the part is ready. The schedule moves on whatever a
-    read gives: simulated sources run at ``real_time_factor``, stamped in
-    simulated time from the start; real ones are stamped with the node clock.
+    `start_schedule` with the part's natural sample rate once the part is ready.
+    Device sample k is due at k / ``sample_rate_hz`` after the start (simulated
+    sources: in simulated time, paced at ``real_time_factor``; real ones: wall
+    time); every timer tick reads the samples now due and publishes each publish
+    interval that is complete, with the mean of its samples, stamped at their
+    mean time (`mlx_tempcomp.sources.decimation`). A failed or saturated read is
+    skipped and counted; samples more than MAX_BACKLOG_S behind are skipped and
+    counted as missed reads.
     """
 
-    def start_schedule(self, node, real_time_factor) -> None:
+    def start_schedule(self, node, real_time_factor, natural_rate_hz: float) -> None:
         self.node = node
-        self.period_s = 1.0 / node.values['rate_hz']
-        self.published = 0
+        values = node.values
+        publish_rate_hz = values['publish_rate_hz']
+        sample_rate_hz = values['sample_rate_hz'] or natural_rate_hz
+        if sample_rate_hz < publish_rate_hz:
+            msg = (f'invalid parameter sample_rate_hz: {sample_rate_hz:g} Hz is below '
+                   f'publish_rate_hz ({publish_rate_hz:g} Hz); every message averages the '
+                   'samples of its interval, so sample at least as fast')
+            raise ParameterError(msg)
+        self.decimator = Decimator(sample_rate_hz, publish_rate_hz)
+        self.next_index = 0
+        self.samples_read = 0
+        self.missed_reads = 0
+        self.missed_reported = 0
+        self.messages = 0
+        self.samples_per_message = 0
         self.failed_reads = 0
         self.saturated = 0
         self.consecutive_failures = 0
@@ -99,23 +122,33 @@ class TimedStream:
         self.real_time_factor = real_time_factor
         self.start_ns = node.get_clock().now().nanoseconds
         self.start_wall = time.monotonic()
-        tick = self.period_s if real_time_factor is None else \
-            max(self.period_s / real_time_factor, 0.002)
-        self.timer = node.create_timer(tick, self.tick)
+        tick = 1.0 / publish_rate_hz / (real_time_factor or 1.0)
+        self.timer = node.create_timer(max(tick, MIN_TICK_S), self.tick)
+
+    @property
+    def rates(self) -> str:
+        return (f'sampling at {self.decimator.sample_rate_hz:g} Hz, publishing at '
+                f'{self.decimator.publish_rate_hz:g} Hz')
 
     def tick(self) -> None:
-        if self.real_time_factor is None:
-            self._publish_one(self.node.get_clock().now().nanoseconds)
-            return
-        elapsed_s = (time.monotonic() - self.start_wall) * self.real_time_factor
-        for _ in range(samples_due(elapsed_s, self.period_s, self.published,
-                                   MAX_SAMPLES_PER_TICK)):
-            time_s = self.published * self.period_s
-            self.advance_to(time_s)
-            self._publish_one(self.start_ns + int(round(time_s * 1e9)))
+        rate_hz = self.decimator.sample_rate_hz
+        elapsed_s = (time.monotonic() - self.start_wall) * (self.real_time_factor or 1.0)
+        due = int(math.floor(elapsed_s * rate_hz + 1e-9)) + 1   # samples 0 .. due - 1
+        backlog = max(1, int(MAX_BACKLOG_S * rate_hz))
+        if due - self.next_index > backlog:
+            self.missed_reads += due - backlog - self.next_index
+            self.next_index = due - backlog
+        for index in range(self.next_index, due):
+            if self.real_time_factor is not None:
+                self.advance_to(index / rate_hz)
+            sample = self._read_one()
+            if sample is not None:
+                self.samples_read += 1
+                self._publish(self.decimator.add(index, sample))
+        self.next_index = due
+        self._publish(self.decimator.close_before(due))
 
-    def _publish_one(self, stamp_ns: int) -> None:
-        self.published += 1
+    def _read_one(self):
         try:
             sample = self.read()
         except HardwareError as err:
@@ -123,13 +156,34 @@ class TimedStream:
             self.consecutive_failures += 1
             self.last_error = str(err)
             self.node.get_logger().warn(f'read failed: {err}', throttle_duration_sec=5.0)
-            return
+            return None
         self.consecutive_failures = 0
         if sample.saturated:
             self.saturated += 1
-            return
+            return None
         self.last_sample = time.monotonic()
-        self.publish(stamp_ns, sample)
+        return sample
+
+    def _publish(self, interval) -> None:
+        if interval is None:
+            return
+        self.messages += 1
+        self.samples_per_message = interval.samples
+        self.publish(self.start_ns + int(round(interval.time_s * 1e9)), interval.mean)
+
+    def sampling_status(self) -> dict:
+        """Counters of the sampling, for diagnostics."""
+        return {'sample_rate_hz': self.decimator.sample_rate_hz,
+                'publish_rate_hz': self.decimator.publish_rate_hz,
+                'samples_read': self.samples_read, 'messages': self.messages,
+                'samples_per_message': self.samples_per_message,
+                'missed_reads': self.missed_reads, 'failed_reads': self.failed_reads}
+
+    def missing_reads(self) -> str:
+        """Say how many reads were missed since the last status, or ''."""
+        missed = self.missed_reads - self.missed_reported
+        self.missed_reported = self.missed_reads
+        return f'{missed} reads missed: the driver cannot keep up' if missed else ''
 
     def advance_to(self, time_s: float) -> None:
         raise NotImplementedError
@@ -144,15 +198,16 @@ class TimedStream:
 class DeviceStream(TimedStream):
     """One ADIS16130 or MPU-6000 part, simulated or on spidev."""
 
-    def __init__(self, node, source, hardware_id: str, simulated: bool):
+    def __init__(self, node, source, hardware_id: str, simulated: bool,
+                 natural_rate_hz: float):
         self.source = source
         self.hardware_id = hardware_id
         self.simulated = simulated
         # Start-up took simulated time (resets, settling): the schedule starts after it.
         self.source_start_s = source.clock.now_s if simulated else 0.0
         self.start_schedule(node, node.values['simulation.real_time_factor'] if simulated
-                            else None)
-        node.get_logger().info(f'{hardware_id}: publishing at {1.0 / self.period_s:g} Hz')
+                            else None, natural_rate_hz)
+        node.get_logger().info(f'{hardware_id}: {self.rates}')
 
     def advance_to(self, time_s: float) -> None:
         self.source.advance_to(self.source_start_s + time_s)
@@ -175,17 +230,37 @@ class DeviceStream(TimedStream):
 
     def status(self) -> tuple:
         values = {'state': 'failing' if self.consecutive_failures else 'streaming',
-                  'device': self.node.device, 'samples_due': self.published,
-                  'failed_reads': self.failed_reads, **self.source.counters,
-                  **self.extra_status(), 'last_error': self.last_error}
+                  'device': self.node.device, **self.sampling_status(),
+                  **self.source.counters, **self.extra_status(), 'last_error': self.last_error}
+        missed = self.missing_reads()
         if self.consecutive_failures:
             return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
+        if missed:
+            return DiagnosticStatus.WARN, missed, values
         if self.saturated:
             return DiagnosticStatus.WARN, f'{self.saturated} saturated samples', values
         return DiagnosticStatus.OK, 'streaming', values
 
     def close(self) -> None:
         self.source.close()
+
+
+def simulated_adis(values: dict) -> adis16130.SimulatedSensor:
+    """Return the simulated ADIS16130 the driver reads for these parameter values, started."""
+    rate_dps = values['simulation.rate_dps']
+    if len(rate_dps) != 1:
+        msg = (f'invalid parameter simulation.rate_dps: the adis16130 measures one '
+               f'axis, give one value, got {len(rate_dps)}')
+        raise ParameterError(msg)
+    truth = Adis16130Truth(bias_dps=values['simulation.bias_dps'],
+                           bias_dps_per_c=values['simulation.bias_dps_per_c'],
+                           effects=effects_of(values))
+    config = adis16130.SimulationConfig(
+        seed=values['simulation.seed'], resolution_bits=values['adis16130.resolution_bits'],
+        truth=truth, thermal=_thermal(values, values['simulation.die_time_constant_s']),
+        rate_dps=rate_dps[0], supply_v=values['simulation.supply_v'],
+        sclk_hz=float(_speed_hz(values, adis16130.DEFAULT_SPEED_HZ)))
+    return adis16130.SimulatedSensor(config)
 
 
 class AdisStream(DeviceStream):
@@ -204,21 +279,8 @@ class AdisStream(DeviceStream):
         self.oversample = values['oversample']
         speed_hz = _speed_hz(values, adis16130.DEFAULT_SPEED_HZ)
         if values['source'] == 'simulated':
-            rate_dps = values['simulation.rate_dps']
-            if len(rate_dps) != 1:
-                msg = (f'invalid parameter simulation.rate_dps: the adis16130 measures one '
-                       f'axis, give one value, got {len(rate_dps)}')
-                raise ParameterError(msg)
-            truth = Adis16130Truth(bias_dps=values['simulation.bias_dps'],
-                                   bias_dps_per_c=values['simulation.bias_dps_per_c'],
-                                   effects=effects_of(values))
-            config = adis16130.SimulationConfig(
-                seed=values['simulation.seed'], resolution_bits=bits, truth=truth,
-                thermal=_thermal(values, values['simulation.die_time_constant_s']),
-                rate_dps=rate_dps[0], supply_v=values['simulation.supply_v'],
-                sclk_hz=float(speed_hz))
-            source = adis16130.SimulatedSensor(config)
-            hardware_id = f'simulated ADIS16130 (seed {config.seed})'
+            source = simulated_adis(values)
+            hardware_id = f'simulated ADIS16130 (seed {values["simulation.seed"]})'
         else:
             chip_select = _chip_select(values, 'adis16130')
             source = adis16130.spidev_sensor(
@@ -231,7 +293,7 @@ class AdisStream(DeviceStream):
         node.create_service(Trigger, 'imu/run_bias_procedure', self.run_bias_procedure,
                             callback_group=ReentrantCallbackGroup())
         super().__init__(node, source, f'{hardware_id}, {bits}-bit',
-                         values['source'] == 'simulated')
+                         values['source'] == 'simulated', ADIS16130_SAMPLE_RATE_HZ)
 
     def read(self):
         return self.source.read(self.oversample)
@@ -293,7 +355,7 @@ class _RunningProcedure:
     def __init__(self, stream: AdisStream, values: dict):
         self.stream = stream
         prefix = 'adis16130.bias_procedure.'
-        rate_hz = values['rate_hz']
+        rate_hz = values['publish_rate_hz']
         allan_s = values[prefix + 'allan_record_s']
         pbc_s = values[prefix + 'pbc_s'] or None
         for name, seconds in (('average_s', values[prefix + 'average_s']), ('pbc_s', pbc_s)):
@@ -557,7 +619,9 @@ class MpuStream(DeviceStream):
             self._start_refresh()
         node.create_service(Trigger, 'imu/calibrate_offsets', self.calibrate_offsets,
                             callback_group=ReentrantCallbackGroup())
-        super().__init__(node, source, hardware_id, values['source'] == 'simulated')
+        gyro_rate_hz = 8000.0 if options['dlpf_config'] in (0, 7) else 1000.0
+        super().__init__(node, source, hardware_id, values['source'] == 'simulated',
+                         gyro_rate_hz / (1 + options['sample_rate_divider']))
 
     @staticmethod
     def _true_rate_dps(values: dict, axes) -> tuple:

@@ -98,9 +98,13 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('source', 'simulated', 'where raw data comes from', read_only=True,
          choices=('simulated', 'spidev', 'bag')),
     Spec('frame_id', 'imu_link', 'frame_id of published messages (REP-145)'),
-    Spec('rate_hz', 100.0, 'publish rate in Hz (simulated time for the simulated source)',
+    Spec('publish_rate_hz', 100.0, 'publish rate in Hz (simulated time for the simulated '
+         'source); each message is the mean of the device samples of its interval',
          read_only=True, low=0.1, high=10000.0),
-    Spec('oversample', 1, 'conversions averaged per published sample', read_only=True,
+    Spec('sample_rate_hz', 0.0, 'device sample rate in Hz, at least publish_rate_hz; 0 = the '
+         "part's natural rate (MLX90609 1000, UNCONFIRMED; ADIS16130 5700; MPU-6000 its gyro "
+         'output rate over 1 + SMPLRT_DIV)', read_only=True, low=0.0, high=100000.0),
+    Spec('oversample', 1, 'conversions averaged per device sample', read_only=True,
          low=1, high=256),
     Spec('spi.bus', 0, 'spidev bus number', read_only=True, low=0, high=255),
     Spec('spi.chip_selects', [0], 'spidev chip select per axis, same order as axes',

@@ -6,8 +6,7 @@ own chip select, EEPROM table and temperature sensor.
 """
 
 from dataclasses import dataclass
-import math
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -139,11 +138,3 @@ class SimulatedArray(Mlx90609Array):
     def advance_to(self, time_s: float) -> None:
         """Let simulated time pass up to ``time_s`` (never backwards)."""
         self.clock.advance(time_s - self.clock.now_s)
-
-
-def samples_due(elapsed_s: float, period_s: float, published: int,
-                limit: Optional[int] = None) -> int:
-    """How many samples of ``period_s`` are due after ``elapsed_s``, given ``published``."""
-    due = int(math.floor(elapsed_s / period_s + 1e-9)) + 1 - published
-    due = max(0, due)
-    return due if limit is None else min(due, limit)
