@@ -11,8 +11,8 @@ import signal
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
-from ros_harness import (COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable, rates,
-                         simulated_driver_params, write_sections)
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable,
+                         rates, simulated_driver_params, write_sections)
 
 pytestmark = pytest.mark.ros
 
@@ -47,6 +47,16 @@ def test_bringup_runs_both_nodes_and_stops_cleanly(launcher, probe, tmp_path):
     mean_z = sum(rates(m)[2] for m in data) / len(data)
     assert abs(mean_z) < 0.01
     assert probe.received['imu/eeprom']
+    # The compensation node takes the raw stream from the driver in its process, not over
+    # DDS: the probe is the only subscriber of the raw topics, and every raw sample it
+    # heard comes out compensated.
+    assert probe.node.count_subscribers('/imu/data_raw') == 1
+    assert probe.node.count_subscribers('/imu/temperature_raw') == 1
+    raw = probe.wait_count('imu/data_raw', 400, TIMEOUT_S, launcher)
+    probe.drain()
+    compensated = set(by_stamp(probe.received['imu/data']))
+    heard = [s for s in by_stamp(raw) if min(compensated) <= s <= max(compensated)]
+    assert len(heard) > 100 and set(heard) <= compensated
 
     assert bringup.stop() == 0
     assert 'Traceback' not in bringup.output()

@@ -77,7 +77,13 @@ class _Window:
 class CompensationNode(Node):
     """Applies the configured model to the raw stream; offers ZRO recalibration."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, local_input: bool = False, **kwargs):
+        """
+        Build the node.
+
+        With ``local_input`` the raw rate and temperature come from a driver in this
+        process through `take_local`, not from subscriptions (bringup).
+        """
         super().__init__('compensation_node', **kwargs)
         self.values = declare(self, COMPENSATION_SPECS)
         self.axes = axes_of(self.values)
@@ -117,14 +123,15 @@ class CompensationNode(Node):
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
-        self.input_subscriptions['imu'] = self.create_subscription(
-            Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
-        topics = [f'imu/temperature_raw/{axis}' for axis in self.axes] if per_axis else \
-            ['imu/temperature_raw']
-        for stream, topic in zip(self.temperature_streams, topics):
-            self.input_subscriptions[stream] = self.create_subscription(
-                Temperature, topic, lambda msg, s=stream: self.on_temperature(s, msg),
-                SENSOR_INPUT_QOS)
+        if not local_input:
+            self.input_subscriptions['imu'] = self.create_subscription(
+                Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
+            topics = [f'imu/temperature_raw/{axis}' for axis in self.axes] if per_axis else \
+                ['imu/temperature_raw']
+            for stream, topic in zip(self.temperature_streams, topics):
+                self.input_subscriptions[stream] = self.create_subscription(
+                    Temperature, topic, lambda msg, s=stream: self.on_temperature(s, msg),
+                    SENSOR_INPUT_QOS)
         # Its own group: while the service awaits its window, the default group (stream,
         # timers) keeps running in the same single thread. Reentrant, so a second request
         # is taken (and refused) while the first awaits: a mutually exclusive group would
@@ -254,6 +261,17 @@ class CompensationNode(Node):
                     budget -= 1
             if not taken:
                 break
+        if complete:
+            self.process(complete)
+
+    def take_local(self, handoff: list) -> None:
+        """Pair the raw messages a driver in this process sent, [(stream, msg)]; compensate."""
+        complete = []
+        for stream, msg in handoff:
+            # Auxiliary inputs subscribed over DDS come that way only.
+            if stream in self.pairer.streams and stream not in self.input_subscriptions:
+                complete += self.pairer.add(stream, messages.stamp_to_ns(msg.header.stamp),
+                                            msg)
         if complete:
             self.process(complete)
 

@@ -35,18 +35,30 @@ from ..core.metrics import ErrorStatistics
 RAMP_C_PER_MIN = 40.0
 HOLD_S = 60.0
 CYCLE_C = (-40.0, 85.0, 25.0, -40.0)
-# Times are counted from the first sample received, a little after the driver starts.
-RECALIBRATE_AFTER_HOLD_S = 10.0
+# Times are counted from the first sample received, a little after the driver starts; the
+# hold is found from the temperature: after the 85 C peak, back near 25 C and for this long
+# within HOLD_SPREAD_C.
+HOLD_SEEN_S = 3.0
+HOLD_SPREAD_C = 0.3
+PEAK_C = 80.0
+HOLD_C = 25.0
+HOLD_NEAR_C = 3.0
 # 0.33 deg/s per conversion, averaged over 8.
 NOISE_RAD_S = float(np.radians(0.33 / np.sqrt(8)))
 
 
-def _timeline_s() -> tuple:
-    """Return (hold start, end of run) in simulated seconds."""
+def _run_s() -> float:
+    """Return the length of the chamber profile in simulated seconds."""
     points = (25.0,) + CYCLE_C
     ramps = [abs(b - a) / RAMP_C_PER_MIN * 60.0 for a, b in zip(points, points[1:])]
-    hold_start = sum(ramps[:3]) + 2 * HOLD_S
-    return hold_start, sum(ramps) + len(ramps) * HOLD_S
+    return sum(ramps) + len(ramps) * HOLD_S
+
+
+def _holding(temperature: dict, after_ns: int) -> bool:
+    """Tell whether the temperature stayed within HOLD_SPREAD_C for HOLD_SEEN_S up to now."""
+    latest = max(temperature)
+    recent = [c for s, c in temperature.items() if s >= latest - HOLD_SEEN_S * 1e9]
+    return latest - HOLD_SEEN_S * 1e9 >= after_ns and max(recent) - min(recent) < HOLD_SPREAD_C
 
 
 class Listener(Node):
@@ -89,8 +101,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     # A demo stays on this machine, whatever network it is on.
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    hold_start_s, end_s = _timeline_s()
-    recalibrate_at_s = hold_start_s + RECALIBRATE_AFTER_HOLD_S
+    end_s = _run_s()
     folder = tempfile.mkdtemp(prefix='mlx_tempcomp_demo_')
     state_file = os.path.join(folder, 'zro.yaml')
     params_file = os.path.join(folder, 'demo.yaml')
@@ -112,7 +123,8 @@ def main(argv=None) -> int:
     print(f'simulating {end_s / 60:.1f} min of chamber time at {args.real_time_factor:g}x '
           'real time ...', flush=True)
     future = None
-    recalibrated_s = None
+    peak_ns = None
+    recalibrate_at_s = recalibrated_s = None
     try:
         while True:
             rclpy.spin_once(listener, timeout_sec=0.05)
@@ -123,11 +135,16 @@ def main(argv=None) -> int:
                 continue
             first_ns = min(listener.raw)
             now_s = (max(listener.raw) - first_ns) * 1e-9
-            if future is None and now_s >= recalibrate_at_s:
-                latest_c = listener.temperature[max(listener.temperature)]
-                print(f'at {now_s:.0f} s ({latest_c:.1f} C, holding): calling '
-                      'imu/recalibrate_zro', flush=True)
+            latest_ns = max(listener.temperature, default=first_ns)
+            if peak_ns is None and listener.temperature.get(latest_ns, 0.0) >= PEAK_C:
+                peak_ns = latest_ns
+            if future is None and peak_ns is not None and \
+                    abs(listener.temperature[latest_ns] - HOLD_C) < HOLD_NEAR_C and \
+                    _holding(listener.temperature, peak_ns):
+                print(f'at {now_s:.0f} s ({listener.temperature[latest_ns]:.1f} C, holding): '
+                      'calling imu/recalibrate_zro', flush=True)
                 future = listener.client.call_async(Trigger.Request())
+                recalibrate_at_s = now_s
             if future is not None and future.done() and recalibrated_s is None:
                 response = future.result()
                 print(f'  -> success={response.success}: {response.message}', flush=True)

@@ -147,6 +147,7 @@ class TimedStream:
                 self._publish(self.decimator.add(index, sample))
         self.next_index = due
         self._publish(self.decimator.close_before(due))
+        self.node.hand_off()
 
     def _read_one(self):
         try:

@@ -80,6 +80,10 @@ class DriverNode(Node):
         self.eeprom_publisher = self.create_publisher(UInt8MultiArray, 'imu/eeprom',
                                                       EEPROM_QOS) if mlx else None
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # In one process with the compensation node (bringup) the raw messages are also
+        # handed to it directly, once per timer tick: (pairer stream, message) pairs.
+        self.local_consumers = []
+        self.handoff = []
         if self.values['source'] == 'bag':
             self.stream = BagStream(self)
         elif self.device == 'adis16130':
@@ -117,13 +121,29 @@ class DriverNode(Node):
                     acceleration_covariance=None) -> None:
         stamp = messages.ns_to_stamp(stamp_ns)
         # Temperature first: a subscriber pairing by stamp then completes on the Imu.
-        for publisher, temperature in zip(self.axis_temperature_publishers, temperatures_c):
-            publisher.publish(messages.temperature_message(stamp, self.frame_id, temperature))
-        self.temperature_publisher.publish(messages.temperature_message(
+        for axis, publisher, temperature in zip(self.axes, self.axis_temperature_publishers,
+                                                temperatures_c):
+            self.send(publisher, f'temperature_{axis}',
+                      messages.temperature_message(stamp, self.frame_id, temperature))
+        self.send(self.temperature_publisher, 'temperature', messages.temperature_message(
             stamp, self.frame_id, sum(temperatures_c) / len(temperatures_c)))
-        self.imu_publisher.publish(messages.imu_message(
+        self.send(self.imu_publisher, 'imu', messages.imu_message(
             stamp, self.frame_id, self.indices, rate_rad_s, self.covariance, acceleration_m_s2,
             acceleration_covariance))
+
+    def send(self, publisher, stream: str, msg) -> None:
+        """Publish ``msg``; keep it for the local consumers too, if any."""
+        publisher.publish(msg)
+        if self.local_consumers:
+            self.handoff.append((stream, msg))
+
+    def hand_off(self) -> None:
+        """Give the local consumers what this tick sent (called at the end of every tick)."""
+        if not self.handoff:
+            return
+        handoff, self.handoff = self.handoff, []
+        for consumer in self.local_consumers:
+            consumer(handoff)
 
     def publish_diagnostics(self) -> None:
         level, message, values = self.stream.status()
@@ -268,9 +288,12 @@ class BagStream:
                                                    temperature=temperature_topic,
                                                    eeprom=values['bag.eeprom_topic']),
                                    extra_temperature_topics=extra_topics)
-        # Topic (without slashes) -> publisher; the main temperature topic is the default.
-        self.publishers = dict(zip((t.strip('/') for t in axis_topics),
-                                   node.axis_temperature_publishers))
+        # Topic (without slashes) -> (publisher, pairer stream of the compensation node); the
+        # main temperature topic is the default.
+        self.publishers = {topic.strip('/'): (publisher, f'temperature_{axis}') for
+                           topic, publisher, axis in zip(axis_topics,
+                                                         node.axis_temperature_publishers,
+                                                         node.axes)}
         if temperature_2_topic:
             if absolute_topic(temperature_2_topic) not in \
                     {absolute_topic(t) for t in self.reader.bag_topics}:
@@ -278,8 +301,8 @@ class BagStream:
                 msg = (f'invalid parameter bag.temperature_2_topic: no topic '
                        f'{absolute_topic(temperature_2_topic)} in {path}')
                 raise ParameterError(msg)
-            self.publishers[temperature_2_topic.strip('/')] = node.create_publisher(
-                Temperature, 'imu/temperature_2_raw', SENSOR_QOS)
+            self.publishers[temperature_2_topic.strip('/')] = (node.create_publisher(
+                Temperature, 'imu/temperature_2_raw', SENSOR_QOS), 'temperature_2')
         self.temperature_topic = temperature_topic.strip('/')
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
@@ -310,18 +333,25 @@ class BagStream:
             # A replay nobody hears is lost: start with the first subscriber of the rate,
             # once the temperature topics are matched too (or after a grace period: some
             # consumers want the rate only) and the EEPROM message is delivered.
-            if self.node.imu_publisher.get_subscription_count() == 0:
+            # A compensation node in this process (bringup) takes the messages directly.
+            local = bool(self.node.local_consumers)
+            if not local and self.node.imu_publisher.get_subscription_count() == 0:
                 return
             if self.first_subscriber is None:
                 self.first_subscriber = time.monotonic()
-            publishers = [self.node.temperature_publisher] + list(self.publishers.values())
-            if any(p.get_subscription_count() == 0 for p in publishers) and \
+            publishers = [self.node.temperature_publisher] + \
+                [publisher for publisher, _ in self.publishers.values()]
+            if not local and any(p.get_subscription_count() == 0 for p in publishers) and \
                     time.monotonic() - self.first_subscriber < MATCH_GRACE_S:
                 return
             self.node.eeprom_publisher.wait_for_all_acked(ACK_TIMEOUT)
             self.start_wall = time.monotonic()
             self.node.get_logger().info('subscriber present: replay starts')
-        elapsed_ns = (time.monotonic() - self.start_wall) * 1e9 * self.rate_factor
+        self._replay((time.monotonic() - self.start_wall) * 1e9 * self.rate_factor)
+        self.node.hand_off()
+
+    def _replay(self, elapsed_ns: float) -> None:
+        """Publish the messages due after ``elapsed_ns`` of replay, a burst at most."""
         for _ in range(MAX_SAMPLES_PER_TICK):
             if self.next_record is None:
                 if not self.finished:
@@ -369,16 +399,16 @@ class BagStream:
             msg.linear_acceleration_covariance = [float(v) for v in
                                                   record.linear_acceleration_covariance]
             msg.orientation_covariance = [float(v) for v in record.orientation_covariance]
-            self.node.imu_publisher.publish(msg)
+            self.node.send(self.node.imu_publisher, 'imu', msg)
             if self.rate_factor == 0.0:
                 self.in_flight.append(record.stamp_ns)
         elif isinstance(record, TemperatureRecord):
             msg = messages.temperature_message(stamp, record.frame_id, record.temperature_c,
                                                record.variance)
-            publisher = self.publishers.get(topic.strip('/'))
-            if publisher is None:
-                publisher = self.node.temperature_publisher
-            publisher.publish(msg)
+            publisher, stream = self.publishers.get(topic.strip('/'),
+                                                    (self.node.temperature_publisher,
+                                                     'temperature'))
+            self.node.send(publisher, stream, msg)
         else:
             return
         self.published += 1

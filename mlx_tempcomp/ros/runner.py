@@ -15,8 +15,12 @@ from ..state_file import StateFileError
 SETUP_ERRORS = (ParameterError, TempCompError, HardwareError, BagError, StateFileError)
 
 
-def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp') -> int:
-    """Build each node with its factory, spin them all until shutdown; return the exit code."""
+def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp', connect=None) -> int:
+    """
+    Build each node with its factory, spin them all until shutdown; return the exit code.
+
+    ``connect(nodes)``, if given, links the built nodes before they spin.
+    """
     try:
         rclpy.init(args=args)
     except rclpy_implementation.RCLError as err:
@@ -33,7 +37,8 @@ def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp') -> int:
             node.destroy_node()
         rclpy.try_shutdown()
         return 1
-    # Enough threads that a blocking service call never starves the streams.
+    if connect is not None:
+        connect(nodes)
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
