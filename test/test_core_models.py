@@ -140,3 +140,25 @@ def test_stream_rows_one_by_one_equal_the_array_path(interpolation):
         shared = stream.correct_block(rates[1:2], temperatures[1:2, :1]).rate_rad_s[0]
         np.testing.assert_array_equal(shared, model.correct(rates[1:2], temperatures[1:2, 0])
                                       .rate_rad_s[0])
+
+
+@pytest.mark.parametrize('interpolation', ['quadratic', 'step'])
+def test_one_row_gives_the_block_bits(interpolation):
+    """The node's per-message path (plain floats) and its block path agree bit for bit."""
+    table = factory_table(FIELDS, Output.DIGITAL)
+    compensation = table_compensation([table, None, table], 75.0, Output.DIGITAL,
+                                      Interpolation(interpolation), zro_shift=(0.5, 1.0, -2.0))
+    rng = np.random.default_rng(5)
+    rates = rng.normal(0.0, 0.5, (300, 3))
+    temperatures = rng.uniform(-60.0, 100.0, (300, 3))
+    temperatures[0, 1] = np.nan
+    for model in (EepromModel(compensation),
+                  PolynomialModel(bias_coefficients=((1e-3, 1e-5),) * 3)):
+        stream = model.stream()
+        for shared in (False, True):
+            columns = temperatures[:, :1] if shared else temperatures
+            block = stream.correct_block(rates, columns)
+            for i in range(300):
+                rate, clamped = stream.correct_one(rates[i].tolist(), columns[i].tolist())
+                np.testing.assert_array_equal(rate, block.rate_rad_s[i])
+                assert clamped == bool(block.temperature_clamped[i].any())

@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import _fingerprint, _OffsetModel, AXIS_NAMES, CorrectedRate
+from .models import _fingerprint, _OffsetModel, AXIS_NAMES, CorrectedRate, one_row
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 
@@ -268,6 +268,10 @@ class _ChainStream:
     def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
                       acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
         return self.model.correct(rates_rad_s, temperatures_c, temperature_2_c=temperature_2_c)
+
+    def correct_one(self, *row) -> tuple:
+        """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""
+        return one_row(self, *row)
 
 
 @dataclass(frozen=True)

@@ -179,6 +179,32 @@ class TableCompensation:
             return CompensatedRate(rate[:, 0], clamped[:, 0])
         return CompensatedRate(rate, clamped)
 
+    def compensate_row(self, outar: list, tempout: list) -> tuple:
+        """
+        Compensate one reading in plain floats: (rate in deg/s per axis, any clamped).
+
+        Bit for bit what `compensate` gives that row (the same operations in the same
+        order) for the quadratic interpolation; None for the others.
+        """
+        if self.interpolation is not Interpolation.QUADRATIC:
+            return None
+        shared = len(tempout) == 1
+        rates, clamped = [], False
+        for axis, table in enumerate(self.tables):
+            reading = outar[axis]
+            if table is None:
+                rates.append((reading - self.nominal.zro - self.zro_shift[axis])
+                             / self.nominal.sf)
+                continue
+            (az, bz, cz), (a_s, b_s, c_s) = self._quadratics[axis]
+            cz = cz + self.zro_shift[axis]
+            raw = tempout[0] if shared else tempout[axis]
+            low, high = table.tc[0], table.tc[2]
+            t = low if raw < low else high if raw > high else raw   # NaN stays NaN
+            clamped = clamped or t != raw
+            rates.append((reading - ((t * az + bz) * t + cz)) / ((t * a_s + b_s) * t + c_s))
+        return rates, clamped
+
     def _compensate_quadratic(self, axis: int, outar: np.ndarray, tempout: np.ndarray,
                               rate: np.ndarray, clamped: np.ndarray) -> None:
         """Horner evaluation of formulas (3) and (4) block by block, in place."""

@@ -47,7 +47,7 @@ from typing import Mapping, Optional
 import numpy as np
 
 from .errors import ConfigError
-from .models import _columns, _fingerprint, _finite_tuple, _OffsetModel, CorrectedRate
+from .models import _columns, _fingerprint, _finite_tuple, _OffsetModel, CorrectedRate, one_row
 
 EFFECT_NAMES = ('temperature_polynomial', 'thermal_lag', 'temperature_rate', 'thermal_gradient',
                 'thermal_gradient_2', 'hysteresis', 'supply_voltage', 'secondary_temperature',
@@ -749,3 +749,7 @@ class EffectStream:
         histories = [runner.run(time, temperature[:, axis])
                      for axis, runner in enumerate(self.runners)]
         return model._assemble(inputs, histories)
+
+    def correct_one(self, *row) -> tuple:
+        """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""
+        return one_row(self, *row)

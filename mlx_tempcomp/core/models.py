@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from .compensation import TableCompensation
-from .conversion import SensorTransfer
+from .conversion import Output, SensorTransfer
 from .errors import ConfigError
 
 AXIS_NAMES = ('x', 'y', 'z')
@@ -83,6 +83,26 @@ class _StatelessStream:
     def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
                       acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
         return self.model.correct(rates_rad_s, temperatures_c)
+
+    def correct_one(self, rates_rad_s: list, temperatures_c: list, time_s=None,
+                    temperature_2_c=None, acceleration_m_s2=None,
+                    supply_voltage_v=None) -> tuple:
+        """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""
+        row = getattr(self.model, 'correct_row', None)
+        result = None if row is None else row(rates_rad_s, temperatures_c)
+        return one_row(self, rates_rad_s, temperatures_c) if result is None else result
+
+
+def one_row(stream, rates_rad_s: list, temperatures_c: list, time_s=None, temperature_2_c=None,
+            acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
+    """Correct one row through ``stream.correct_block``: (rad/s list, any clamped)."""
+    def column(value):
+        return None if value is None else [value]
+
+    result = stream.correct_block([rates_rad_s], [temperatures_c], column(time_s),
+                                  column(temperature_2_c), column(acceleration_m_s2),
+                                  column(supply_voltage_v))
+    return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
 
 
 def _fingerprint(name: str, content: dict) -> str:
@@ -291,6 +311,25 @@ class EepromModel(_Streamed):
         outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
         result = self.compensation.compensate(outar, tempout)
         return CorrectedRate(np.deg2rad(result.rate_dps), result.temperature_clamped)
+
+    def correct_row(self, rates_rad_s: list, temperatures_c: list):
+        """
+        Correct one reading in plain floats, bit for bit as `correct` does; None if it cannot.
+
+        The per-message path of the node, where numpy's per-call overhead would dominate.
+        """
+        nominal = self.compensation.nominal
+        transfer = self.transfer
+        outar = [math.degrees(r) * nominal.sf + nominal.zro for r in rates_rad_s]
+        mv = [transfer.temperature_sensor_mv_at_25c
+              + (t - 25.0) * transfer.temperature_sensor_mv_per_k for t in temperatures_c]
+        tempout = mv if nominal.output is Output.ANALOG else \
+            [(v - transfer.temperature_offset_mv) / transfer.temperature_mv_per_lsb for v in mv]
+        result = self.compensation.compensate_row(outar, tempout)
+        if result is None:
+            return None
+        rates_dps, clamped = result
+        return [math.radians(r) for r in rates_dps], clamped
 
     def with_zro_offset(self, offset) -> 'EepromModel':
         return replace(self, compensation=self.compensation.with_zro_shift(offset))

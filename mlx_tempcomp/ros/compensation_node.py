@@ -300,26 +300,37 @@ class CompensationNode(Node):
         raw = [messages.imu_rates(parts['imu'], self.indices) for _, parts in samples]
         temperatures = [[parts[s].temperature for s in self.temperature_streams]
                         for _, parts in samples]
-        extra = {name: np.array([_AUXILIARY[name][3](parts[name]) for _, parts in samples])
+        extra = {name: [_AUXILIARY[name][3](parts[name]) for _, parts in samples]
                  for name in self.auxiliary}
         acceleration = None
         if self.needs_acceleration:
-            acceleration = np.array([[parts['imu'].linear_acceleration.x,
-                                      parts['imu'].linear_acceleration.y,
-                                      parts['imu'].linear_acceleration.z]
-                                     for _, parts in samples])
-        result = stream.correct_block(raw, temperatures,
-                                      np.array([stamp for stamp, _ in samples]) / 1e9,
-                                      extra.get(_TEMPERATURE_2), acceleration,
-                                      extra.get(_SUPPLY))
-        if result.temperature_clamped.any():
-            self.clamped_samples += int(np.count_nonzero(
-                result.temperature_clamped.any(axis=1)))
+            acceleration = [[parts['imu'].linear_acceleration.x,
+                             parts['imu'].linear_acceleration.y,
+                             parts['imu'].linear_acceleration.z] for _, parts in samples]
+        times = [stamp / 1e9 for stamp, _ in samples]
+        if len(samples) == 1:
+            # One sample, no numpy: the same numbers, bit for bit, as a block of one.
+            def first_of(column):
+                return None if column is None else column[0]
+            rate, clamped = stream.correct_one(raw[0], temperatures[0], times[0],
+                                               first_of(extra.get(_TEMPERATURE_2)),
+                                               first_of(acceleration),
+                                               first_of(extra.get(_SUPPLY)))
+            rates, clamped = [rate], int(clamped)
+        else:
+            def array(column):
+                return None if column is None else np.array(column)
+            result = stream.correct_block(raw, temperatures, np.array(times),
+                                          array(extra.get(_TEMPERATURE_2)), array(acceleration),
+                                          array(extra.get(_SUPPLY)))
+            rates = result.rate_rad_s.tolist()
+            clamped = int(np.count_nonzero(result.temperature_clamped.any(axis=1)))
+        if clamped:
+            self.clamped_samples += clamped
             self.clamped_recent = True
         window = self.window
         first = self.temperature_streams[0]
-        for row, ((stamp_ns, parts), rate) in enumerate(zip(samples,
-                                                            result.rate_rad_s.tolist())):
+        for row, ((stamp_ns, parts), rate) in enumerate(zip(samples, rates)):
             # The input messages go out again, rate rewritten (the rest passes through
             # unchanged): building new ones would cost more than the model.
             imu = parts['imu']

@@ -180,6 +180,12 @@ class TimedStream:
                 'samples_per_message': self.samples_per_message,
                 'missed_reads': self.missed_reads, 'failed_reads': self.failed_reads}
 
+    def summary(self) -> str:
+        """One line on the sampling so far, logged when the driver stops."""
+        return (f'sampling: {self.samples_read} samples read, {self.missed_reads} missed, '
+                f'{self.failed_reads} failed, {self.saturated} saturated; {self.messages} '
+                'messages published')
+
     def missing_reads(self) -> str:
         """Say how many reads were missed since the last status, or ''."""
         missed = self.missed_reads - self.missed_reported

@@ -154,6 +154,8 @@ class DriverNode(Node):
         self.diagnostics_publisher.publish(array)
 
     def destroy_node(self):
+        if isinstance(self.stream, TimedStream):
+            self.get_logger().info(self.stream.summary())
         self.stream.close()
         return super().destroy_node()
 
