@@ -45,7 +45,8 @@ from ..toolkit.evaluate import node_values
 # Faults both parts can simulate: MISO stuck high or low.
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
-# A sampling driver that falls this far behind skips the older samples (missed reads).
+# A sampling driver that falls this far behind (wall time) skips the older samples (missed
+# reads).
 MAX_BACKLOG_S = 0.25
 # Shortest timer period of a driver: each tick costs the executor a wake-up.
 MIN_TICK_S = 0.001
@@ -134,7 +135,7 @@ class TimedStream:
         rate_hz = self.decimator.sample_rate_hz
         elapsed_s = (time.monotonic() - self.start_wall) * (self.real_time_factor or 1.0)
         due = int(math.floor(elapsed_s * rate_hz + 1e-9)) + 1   # samples 0 .. due - 1
-        backlog = max(1, int(MAX_BACKLOG_S * rate_hz))
+        backlog = max(1, int(MAX_BACKLOG_S * (self.real_time_factor or 1.0) * rate_hz))
         if due - self.next_index > backlog:
             self.missed_reads += due - backlog - self.next_index
             self.next_index = due - backlog

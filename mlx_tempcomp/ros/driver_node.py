@@ -21,6 +21,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
+import rclpy.logging
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
@@ -155,7 +156,10 @@ class DriverNode(Node):
 
     def destroy_node(self):
         if isinstance(self.stream, TimedStream):
-            self.get_logger().info(self.stream.summary())
+            # After a stop signal the node logger's /rosout publisher is gone: log elsewhere.
+            logger = self.get_logger() if self.context.ok() else \
+                rclpy.logging.get_logger('mlx_tempcomp')
+            logger.info(f'{self.get_name()} {self.stream.summary()}')
         self.stream.close()
         return super().destroy_node()
 
