@@ -295,9 +295,10 @@ def test_mpu6000_gyro_offsets_follow_a_fitted_bias_model(launcher, probe, tmp_pa
     probe.subscribe_diagnostics()
     driver = launcher.driver(simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
         'simulation.seed': seed, 'simulation.real_time_factor': 4.0,
-        # A hold at the start (2 s of wall time): the ramp waits for the probe to join.
+        # A hold near the start (2 s of wall time; inside the model's fitted range): the
+        # ramp waits for the probe to join.
         'simulation.start_temperature_c': start_c,
-        'simulation.cycle_temperatures_c': [start_c, end_c], 'simulation.hold_s': 8.0,
+        'simulation.cycle_temperatures_c': [start_c + 2.0, end_c], 'simulation.hold_s': 8.0,
         'simulation.ramp_c_per_min': ramp_c_per_min,
         'mpu6000.offsets_file': str(offsets_path),
         'mpu6000.offset_model_file': str(model_path)}))
