@@ -410,6 +410,24 @@ def _every(count: int) -> slice:
 _BRANCHES = ((True, 'tab:red', 'heating'), (False, 'tab:blue', 'cooling'))
 
 
+def _residual_panels(grid, axes, parts, titles, x_of) -> None:
+    """Scatter each part's residuals against ``x_of(part)``, heating and cooling coloured."""
+    for row, name in enumerate(axes):
+        for column, (title, values) in enumerate(titles):
+            plot = grid[row][column]
+            for part, label, marker in parts:
+                pick = _every(len(part.time_s))
+                x = x_of(part)[pick]
+                for heating, colour, branch in _BRANCHES:
+                    mask = part.heating[pick] == heating
+                    plot.scatter(x[mask], getattr(part, values)[pick, row][mask], s=3, c=colour,
+                                 marker=marker, label=f'{branch}, {label}')
+            plot.set_title(f'{name}: {title}')
+            plot.set_ylabel('residual (rad/s)')
+            plot.grid(True, alpha=0.3)
+        grid[row][0].legend(markerscale=3, fontsize='small')
+
+
 def _plots(out: Path, diagnosis) -> None:
     import matplotlib
     matplotlib.use('Agg')
@@ -423,44 +441,19 @@ def _plots(out: Path, diagnosis) -> None:
     titles = (('temperature polynomial', 'before_rad_s'), ('diagnosed', 'after_rad_s'))
     figure, grid = pyplot.subplots(len(axes), 2, figsize=(11.0, 3.2 * len(axes)),
                                    squeeze=False, sharex=True)
-    for row, name in enumerate(axes):
-        for column, (title, values) in enumerate(titles):
-            plot = grid[row][column]
-            for part, label, marker in parts:
-                pick = _every(len(part.time_s))
-                for heating, colour, branch in _BRANCHES:
-                    mask = part.heating[pick] == heating
-                    plot.scatter(part.temperature_c[pick][mask],
-                                 getattr(part, values)[pick, row][mask], s=3, c=colour,
-                                 marker=marker, label=f'{branch}, {label}')
-            plot.set_title(f'{name}: {title}')
-            plot.set_ylabel('residual (rad/s)')
-            plot.grid(True, alpha=0.3)
-        grid[row][0].legend(markerscale=3, fontsize='small')
+    _residual_panels(grid, axes, parts, titles, lambda part: part.temperature_c)
     for plot in grid[-1]:
         plot.set_xlabel('temperature (C)')
     _save(pyplot, figure, out / PLOTS[0])
     figure, grid = pyplot.subplots(len(axes), 2, figsize=(13.0, 3.0 * len(axes)),
                                    squeeze=False, sharex=True, sharey='row')
     start_s = diagnosis.held_out.time_s[0]
-    for row, name in enumerate(axes):
-        for column, (title, values) in enumerate(titles):
-            plot = grid[row][column]
-            for part, label, _ in parts:
-                pick = _every(len(part.time_s))
-                for heating, colour, branch in _BRANCHES:
-                    mask = part.heating[pick] == heating
-                    plot.scatter(part.time_s[pick][mask] - start_s,
-                                 getattr(part, values)[pick, row][mask], s=2, c=colour,
-                                 label=branch if label == parts[0][1] else None)
-            if diagnosis.test is not None:
-                plot.axvspan(diagnosis.test.time_s[0] - start_s,
-                             diagnosis.test.time_s[-1] - start_s, color='0.9', zorder=0,
-                             label='test set')
-            plot.set_title(f'{name}: {title}')
-            plot.set_ylabel('residual (rad/s)')
-            plot.grid(True, alpha=0.3)
-        grid[row][0].legend(fontsize='small', markerscale=3)
+    if diagnosis.test is not None:
+        for plot in grid.flat:
+            plot.axvspan(diagnosis.test.time_s[0] - start_s,
+                         diagnosis.test.time_s[-1] - start_s, color='0.9', zorder=0,
+                         label='test set')
+    _residual_panels(grid, axes, parts, titles, lambda part: part.time_s - start_s)
     for plot in grid[-1]:
         plot.set_xlabel('time since start (s)')
     _save(pyplot, figure, out / PLOTS[1])
