@@ -12,7 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
-from mlx_tempcomp.ros.qos import EEPROM_QOS
+from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
 from mlx_tempcomp.sources.mpu6000 import SimulatedMpuSource
@@ -239,7 +239,8 @@ def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
         prefix + 'average_s': 2.0, prefix + 'self_heat_s': 45.0, prefix + 'settle_s': 12.0,
         prefix + 'allan_record_s': 10.0, prefix + 'pbc_s': 2.0,
         prefix + 'output_file': str(out)}))
-    status = probe.subscribe(String, 'imu/bias_procedure/status')
+    # Transient local: every status since the call, even if the probe is matched late.
+    status = probe.subscribe(String, 'imu/bias_procedure/status', STATUS_QOS)
     response = probe.call(Trigger, 'imu/run_bias_procedure', Trigger.Request(), TIMEOUT_S)
     assert response.success, response.message
     print(response.message)

@@ -24,6 +24,7 @@ from std_srvs.srv import Trigger
 
 from . import messages
 from .params import axes_of, build_model, effects_of, ParameterError
+from .qos import STATUS_QOS
 from ..core.bias_procedure import BiasProcedure, MIN_WINDOW_SAMPLES, Phase, ProcedureSettings
 from ..core.errors import CalibrationError, TempCompError
 from ..core.models import AXIS_NAMES
@@ -297,7 +298,8 @@ class AdisStream(DeviceStream):
             hardware_id = f'ADIS16130 on /dev/spidev{values["spi.bus"]}.{chip_select}'
         self.bits = bits
         self.procedure = None
-        self.status_publisher = node.create_publisher(String, 'imu/bias_procedure/status', 10)
+        self.status_publisher = node.create_publisher(String, 'imu/bias_procedure/status',
+                                                      STATUS_QOS)
         node.create_service(Trigger, 'imu/run_bias_procedure', self.run_bias_procedure,
                             callback_group=ReentrantCallbackGroup())
         super().__init__(node, source, f'{hardware_id}, {bits}-bit',

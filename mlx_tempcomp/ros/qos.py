@@ -14,3 +14,8 @@ SENSOR_INPUT_QOS = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
 EEPROM_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Progress of a long procedure: kept for late joiners, so a monitor that starts (or is
+# discovered) after the call still reads every phase from the beginning.
+STATUS_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
