@@ -93,6 +93,28 @@ def test_bag_holds_the_csv_samples_on_the_raw_topics(tmp_path, capsys, storage):
         assert len(bag.eeprom.images) == 3
 
 
+def test_supply_voltage_goes_into_the_csv_and_the_bag(tmp_path, capsys):
+    options = ('--axes', 'z', '--rate-hz', '2', '--duration-s', '100', '--seed', '2',
+               '--zro-supply-dps-per-v', '5', '--supply-v', '0:5.0', '100:5.5')
+    csv_path, truth, _ = simulate(tmp_path, capsys, 'supply.csv', *options)
+    assert truth['supply'] == {'times_s': [0.0, 100.0], 'volts': [5.0, 5.5], 'nominal_v': 5.0}
+    recording = load_recording(csv_path)
+    np.testing.assert_allclose(recording.supply_voltage_v, 5.0 + 0.005 * recording.time_s,
+                               rtol=1e-9)
+    # 5 deg/s/V over 0.5 V: the rate rises by 2.5 deg/s at a steady 25 C.
+    rise = np.degrees(recording.gyro_rad_s[-20:, 0].mean() - recording.gyro_rad_s[:20, 0].mean())
+    assert rise == pytest.approx(2.5 * 0.9, abs=0.2)   # the means are 10 s from the ends
+    bag = tmp_path / 'supply_bag'
+    assert main(['convert', str(csv_path), '--out', str(bag)]) == 0
+    assert '/imu/temperature_raw, /imu/supply_voltage' in capsys.readouterr().out
+    from_bag = load_recording(bag, **RAW_TOPICS)
+    np.testing.assert_allclose(from_bag.supply_voltage_v, recording.supply_voltage_v,
+                               rtol=1e-7)   # float32 in BatteryState
+    # Without --supply-v the recording has no supply column.
+    plain, _, _ = simulate(tmp_path, capsys, 'plain.csv', *options[:-3])
+    assert load_recording(plain).supply_voltage_v is None
+
+
 def test_turntable_csv_and_bag(tmp_path, capsys):
     path, truth, out = simulate(tmp_path, capsys, 'table.csv', '--turntable', '--cycle-c',
                                 '0', '40', '--seed', '2')

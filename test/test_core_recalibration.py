@@ -1,7 +1,7 @@
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.pairing import StampPairer
+from mlx_tempcomp.core.pairing import StampPairer, zero_order_hold
 from mlx_tempcomp.core.recalibration import check_window, RecalibrationLimits
 import numpy as np
 import pytest
@@ -65,3 +65,13 @@ def test_pairer_holds_a_bounded_number_of_stamps():
         pairer.add('imu', stamp, stamp)
     assert pairer.dropped == 90
     assert pairer.add('temperature', 99, 't') == [(99, {'imu': 99, 'temperature': 't'})]
+
+
+def test_zero_order_hold_takes_the_latest_value_at_or_before_each_stamp():
+    values, usable = zero_order_hold([5, 10, 14, 15, 30, 41], [10, 15, 20], [1.0, 2.0, 3.0],
+                                     max_age_ns=20)
+    # 5 is older than every value: the oldest; 41 is 21 from the last: not usable.
+    np.testing.assert_array_equal(values, [1.0, 1.0, 1.0, 2.0, 3.0, np.nan])
+    np.testing.assert_array_equal(usable, [True, True, True, True, True, False])
+    values, usable = zero_order_hold([1, 2], [], [], max_age_ns=10)
+    assert np.isnan(values).all() and not usable.any()

@@ -5,7 +5,9 @@ Replaying the data through driver_node and compensation_node gives the
 offline numbers: on the project's simulated chips with a hysteresis the
 diagnosis is not told about, and on the measured thermal cycle (converted to
 a bag), whose diagnosed model keeps thermal-gradient lags, a rate window and
-play-operator state that the node must carry from sample to sample.
+play-operator state that the node must carry from sample to sample; and on
+simulated chips with a supply-voltage ZRO shift, whose voltage travels in the
+bag as sensor_msgs/BatteryState.
 
 The test-part figures have two definitions: `evaluate --test-fraction F`
 takes every row in the last F of the time and the plain RMS of its bin means;
@@ -14,6 +16,7 @@ each bin mean by its row count. Each is recomputed from the node's output
 its own way.
 """
 
+import csv
 import json
 import math
 
@@ -26,13 +29,16 @@ from ros_harness import finish_model_replay, start_model_replay
 
 pytestmark = pytest.mark.ros
 
-# Three axes, 2 Hz for 2000 s (4001 rows), two -10..60 C cycles, a 0.3 deg/s hysteresis.
-SIMULATE = ('--axes', 'x,y,z', '--rate-hz', '2', '--duration-s', '2000', '--seed', '1',
-            '--cycle-c', '60', '-10', '60', '-10', '60', '--ramp-c-per-min', '8',
-            '--hysteresis-dps', '0.3', '--hysteresis-width-c', '5')
+# Three axes, 2 Hz for 2000 s (4001 rows), two -10..60 C cycles; a 0.3 deg/s hysteresis,
+# or a 2 deg/s/V ZRO shift on a supply wandering 4.8 to 5.3 V.
+CYCLES = ('--axes', 'x,y,z', '--rate-hz', '2', '--duration-s', '2000', '--seed', '1',
+          '--cycle-c', '60', '-10', '60', '-10', '60', '--ramp-c-per-min', '8')
+HYSTERESIS = ('--hysteresis-dps', '0.3', '--hysteresis-width-c', '5')
 TEST_FRACTION = 0.25
 AVERAGE_S = 1.0
 STATEFUL_EFFECTS = {'hysteresis', 'thermal_lag', 'thermal_gradient', 'temperature_rate'}
+SUPPLY = ('--zro-supply-dps-per-v', '2', '--supply-v', '0:5.0', '500:5.3', '900:4.8',
+          '1400:5.2', '2000:4.9')
 TOLERANCE_RAD_S = 1e-9
 RELATIVE = 1e-9
 
@@ -79,8 +85,30 @@ def held_out_figures(time_s: np.ndarray, error: np.ndarray) -> dict:
 def test_node_replay_of_a_diagnose_file_matches_the_offline_evaluation(
         launcher, probe, tmp_path, capsys):
     csv = tmp_path / 'sim.csv'
-    run(capsys, 'simulate', '--out', csv, *SIMULATE)
+    run(capsys, 'simulate', '--out', csv, *CYCLES, *HYSTERESIS)
     replay_and_compare(launcher, probe, tmp_path, capsys, csv, ())
+
+
+def float32_supply(path) -> None:
+    """Round the supply_voltage column to float32, the type of BatteryState.voltage."""
+    with open(path, newline='') as stream:
+        rows = list(csv.reader(stream))
+    column = rows[0].index('supply_voltage')
+    for row in rows[1:]:
+        row[column] = repr(float(np.float32(float(row[column]))))
+    with open(path, 'w', newline='') as stream:
+        csv.writer(stream).writerows(rows)
+
+
+@pytest.mark.slow
+def test_node_replay_with_the_supply_voltage_in_the_bag_matches_the_offline_evaluation(
+        launcher, probe, tmp_path, capsys):
+    csv_path = tmp_path / 'supply.csv'
+    run(capsys, 'simulate', '--out', csv_path, *CYCLES, *SUPPLY)
+    # The offline paths read the volts the node will get.
+    float32_supply(csv_path)
+    replay_and_compare(launcher, probe, tmp_path, capsys, csv_path, (), {'supply_voltage'},
+                       {'supply_voltage.pairing': 'stamp'})
 
 
 @pytest.mark.slow
@@ -96,9 +124,13 @@ def test_node_replay_of_the_measured_cycle_reproduces_the_held_out_figures(
         assert {f['effect'] for f in axis['findings']} == {'time_drift', 'bias_step'}
 
 
-def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple) -> dict:
+def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple,
+                       wanted=STATEFUL_EFFECTS, node_params=None) -> dict:
     """
     Diagnose ``csv``, replay it as a bag through the nodes on the diagnosed file.
+
+    Diagnose must add one of the ``wanted`` effects: the one the replay shows the
+    node carries.
 
     The node's output must equal the offline evaluation to 1e-9 rad/s and give
     the test-part figures `diagnose` and `evaluate` reported; return the report.
@@ -110,8 +142,7 @@ def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple) -
     axes = tuple(report['axes'])
     assert axes == ('x', 'y', 'z')
     added = {step['effect'] for a in axes for step in report['axes'][a]['steps'][1:]}
-    # Without a stateful effect the replay would not show that the node keeps the state.
-    assert added & STATEFUL_EFFECTS, f'diagnose added {sorted(added) or "nothing"}'
+    assert added & wanted, f'diagnose added {sorted(added) or "nothing"}'
 
     offline_csv = tmp_path / 'offline.csv'
     evaluation = json.loads(run(capsys, 'evaluate', csv, *options, '--params',
@@ -127,7 +158,8 @@ def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple) -
     # Within the float64 resolution of the stamps (3e-8 s at 2.6e8 s on the measured clock).
     assert np.max(np.abs(np.array(stamps_ns) / 1e9 - time_s)) <= 1e-7
 
-    start_model_replay(launcher, probe, tmp_path, bag, str(out / 'params.yaml'))
+    start_model_replay(launcher, probe, tmp_path, bag, str(out / 'params.yaml'),
+                       **(node_params or {}))
     got = np.array(finish_model_replay(launcher, probe, stamps_ns, messages))
     difference = np.max(np.abs(got - expected))
     print(f'{len(got)} samples, largest |node - offline| {difference:.3g} rad/s')

@@ -342,29 +342,44 @@ def test_model_needing_acceleration_reports_imu_without_it(launcher, probe, tmp_
     assert rates(received[0])[2] == pytest.approx(0.5 - 0.01 - 9.81e-3, abs=1e-12)
 
 
-def test_supply_voltage_model_compensates_with_the_battery_state_voltage(
-        launcher, probe, tmp_path):
-    """imu/supply_voltage (BatteryState) is paired by stamp and feeds the supply terms."""
-    model = EffectModel((AxisTerms(bias=(0.01, 2e-3), supply_voltage=(4e-3, -1e-3),
-                                   gradient_time_constants_s=(2.0,),
-                                   gradient_rad_s_per_c=(1e-3,)),),
-                        reference_temperature_c=25.0, temperature_scale_c=10.0,
-                        supply_reference_v=5.0)
+def supply_model() -> EffectModel:
+    return EffectModel((AxisTerms(bias=(0.01, 2e-3), supply_voltage=(4e-3, -1e-3),
+                                  gradient_time_constants_s=(2.0,),
+                                  gradient_rad_s_per_c=(1e-3,)),),
+                       reference_temperature_c=25.0, temperature_scale_c=10.0,
+                       supply_reference_v=5.0)
+
+
+def start_supply_node(launcher, probe, tmp_path, model, **params):
+    """Start compensation_node on ``model``; give the probe's raw and supply publishers."""
     model_file = write_model_file(tmp_path / 'effects.yaml', effect_parameters(model, ('z',)))
     launcher.start('compensation_node', 'compensation_node',
-                   {'recalibration.state_file': str(tmp_path / 'zro.yaml')},
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
                    extra_args=['--params-file', model_file])
-    received = probe.subscribe(Imu, 'imu/data')
-    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
-    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
-                                                        SENSOR_INPUT_QOS)
-    supply_publisher = probe.node.create_publisher(BatteryState, 'imu/supply_voltage',
-                                                   SENSOR_INPUT_QOS)
-    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
-                     temperature_publisher.get_subscription_count() and
-                     supply_publisher.get_subscription_count() and
+    publishers = (probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS),
+                  probe.node.create_publisher(Temperature, 'imu/temperature_raw',
+                                              SENSOR_INPUT_QOS),
+                  probe.node.create_publisher(BatteryState, 'imu/supply_voltage',
+                                              SENSOR_INPUT_QOS))
+    probe.spin_until(lambda: all(p.get_subscription_count() for p in publishers) and
                      probe.node.count_publishers('imu/data'),
                      TIMEOUT_S, 'the compensation node', launcher)
+    return publishers
+
+
+def supply_message(stamp_ns: int, volts: float) -> BatteryState:
+    supply = BatteryState()
+    supply.header.stamp = messages.ns_to_stamp(stamp_ns)
+    supply.voltage = float(volts)
+    return supply
+
+
+def test_supply_voltage_paired_by_stamp_feeds_the_supply_terms(launcher, probe, tmp_path):
+    """With pairing stamp, imu/supply_voltage (BatteryState) pairs by stamp like a temperature."""
+    model = supply_model()
+    received = probe.subscribe(Imu, 'imu/data')
+    imu_publisher, temperature_publisher, supply_publisher = start_supply_node(
+        launcher, probe, tmp_path, model, **{'supply_voltage.pairing': 'stamp'})
     samples = 60
     stamps_ns = [T0_NS + i * PERIOD_NS for i in range(samples)]
     rate_rad_s = 0.1 + 0.01 * np.sin(np.arange(samples))
@@ -372,10 +387,7 @@ def test_supply_voltage_model_compensates_with_the_battery_state_voltage(
     supply_v = 5.0 + 0.3 * np.sin(np.arange(samples) / 5.0)
     for i, stamp_ns in enumerate(stamps_ns):
         stamp = messages.ns_to_stamp(stamp_ns)
-        supply = BatteryState()
-        supply.header.stamp = stamp
-        supply.voltage = float(supply_v[i])
-        supply_publisher.publish(supply)
+        supply_publisher.publish(supply_message(stamp_ns, supply_v[i]))
         temperature_publisher.publish(messages.temperature_message(stamp, 'imu_link',
                                                                    temperature_c[i]))
         imu_publisher.publish(messages.imu_message(stamp, 'imu_link', (2,), [rate_rad_s[i]],
@@ -399,3 +411,75 @@ def test_supply_voltage_model_compensates_with_the_battery_state_voltage(
     # The supply terms are in: without them the output differs by millirad/s.
     assert np.max(np.abs(output - model.with_terms(0, supply_voltage=()).correct(
         rate, temperature, time_s=time_s).rate_rad_s[:, 0])) > 5e-4
+
+
+def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_samples(
+        launcher, probe, tmp_path):
+    """
+    By default a battery monitor's voltage, on stamps of its own, is held.
+
+    Each sample takes the latest voltage stamped at or before it; samples
+    further than supply_voltage.max_age_s from any voltage are skipped, counted
+    and reported, not compensated with a stale number.
+    """
+    model = supply_model()
+    received = probe.subscribe(Imu, 'imu/data')
+    probe.subscribe_diagnostics()
+    imu_publisher, temperature_publisher, supply_publisher = start_supply_node(
+        launcher, probe, tmp_path, model, **{'supply_voltage.max_age_s': 1.0})
+    samples = 80
+    stamps_ns = [T0_NS + i * PERIOD_NS for i in range(samples)]
+    rate_rad_s = 0.1 + 0.01 * np.sin(np.arange(samples))
+    temperature_c = 20.0 + 0.2 * np.arange(samples)
+    # A monitor at 2 Hz on stamps of its own (70 ms before every fifth sample), silent after
+    # 2.43 s: held until 3.43 s, so the 45 samples from 3.5 s on have no voltage.
+    monitor = [(T0_NS + k * 500_000_000 - 70_000_000, 4.75 + k / 16) for k in range(6)]
+    # Best effort may lose the first messages after matching: the first voltage goes a few
+    # times (a repeated stamp replaces its voltage), so no sample lacks it for that reason.
+    for _ in range(5):
+        supply_publisher.publish(supply_message(*monitor[0]))
+        probe.spin_once(0.02)
+    pending = list(monitor[1:])
+    for i, stamp_ns in enumerate(stamps_ns):
+        # The hold goes by stamps, not arrival: a voltage sent 0.3 s of stamps early is
+        # taken by the samples after it whatever the order the node gets the topics in.
+        while pending and pending[0][0] <= stamp_ns + 3 * PERIOD_NS:
+            supply_publisher.publish(supply_message(*pending.pop(0)))
+        stamp = messages.ns_to_stamp(stamp_ns)
+        temperature_publisher.publish(messages.temperature_message(stamp, 'imu_link',
+                                                                   temperature_c[i]))
+        imu_publisher.publish(messages.imu_message(stamp, 'imu_link', (2,), [rate_rad_s[i]],
+                                                   [0.0] * 9))
+        probe.spin_once(0.01)
+    fresh = [i for i, stamp in enumerate(stamps_ns) if stamp - monitor[-1][0] <= 1_000_000_000]
+    stale = samples - len(fresh)
+    assert stale == 45
+
+    def skipped(status) -> int:
+        return int(status_values(status)['no_supply_voltage_samples'])
+
+    def statuses() -> list:
+        return [s for name, history in probe.diagnostics.items()
+                if name.startswith(COMPENSATION_DIAGNOSTIC) for s in history]
+    probe.spin_until(lambda: any(skipped(s) >= stale for s in statuses()), TIMEOUT_S,
+                     f'{stale} samples without a supply voltage', launcher)
+    reported = next(s for s in statuses() if skipped(s) >= stale)
+    assert reported.level == DiagnosticStatus.ERROR
+    assert 'needs the supply voltage but imu/supply_voltage gave none within ' \
+        'supply_voltage.max_age_s (1 s)' in reported.message, reported.message
+    # Best effort may lose a first sample; none of those is stale.
+    assert skipped(reported) == stale
+    probe.drain()
+    got = by_stamp(received)
+    assert max(got) == stamps_ns[fresh[-1]], 'a stale sample was compensated'
+    kept = [i for i in fresh if stamps_ns[i] in got]
+    assert len(kept) >= len(fresh) - 10 and kept == list(range(kept[0], fresh[-1] + 1))
+    stamps = np.array([stamps_ns[i] for i in kept])
+    held = np.searchsorted([m for m, _ in monitor], stamps, side='right') - 1
+    # The node's state starts at the first sample it compensated: so does the offline run.
+    expected = model.correct(rate_rad_s[kept, None], temperature_c[kept], time_s=stamps / 1e9,
+                             supply_voltage_v=np.array([monitor[k][1] for k in held]))
+    output = np.array([rates(got[stamps_ns[i]])[2] for i in kept])
+    np.testing.assert_allclose(output, expected.rate_rad_s[:, 0], rtol=0.0, atol=1e-12)
+    # Every held voltage was used: the output is not that of any one voltage.
+    assert len(set(held.tolist())) == len(monitor)

@@ -4,7 +4,7 @@ import array
 
 from mlx_tempcomp.sources.bag import (
     BagError, eeprom_images_from_multiarray, eeprom_multiarray_from_images, EepromRecord,
-    ImuRecord, RawBagReader, RawBagWriter, RawTopics, TemperatureRecord)
+    ImuRecord, RawBagReader, RawBagWriter, RawTopics, SupplyVoltageRecord, TemperatureRecord)
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Writer
@@ -14,6 +14,7 @@ STORAGES = ('sqlite3', 'mcap')
 T0_NS = 1_700_000_000_123_456_789
 N_IMU = 300
 N_TEMPERATURE = 150
+N_SUPPLY = 30
 
 
 def imu_record(i: int) -> ImuRecord:
@@ -34,17 +35,24 @@ def temperature_record(i: int, offset_c: float = 0.0) -> TemperatureRecord:
                              temperature_c=-40.0 + 0.8333 * i + offset_c, variance=0.01 * i)
 
 
+def supply_record(i: int) -> SupplyVoltageRecord:
+    # BatteryState.voltage is a float32: these volts are exact in it.
+    return SupplyVoltageRecord(stamp_ns=T0_NS + i * 50_000_000 + 3, frame_id='battery',
+                               voltage_v=4.75 + i / 64)
+
+
 def eeprom_record(axes: int = 3) -> EepromRecord:
     return EepromRecord(tuple(bytes((a * 37 + b) % 256 for b in range(128))
                               for a in range(axes)))
 
 
 def write_bag(path, storage='sqlite3', topics=RawTopics(), imu_count=N_IMU):
-    """Write IMU, two temperature topics and the EEPROM, in shuffled order."""
+    """Write IMU, two temperature topics, the supply and the EEPROM, in shuffled order."""
     rng = np.random.default_rng(0)
     items = [(T0_NS + i * 5_000_000, 'imu', i) for i in range(imu_count)]
     items += [(T0_NS + i * 10_000_000 + 1, 'temperature', i) for i in range(N_TEMPERATURE)]
     items += [(T0_NS + i * 10_000_000 + 2, 'chip_x', i) for i in range(N_TEMPERATURE)]
+    items += [(T0_NS + i * 50_000_000 + 3, 'supply', i) for i in range(N_SUPPLY)]
     items.append((T0_NS - 1, 'eeprom', 0))
     order = rng.permutation(len(items))
     with RawBagWriter(path, storage, topics, extra_temperature_topics=['imu/chip_x']) as bag:
@@ -56,6 +64,8 @@ def write_bag(path, storage='sqlite3', topics=RawTopics(), imu_count=N_IMU):
                 bag.write_temperature(bag_time_ns, temperature_record(i))
             elif kind == 'chip_x':
                 bag.write_temperature(bag_time_ns, temperature_record(i, 0.5), '/imu/chip_x')
+            elif kind == 'supply':
+                bag.write_supply_voltage(bag_time_ns, supply_record(i))
             else:
                 bag.write_eeprom(bag_time_ns, eeprom_record())
     return sorted(items)
@@ -65,7 +75,7 @@ def write_bag(path, storage='sqlite3', topics=RawTopics(), imu_count=N_IMU):
 def test_round_trip_in_bag_time_order(tmp_path, storage):
     # written with relative names, read with absolute ones (and the reverse for chip_x)
     written = RawTopics(imu='imu/data_raw', temperature='imu/temperature_raw',
-                        eeprom='imu/eeprom')
+                        eeprom='imu/eeprom', supply_voltage='imu/supply_voltage')
     items = write_bag(tmp_path / 'bag', storage, written)
     assert (tmp_path / 'bag' / 'metadata.yaml').is_file()
     suffix = '.db3' if storage == 'sqlite3' else '.mcap'
@@ -73,15 +83,16 @@ def test_round_trip_in_bag_time_order(tmp_path, storage):
 
     with RawBagReader(tmp_path / 'bag', extra_temperature_topics=['/imu/chip_x']) as bag:
         assert set(bag.bag_topics) == {'/imu/data_raw', '/imu/temperature_raw',
-                                       '/imu/chip_x', '/imu/eeprom'}
-        assert bag.message_count == N_IMU + 2 * N_TEMPERATURE
+                                       '/imu/chip_x', '/imu/eeprom', '/imu/supply_voltage'}
+        assert bag.message_count == N_IMU + 2 * N_TEMPERATURE + N_SUPPLY
+        assert bag.has_supply_voltage
         assert bag.eeprom == eeprom_record()
         records = list(bag.records())
         assert bag.skipped == 0
 
     assert [t for t, _, _ in records] == [t for t, _, _ in items]
     topics = {'imu': '/imu/data_raw', 'temperature': '/imu/temperature_raw',
-              'chip_x': '/imu/chip_x', 'eeprom': '/imu/eeprom'}
+              'chip_x': '/imu/chip_x', 'eeprom': '/imu/eeprom', 'supply': '/imu/supply_voltage'}
     for (bag_time_ns, kind, i), (read_time_ns, topic, record) in zip(items, records):
         assert read_time_ns == bag_time_ns
         assert topic == topics[kind]
@@ -95,6 +106,8 @@ def test_round_trip_in_bag_time_order(tmp_path, storage):
             assert record == temperature_record(i)
         elif kind == 'chip_x':
             assert record == temperature_record(i, 0.5)
+        elif kind == 'supply':
+            assert record == supply_record(i)
         else:
             assert record == eeprom_record()
 
@@ -108,7 +121,7 @@ def test_records_can_be_replayed_and_eeprom_read_midway(tmp_path):
             if n == 10:
                 assert len(bag.eeprom.images) == 3
         second = list(bag.records())
-    assert len(first) == len(second) == N_IMU + 2 * N_TEMPERATURE + 1
+    assert len(first) == len(second) == N_IMU + 2 * N_TEMPERATURE + N_SUPPLY + 1
     assert [t for t, _, _ in first] == [t for t, _, _ in second]
 
 
@@ -118,13 +131,14 @@ def test_bag_without_eeprom_gives_none(tmp_path):
     with RawBagReader(tmp_path / 'bag') as bag:
         assert bag.eeprom is None
         assert bag.message_count == 1
+        assert not bag.has_supply_voltage
         assert [(t, topic) for t, topic, _ in bag.records()] == [(5, '/imu/data_raw')]
 
 
 @pytest.mark.parametrize('storage', STORAGES)
 def test_cdr_bytes_from_rclpy_read_back_equal(tmp_path, storage):
     serialization = pytest.importorskip('rclpy.serialization')
-    from sensor_msgs.msg import Imu, Temperature
+    from sensor_msgs.msg import BatteryState, Imu, Temperature
     from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
     imu = Imu()
@@ -138,6 +152,9 @@ def test_cdr_bytes_from_rclpy_read_back_equal(tmp_path, storage):
     temperature = Temperature(temperature=31.25, variance=0.04)
     temperature.header.stamp.sec, temperature.header.stamp.nanosec = 1_700_000_000, 5
     temperature.header.frame_id = 'mlx_gyro'
+    supply = BatteryState(voltage=5.125)
+    supply.header.stamp.sec, supply.header.stamp.nanosec = 1_700_000_000, 7
+    supply.header.frame_id = 'battery'
     images = eeprom_record(2).images
     dims, data = eeprom_multiarray_from_images(images)
     eeprom = UInt8MultiArray(data=array.array('B', data))
@@ -151,13 +168,16 @@ def test_cdr_bytes_from_rclpy_read_back_equal(tmp_path, storage):
                       serialization.serialize_message(imu))
         bag.write_raw(3, '/imu/temperature_raw', 'sensor_msgs/msg/Temperature',
                       serialization.serialize_message(temperature))
+        bag.write_raw(4, '/imu/supply_voltage', 'sensor_msgs/msg/BatteryState',
+                      serialization.serialize_message(supply))
 
     with RawBagReader(tmp_path / 'bag') as bag:
         assert bag.eeprom == EepromRecord(images)
         records = list(bag.records())
         assert bag.skipped == 0
     assert [(t, topic) for t, topic, _ in records] == [
-        (1, '/imu/eeprom'), (2, '/imu/data_raw'), (3, '/imu/temperature_raw')]
+        (1, '/imu/eeprom'), (2, '/imu/data_raw'), (3, '/imu/temperature_raw'),
+        (4, '/imu/supply_voltage')]
     assert records[1][2] == ImuRecord(
         stamp_ns=1_700_000_000_123_456_789, frame_id='mlx_gyro',
         angular_velocity_rad_s=[0.25, np.nan, -1.5],
@@ -166,6 +186,25 @@ def test_cdr_bytes_from_rclpy_read_back_equal(tmp_path, storage):
         linear_acceleration_covariance=np.zeros(9),
         orientation_covariance=np.r_[-1.0, np.zeros(8)])
     assert records[2][2] == TemperatureRecord(1_700_000_000_000_000_005, 'mlx_gyro', 31.25, 0.04)
+    assert records[3][2] == SupplyVoltageRecord(1_700_000_000_000_000_007, 'battery', 5.125)
+
+
+def test_supply_voltage_written_here_deserializes_in_rclpy(tmp_path):
+    serialization = pytest.importorskip('rclpy.serialization')
+    from rosbags.rosbag2 import Reader
+    from sensor_msgs.msg import BatteryState
+
+    with RawBagWriter(tmp_path / 'bag') as bag:
+        bag.write_supply_voltage(9, supply_record(4))
+    with Reader(tmp_path / 'bag') as reader:
+        [(connection, _, data)] = list(reader.messages())
+    assert connection.msgtype == 'sensor_msgs/msg/BatteryState'
+    msg = serialization.deserialize_message(data, BatteryState)
+    assert (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg.header.frame_id,
+            msg.voltage) == (supply_record(4).stamp_ns, 'battery', 4.8125)
+    # Only the voltage is measured: REP-compatible NaN for the rest, status unknown.
+    assert np.isnan([msg.current, msg.charge, msg.capacity, msg.percentage]).all()
+    assert msg.present and msg.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN
 
 
 def test_corrupt_messages_are_skipped_and_counted(tmp_path):
@@ -253,7 +292,8 @@ def test_empty_imu_topic(tmp_path):
         RawBagReader(tmp_path / 'bag')
 
 
-@pytest.mark.parametrize('topic', ['/imu/data_raw', 'imu/temperature_raw', '/imu/eeprom'])
+@pytest.mark.parametrize('topic', ['/imu/data_raw', 'imu/temperature_raw', '/imu/eeprom',
+                                   '/imu/supply_voltage'])
 def test_wrong_message_type(tmp_path, topic):
     with RawBagWriter(tmp_path / 'bag') as bag:
         if topic != '/imu/data_raw':

@@ -1,15 +1,17 @@
 """Recordings for the calibration toolkit: CSV files, column maps, presets and bags."""
 
+import dataclasses
 import math
 import os
 from pathlib import Path
 import time
 
 from measured_data import MEASURED_CSV as TOFUPILOT_CSV
-from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, RawTopics, TemperatureRecord
+from mlx_tempcomp.sources.bag import (ImuRecord, RawBagWriter, RawTopics, SupplyVoltageRecord,
+                                      TemperatureRecord)
 from mlx_tempcomp.sources.recording import (
     ColumnMap, load_bag, load_csv, load_recording, parse_column_map, PRESETS, Recording,
-    RecordingError, SKIP_DUPLICATED_TIME, SKIP_IMU_UNPAIRED, SKIP_NON_FINITE,
+    RecordingError, SKIP_DUPLICATED_TIME, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY, SKIP_NON_FINITE,
     SKIP_NON_NUMERIC, SKIP_PRESET, SKIP_TEMPERATURE_UNPAIRED, SKIP_TIME_BACKWARDS)
 import numpy as np
 import pytest
@@ -335,6 +337,30 @@ def test_bag_with_acceleration_and_other_topic_names(tmp_path):
                          temperature_topic='/sensor/die_temperature')
     assert len(recording) == 5 and dict(recording.skipped) == {}
     np.testing.assert_allclose(recording.acceleration_m_s2[:, 2], -9.8 + 0.001 * np.arange(5))
+
+
+def test_bag_supply_voltage_on_its_own_stamps_is_held_per_sample(tmp_path):
+    """A battery monitor at 0.5 Hz, silent after 4 s: held, then 5 s later samples skipped."""
+    period_ns = 100_000_000
+    topics = RawTopics(imu='/imu/data', temperature='/imu/temperature',
+                       supply_voltage='/battery')
+    with RawBagWriter(tmp_path / 'bag', 'mcap', topics) as bag:
+        for k in range(3):
+            stamp_ns = T0_NS + k * 2_000_000_000 + 50_000_000
+            bag.write_supply_voltage(stamp_ns, SupplyVoltageRecord(stamp_ns, 'battery',
+                                                                   5.0 + k / 8))
+        for i in range(100):
+            stamp_ns = T0_NS + i * period_ns
+            bag.write_imu(stamp_ns, dataclasses.replace(imu_record(i), stamp_ns=stamp_ns))
+            bag.write_temperature(stamp_ns, temperature_record(stamp_ns, 25.0))
+    recording = load_bag(tmp_path / 'bag', supply_voltage_topic='battery')
+    # Held until 4.05 s + 5 s = 9.05 s: samples 0..90 kept, 91..99 skipped.
+    assert len(recording) == 91 and dict(recording.skipped) == {SKIP_NO_SUPPLY: 9}
+    i = np.arange(91)
+    expected = np.select([i < 21, i < 41], [5.0, 5.125], 5.25)   # sample 0 takes the first
+    np.testing.assert_array_equal(recording.supply_voltage_v, expected)
+    # Without the topic in the bag there is no supply column, and nothing is skipped for it.
+    assert load_bag(tmp_path / 'bag').supply_voltage_v is None
 
 
 def test_bad_bags_give_a_clear_error(tmp_path):

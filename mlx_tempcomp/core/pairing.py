@@ -1,6 +1,13 @@
-"""Pair samples of several streams (rate, temperature...) that carry the same stamp."""
+"""
+Pair samples of several streams by stamp: exactly (rate, temperature...) or by holding.
+
+A slow input (a battery monitor's supply voltage) carries stamps of its own;
+`zero_order_hold` gives each sample the latest value at or before its stamp.
+"""
 
 from typing import Dict, List, Tuple
+
+import numpy as np
 
 
 class StampPairer:
@@ -39,3 +46,36 @@ class StampPairer:
 
     def clear(self) -> None:
         self._pending.clear()
+
+
+def zero_order_hold(sample_stamps_ns, stamps_ns, values, max_age_ns: int):
+    """
+    Give each sample the latest held value stamped at or before it (zero-order hold).
+
+    A sample older than every held value takes the oldest one. A value more
+    than ``max_age_ns`` from its sample's stamp (either way) is not usable.
+
+    Parameters
+    ----------
+    sample_stamps_ns
+        Stamps of the samples (int64 ns), any order.
+    stamps_ns, values
+        Stamps (ascending) and values of the slow input.
+    max_age_ns
+        Largest usable distance between a sample and its value.
+
+    Returns
+    -------
+    values, usable
+        float64 arrays over the samples; values are NaN where not usable.
+
+    """
+    samples = np.asarray(sample_stamps_ns, dtype=np.int64)
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    held = np.full(samples.shape, np.nan)
+    if stamps.size == 0:
+        return held, np.zeros(samples.shape, dtype=bool)
+    index = np.clip(np.searchsorted(stamps, samples, side='right') - 1, 0, stamps.size - 1)
+    usable = np.abs(samples - stamps[index]) <= max_age_ns
+    held[usable] = np.asarray(values, dtype=np.float64)[index[usable]]
+    return held, usable

@@ -7,10 +7,13 @@ while the model needs them, ``imu/temperature_2_raw`` (a second temperature)
 and ``imu/supply_voltage`` (sensor_msgs/BatteryState, its voltage); pairs
 samples by stamp, runs them through the stream of the model named by ``model``
 (which keeps the state of stateful effects) and publishes ``imu/data`` and
-``imu/temperature``. The ``imu/recalibrate_zro`` service
+``imu/temperature``. The supply voltage is held (the latest at or before each
+sample's stamp, ``supply_voltage.pairing: hold``) or paired by stamp like the
+temperature (``stamp``). The ``imu/recalibrate_zro`` service
 (std_srvs/Trigger) learns the ZRO residual at rest and persists it.
 """
 
+import bisect
 from datetime import datetime, timezone
 import time
 
@@ -31,7 +34,7 @@ from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
-from ..core.pairing import StampPairer
+from ..core.pairing import StampPairer, zero_order_hold
 from ..core.recalibration import check_window
 from ..core.table import sensor_tables
 from ..sources.bag import BagError, eeprom_images_from_multiarray
@@ -50,6 +53,8 @@ _AUXILIARY = {
               lambda msg: msg.voltage),
 }
 _POLL_S = 0.05
+# Held supply voltages kept: the slow input is seconds apart, a block spans less.
+_HELD_SUPPLY = 64
 
 
 class _Window:
@@ -106,6 +111,10 @@ class CompensationNode(Node):
         self.clamped_recent = False
         self.no_acceleration_samples = 0
         self.no_acceleration_recent = False
+        self.supply_hold = self.values['supply_voltage.pairing'] == 'hold'
+        self.held_supply = []     # (stamp_ns, volts), ascending stamps
+        self.no_supply_samples = 0
+        self.no_supply_recent = False
         self.last_input = None
         self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
 
@@ -194,10 +203,12 @@ class CompensationNode(Node):
         for stream in self.auxiliary:
             if stream not in self.input_subscriptions:
                 _, kind, topic, _ = _AUXILIARY[stream]
+                callback = self.on_supply_voltage if self.held(stream) else \
+                    (lambda msg, s=stream: self.on_temperature(s, msg))
                 self.input_subscriptions[stream] = self.create_subscription(
-                    kind, topic, lambda msg, s=stream: self.on_temperature(s, msg),
-                    SENSOR_INPUT_QOS)
-        streams = ('imu',) + self.temperature_streams + self.auxiliary
+                    kind, topic, callback, SENSOR_INPUT_QOS)
+        streams = ('imu',) + self.temperature_streams + tuple(
+            s for s in self.auxiliary if not self.held(s))
         if streams != self.pairer.streams:
             self.dropped_before += self.pairer.dropped
             self.pairer = StampPairer(streams)
@@ -229,8 +240,23 @@ class CompensationNode(Node):
             return build_model(values)
         return build_model(values, self.sensor.tables, self.sensor.full_scale_dps)
 
+    def held(self, stream: str) -> bool:
+        """Tell whether an input stream is kept by zero-order hold rather than paired by stamp."""
+        return stream == _SUPPLY and self.supply_hold
+
     def on_imu(self, msg: Imu) -> None:
         self.on_input('imu', msg)
+
+    def on_supply_voltage(self, msg: BatteryState) -> None:
+        """Keep a held supply voltage, in stamp order (a late one slots in, a repeat replaces)."""
+        stamp_ns = messages.stamp_to_ns(msg.header.stamp)
+        held = self.held_supply
+        index = bisect.bisect_left(held, (stamp_ns,))
+        if index < len(held) and held[index][0] == stamp_ns:
+            held[index] = (stamp_ns, msg.voltage)
+        else:
+            held.insert(index, (stamp_ns, msg.voltage))
+            del held[:-_HELD_SUPPLY]
 
     def on_temperature(self, stream: str, msg) -> None:
         if stream not in self.pairer.streams:
@@ -249,20 +275,28 @@ class CompensationNode(Node):
         while budget > 0:
             taken = 0
             for name, subscription in self.inputs():
-                while budget > 0:
-                    with subscription.handle:
-                        message = subscription.handle.take_message(subscription.msg_type,
-                                                                   subscription.raw)
-                    if message is None:
-                        break
-                    complete += self.pairer.add(name, messages.stamp_to_ns(
-                        message[0].header.stamp), message[0])
+                for message in self._waiting(subscription, budget):
+                    complete += self.pairer.add(name, messages.stamp_to_ns(message.header.stamp),
+                                                message)
                     taken += 1
                     budget -= 1
             if not taken:
                 break
         if complete:
             self.process(complete)
+
+    @staticmethod
+    def _waiting(subscription, limit: int = None):
+        """Take the messages waiting on ``subscription`` (``limit`` at most) without a callback."""
+        while limit is None or limit > 0:
+            with subscription.handle:
+                message = subscription.handle.take_message(subscription.msg_type,
+                                                           subscription.raw)
+            if message is None:
+                return
+            if limit is not None:
+                limit -= 1
+            yield message[0]
 
     def take_local(self, handoff: list) -> None:
         """Pair the raw messages a driver in this process sent, [(stream, msg)]; compensate."""
@@ -297,11 +331,30 @@ class CompensationNode(Node):
             samples = usable
             if not samples:
                 return
+        held_supply = None
+        if _SUPPLY in self.auxiliary and self.supply_hold:
+            # Voltages waiting in the queue count too: the executor may have served the
+            # samples' subscriptions first.
+            for message in self._waiting(self.input_subscriptions[_SUPPLY]):
+                self.on_supply_voltage(message)
+            held_supply, usable = zero_order_hold(
+                [stamp for stamp, _ in samples], [stamp for stamp, _ in self.held_supply],
+                [volts for _, volts in self.held_supply],
+                int(self.values['supply_voltage.max_age_s'] * 1e9))
+            if not usable.all():
+                self.no_supply_samples += int(np.count_nonzero(~usable))
+                self.no_supply_recent = True
+                samples = [s for s, keep in zip(samples, usable.tolist()) if keep]
+                held_supply = held_supply[usable]
+                if not samples:
+                    return
         raw = [messages.imu_rates(parts['imu'], self.indices) for _, parts in samples]
         temperatures = [[parts[s].temperature for s in self.temperature_streams]
                         for _, parts in samples]
         extra = {name: [_AUXILIARY[name][3](parts[name]) for _, parts in samples]
-                 for name in self.auxiliary}
+                 for name in self.auxiliary if not self.held(name)}
+        if held_supply is not None:
+            extra[_SUPPLY] = held_supply.tolist()
         acceleration = None
         if self.needs_acceleration:
             acceleration = [[parts['imu'].linear_acceleration.x,
@@ -461,6 +514,7 @@ class CompensationNode(Node):
             'unpaired_dropped': self.dropped_before + self.pairer.dropped,
             'temperature_clamped_samples': self.clamped_samples,
             'no_acceleration_samples': self.no_acceleration_samples,
+            'no_supply_voltage_samples': self.no_supply_samples,
             'input_age_s': float('nan') if age is None else age,
             'last_recalibration_time': recal.get('time', 'never'),
             'last_recalibration_offset_rad_s': recal.get('zro_offset_rad_s', []),
@@ -477,6 +531,12 @@ class CompensationNode(Node):
                            f'the {self.values["model"]} model needs acceleration but Imu '
                            'messages carry none (linear_acceleration_covariance[0] = -1): '
                            f'{self.no_acceleration_samples} samples not compensated')
+        elif self.no_supply_recent:
+            level, text = (DiagnosticStatus.ERROR,
+                           f'the {self.values["model"]} model needs the supply voltage but '
+                           'imu/supply_voltage gave none within supply_voltage.max_age_s '
+                           f'({self.values["supply_voltage.max_age_s"]:g} s) of the samples: '
+                           f'{self.no_supply_samples} samples not compensated')
         elif model is None:
             level, text = DiagnosticStatus.WARN, 'waiting for the EEPROM tables'
         elif self.clamped_recent:
@@ -486,6 +546,7 @@ class CompensationNode(Node):
             level, text = DiagnosticStatus.OK, f'compensating ({self.values["model"]})'
         self.clamped_recent = False
         self.no_acceleration_recent = False
+        self.no_supply_recent = False
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',
                                             self.values['model'], level, text, values)
         array = DiagnosticArray(status=[status])

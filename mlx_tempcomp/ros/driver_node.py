@@ -11,7 +11,8 @@ chips their mean, and each chip's on ``imu/temperature_raw/<axis>``),
 ``imu/eeprom`` (std_msgs/UInt8MultiArray, transient local: the chips' EEPROM
 images, so the raw topics reproduce compensation exactly) and ``/diagnostics``;
 a bag with a second temperature (``bag.temperature_2_topic``) also gives
-``imu/temperature_2_raw``.
+``imu/temperature_2_raw``, one with a supply voltage (``bag.supply_voltage_topic``)
+``imu/supply_voltage`` (sensor_msgs/BatteryState).
 """
 
 import collections
@@ -23,7 +24,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 import rclpy.logging
 from rclpy.node import Node
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 
 from . import messages
@@ -37,7 +38,8 @@ from ..core.conversion import Output
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
 from ..simulation.mlx90609 import Fault
-from ..sources.bag import absolute_topic, ImuRecord, RawBagReader, RawTopics, TemperatureRecord
+from ..sources.bag import (absolute_topic, ImuRecord, RawBagReader, RawTopics,
+                           SupplyVoltageRecord, TemperatureRecord)
 from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 
 EEPROM_READ_ATTEMPTS = 3
@@ -290,10 +292,11 @@ class BagStream:
             msg = (f'invalid parameter bag.temperature_2_topic: {temperature_2_topic} is '
                    'already the temperature topic')
             raise ParameterError(msg)
-        self.reader = RawBagReader(path, RawTopics(imu=values['bag.imu_topic'],
-                                                   temperature=temperature_topic,
-                                                   eeprom=values['bag.eeprom_topic']),
-                                   extra_temperature_topics=extra_topics)
+        self.reader = RawBagReader(
+            path, RawTopics(imu=values['bag.imu_topic'], temperature=temperature_topic,
+                            eeprom=values['bag.eeprom_topic'],
+                            supply_voltage=values['bag.supply_voltage_topic']),
+            extra_temperature_topics=extra_topics)
         # Topic (without slashes) -> (publisher, pairer stream of the compensation node); the
         # main temperature topic is the default.
         self.publishers = {topic.strip('/'): (publisher, f'temperature_{axis}') for
@@ -310,6 +313,9 @@ class BagStream:
             self.publishers[temperature_2_topic.strip('/')] = (node.create_publisher(
                 Temperature, 'imu/temperature_2_raw', SENSOR_QOS), 'temperature_2')
         self.temperature_topic = temperature_topic.strip('/')
+        self.supply_publisher = node.create_publisher(
+            BatteryState, 'imu/supply_voltage', SENSOR_QOS) if self.reader.has_supply_voltage \
+            else None
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
         self.rate_factor = values['bag.rate_factor']
@@ -346,7 +352,8 @@ class BagStream:
             if self.first_subscriber is None:
                 self.first_subscriber = time.monotonic()
             publishers = [self.node.temperature_publisher] + \
-                [publisher for publisher, _ in self.publishers.values()]
+                [publisher for publisher, _ in self.publishers.values()] + \
+                ([self.supply_publisher] if self.supply_publisher else [])
             if not local and any(p.get_subscription_count() == 0 for p in publishers) and \
                     time.monotonic() - self.first_subscriber < MATCH_GRACE_S:
                 return
@@ -415,6 +422,10 @@ class BagStream:
                                                     (self.node.temperature_publisher,
                                                      'temperature'))
             self.node.send(publisher, stream, msg)
+        elif isinstance(record, SupplyVoltageRecord):
+            self.node.send(self.supply_publisher, 'supply_voltage',
+                           messages.supply_voltage_message(stamp, record.frame_id,
+                                                           record.voltage_v))
         else:
             return
         self.published += 1

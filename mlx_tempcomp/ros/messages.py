@@ -5,7 +5,7 @@ import math
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
 from ..core.eeprom import EEPROM_SIZE
@@ -85,6 +85,18 @@ def temperature_message(stamp: Time, frame_id: str, temperature_c: float,
     msg.header.frame_id = frame_id
     msg.temperature = float(temperature_c)
     msg.variance = float(variance)
+    return msg
+
+
+def supply_voltage_message(stamp: Time, frame_id: str, voltage_v: float) -> BatteryState:
+    """Give a BatteryState carrying a measured supply voltage; unmeasured fields NaN."""
+    msg = BatteryState()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.voltage = float(voltage_v)
+    msg.temperature = msg.current = msg.charge = msg.capacity = NAN
+    msg.design_capacity = msg.percentage = NAN
+    msg.present = True
     return msg
 
 

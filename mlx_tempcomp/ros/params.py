@@ -127,6 +127,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
          read_only=True),
     Spec('bag.eeprom_topic', '/imu/eeprom', 'EEPROM topic in the bag', read_only=True),
+    Spec('bag.supply_voltage_topic', '/imu/supply_voltage',
+         'supply-voltage topic in the bag (sensor_msgs/BatteryState), replayed as '
+         'imu/supply_voltage when the bag has it', read_only=True),
     Spec('bag.temperature_2_topic', '',
          "second-temperature topic in the bag, replayed as imu/temperature_2_raw ('' = none)",
          read_only=True),
@@ -332,6 +335,14 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          high=3600.0),
     Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
          'block (1: one message per callback)', read_only=True, low=1, high=100000),
+    Spec('supply_voltage.pairing', 'hold',
+         'how a model with supply terms pairs imu/supply_voltage with the samples: hold = '
+         'the latest voltage stamped at or before each sample (a battery monitor at its own '
+         'rate), stamp = the voltage with the same stamp (a driver or bag that stamps it '
+         'with the sample)', read_only=True, choices=('hold', 'stamp')),
+    Spec('supply_voltage.max_age_s', 5.0,
+         'hold: a voltage further than this from the sample stamp is not used; the sample '
+         'is skipped and counted', low=0.0, high=3600.0),
 )
 
 

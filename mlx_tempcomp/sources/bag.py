@@ -13,7 +13,9 @@ The raw topics:
 - die temperature (``sensor_msgs/msg/Temperature``, ``/imu/temperature_raw``,
   plus any extra temperature topics, e.g. one per chip),
 - the EEPROM images (``std_msgs/msg/UInt8MultiArray``, ``/imu/eeprom``) laid
-  out as dims [axis: size A, stride 128 A] and [byte: size 128, stride 128].
+  out as dims [axis: size A, stride 128 A] and [byte: size 128, stride 128],
+- optionally the supply voltage (``sensor_msgs/msg/BatteryState``, its
+  ``voltage``, ``/imu/supply_voltage``), for models with supply terms.
 
 Topic names match with or without their leading slash; the writer always
 records the absolute name (with the slash), as ROS does.
@@ -21,6 +23,7 @@ records the absolute name (with the slash), as ROS does.
 
 from dataclasses import dataclass
 import functools
+import math
 import operator
 from pathlib import Path
 from typing import Iterator, Optional, Sequence, Tuple, Union
@@ -40,6 +43,7 @@ except ImportError:  # pragma: no cover
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
 EEPROM_TYPE = 'std_msgs/msg/UInt8MultiArray'
+SUPPLY_VOLTAGE_TYPE = 'sensor_msgs/msg/BatteryState'
 
 STORAGES = ('sqlite3', 'mcap')
 BAG_VERSION = 8  # rosbag2 metadata version of ROS 2 Jazzy
@@ -141,6 +145,26 @@ class TemperatureRecord:
         object.__setattr__(self, 'frame_id', str(self.frame_id))
         object.__setattr__(self, 'temperature_c', float(self.temperature_c))
         object.__setattr__(self, 'variance', float(self.variance))
+
+
+@dataclass(frozen=True)
+class SupplyVoltageRecord:
+    """
+    One supply-voltage message: the voltage of a sensor_msgs/BatteryState.
+
+    The message holds it as a float32, so volts come back rounded to float32
+    (about 0.5 uV at 5 V).
+    """
+
+    stamp_ns: int
+    frame_id: str
+    voltage_v: float
+
+    def __post_init__(self):
+        object.__setattr__(self, 'stamp_ns',
+                           _stamp_ns(self.stamp_ns, 'SupplyVoltageRecord.stamp_ns'))
+        object.__setattr__(self, 'frame_id', str(self.frame_id))
+        object.__setattr__(self, 'voltage_v', float(self.voltage_v))
 
 
 def _image_bytes(image, index: int) -> bytes:
@@ -265,6 +289,7 @@ class RawTopics:
     imu: str = '/imu/data_raw'
     temperature: str = '/imu/temperature_raw'
     eeprom: str = '/imu/eeprom'
+    supply_voltage: str = '/imu/supply_voltage'
 
 
 def absolute_topic(topic: str) -> str:
@@ -301,9 +326,18 @@ def _decode_eeprom(msg) -> EepromRecord:
     return EepromRecord(eeprom_images_from_multiarray(dims, msg.data, msg.layout.data_offset))
 
 
-_IMU, _TEMPERATURE, _EEPROM = 'imu', 'temperature', 'eeprom'
-_EXPECTED_TYPES = {_IMU: IMU_TYPE, _TEMPERATURE: TEMPERATURE_TYPE, _EEPROM: EEPROM_TYPE}
-_DECODERS = {_IMU: _decode_imu, _TEMPERATURE: _decode_temperature, _EEPROM: _decode_eeprom}
+def _decode_supply_voltage(msg) -> SupplyVoltageRecord:
+    stamp_ns, frame_id = _decode_header(msg.header)
+    return SupplyVoltageRecord(stamp_ns=stamp_ns, frame_id=frame_id, voltage_v=msg.voltage)
+
+
+_IMU, _TEMPERATURE, _EEPROM, _SUPPLY = 'imu', 'temperature', 'eeprom', 'supply voltage'
+_EXPECTED_TYPES = {_IMU: IMU_TYPE, _TEMPERATURE: TEMPERATURE_TYPE, _EEPROM: EEPROM_TYPE,
+                   _SUPPLY: SUPPLY_VOLTAGE_TYPE}
+_DECODERS = {_IMU: _decode_imu, _TEMPERATURE: _decode_temperature, _EEPROM: _decode_eeprom,
+             _SUPPLY: _decode_supply_voltage}
+# Messages the driver replays (the EEPROM is published once, before the replay).
+_STREAMED = (_IMU, _TEMPERATURE, _SUPPLY)
 
 
 def _wanted_topics(topics: RawTopics, extra_temperature_topics) -> dict:
@@ -311,7 +345,8 @@ def _wanted_topics(topics: RawTopics, extra_temperature_topics) -> dict:
     if isinstance(extra_temperature_topics, str):
         extra_temperature_topics = (extra_temperature_topics,)
     wanted = {}
-    entries = [(topics.imu, _IMU), (topics.temperature, _TEMPERATURE), (topics.eeprom, _EEPROM)]
+    entries = [(topics.imu, _IMU), (topics.temperature, _TEMPERATURE), (topics.eeprom, _EEPROM),
+               (topics.supply_voltage, _SUPPLY)]
     entries += [(topic, _TEMPERATURE) for topic in extra_temperature_topics]
     for topic, kind in entries:
         name = absolute_topic(topic)
@@ -328,7 +363,8 @@ class RawBagReader:
 
     The bag is opened and checked on construction: it must hold the IMU topic
     with at least one message, and every raw topic it holds must have the
-    expected message type. The temperature and EEPROM topics are optional.
+    expected message type. The temperature, EEPROM and supply-voltage topics
+    are optional.
     A bare ``.db3`` or ``.mcap`` file is accepted too.
 
     ``records()`` yields ``(bag_time_ns, topic, record)`` where ``topic`` is
@@ -394,7 +430,8 @@ class RawBagReader:
             msg = (f'bag {self.path} is empty: no message on IMU topic '
                    f'{absolute_topic(self.topics.imu)}')
             raise BagError(msg)
-        self._message_count = counts[_IMU] + counts.get(_TEMPERATURE, 0)
+        self._message_count = sum(counts.get(kind, 0) for kind in _STREAMED)
+        self._supply_voltage_messages = counts.get(_SUPPLY, 0)
         return routes
 
     def __enter__(self) -> 'RawBagReader':
@@ -422,8 +459,13 @@ class RawBagReader:
 
     @property
     def message_count(self) -> int:
-        """Messages on the IMU and temperature topics, from the bag's metadata."""
+        """Messages on the IMU, temperature and supply-voltage topics, from the metadata."""
         return self._message_count
+
+    @property
+    def has_supply_voltage(self) -> bool:
+        """Tell whether the bag holds supply-voltage messages."""
+        return self._supply_voltage_messages > 0
 
     def _connections(self, kinds) -> list:
         return [c for c in self._open().connections
@@ -480,13 +522,13 @@ class RawBagReader:
         """
         Yield ``(bag_time_ns, topic, record)`` of every raw message in bag-time order.
 
-        ``record`` is an ImuRecord, TemperatureRecord or EepromRecord. Corrupt
-        messages are skipped and counted in ``skipped``.
+        ``record`` is an ImuRecord, TemperatureRecord, SupplyVoltageRecord or
+        EepromRecord. Corrupt messages are skipped and counted in ``skipped``.
         """
         self.skipped = 0
         self.last_skip_reason = None
         for connection, bag_time_ns, data in self._messages(
-                self._connections({_IMU, _TEMPERATURE, _EEPROM})):
+                self._connections({_EEPROM, *_STREAMED})):
             topic = self._routes[connection.id][1]
             try:
                 record = self._decode(connection, data)
@@ -525,6 +567,22 @@ def _temperature_message(typestore, record: TemperatureRecord):
     return typestore.types[TEMPERATURE_TYPE](
         header=_header(typestore, record.stamp_ns, record.frame_id),
         temperature=record.temperature_c, variance=record.variance)
+
+
+def _supply_voltage_message(typestore, record: SupplyVoltageRecord):
+    types = typestore.types
+    battery = types[SUPPLY_VOLTAGE_TYPE]
+    # Only the voltage is measured: the rest is NaN or unknown, as the message defines.
+    return battery(header=_header(typestore, record.stamp_ns, record.frame_id),
+                   voltage=record.voltage_v, temperature=math.nan, current=math.nan,
+                   charge=math.nan, capacity=math.nan, design_capacity=math.nan,
+                   percentage=math.nan,
+                   power_supply_status=battery.POWER_SUPPLY_STATUS_UNKNOWN,
+                   power_supply_health=battery.POWER_SUPPLY_HEALTH_UNKNOWN,
+                   power_supply_technology=battery.POWER_SUPPLY_TECHNOLOGY_UNKNOWN,
+                   present=True, cell_voltage=np.array([], dtype=np.float32),
+                   cell_temperature=np.array([], dtype=np.float32), location='',
+                   serial_number='')
 
 
 def _eeprom_message(typestore, record: EepromRecord):
@@ -656,6 +714,12 @@ class RawBagWriter:
             raise BagError(msg)
         self._write_message(bag_time_ns, topic, TEMPERATURE_TYPE,
                             _temperature_message(self._typestore, record))
+
+    def write_supply_voltage(self, bag_time_ns: int, record: SupplyVoltageRecord) -> None:
+        """Write one supply-voltage record on the supply-voltage topic."""
+        _check_record(record, SupplyVoltageRecord)
+        self._write_message(bag_time_ns, self.topics.supply_voltage, SUPPLY_VOLTAGE_TYPE,
+                            _supply_voltage_message(self._typestore, record))
 
     def write_eeprom(self, bag_time_ns: int, record: EepromRecord) -> None:
         """Write the EEPROM images on the EEPROM topic."""

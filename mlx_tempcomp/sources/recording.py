@@ -16,7 +16,9 @@ form); `PRESETS` holds the maps of known data sets. The delimiter (tab, comma or
 detected from the header unless the map sets it.
 
 Bags (sqlite3 or mcap) are read with `RawBagReader`: ``sensor_msgs/Imu``
-and ``sensor_msgs/Temperature`` messages are paired by exact header stamp.
+and ``sensor_msgs/Temperature`` messages are paired by exact header stamp; a
+supply voltage (``sensor_msgs/BatteryState``), on stamps of its own, is held
+as the compensation node holds it.
 """
 
 import csv
@@ -30,8 +32,9 @@ from typing import Dict, Mapping, Optional, Union
 
 import numpy as np
 
-from .bag import (
-    absolute_topic, BagError, ImuRecord, RawBagReader, RawTopics, TemperatureRecord)
+from .bag import (absolute_topic, BagError, ImuRecord, RawBagReader, RawTopics,
+                  SupplyVoltageRecord, TemperatureRecord)
+from ..core.pairing import zero_order_hold
 
 AXES = ('x', 'y', 'z')
 BAG_SUFFIXES = ('.db3', '.mcap')
@@ -44,6 +47,9 @@ SKIP_TIME_BACKWARDS = 'time going backwards'
 SKIP_IMU_UNPAIRED = 'IMU without temperature'
 SKIP_TEMPERATURE_UNPAIRED = 'temperature without IMU'
 SKIP_CORRUPT = 'corrupt messages'
+SKIP_NO_SUPPLY = 'IMU without a supply voltage within 5 s'
+# The compensation node's default supply_voltage.max_age_s.
+SUPPLY_MAX_AGE_NS = 5_000_000_000
 
 _GROUPS = (('gyro', 'gyro'), ('reference', 'ref'), ('acceleration', 'acc'))
 CANONICAL_COLUMNS = (('time', 'temperature')
@@ -580,13 +586,16 @@ def _bag_message(path: PathLike, err: BagError) -> str:
 
 
 def _read_bag(bag: RawBagReader, path: Path, temperature_topic: str):
-    """Give the IMU records in bag order, temperature by stamp, and skip counts."""
+    """Give the IMU records in bag order, temperature and supply by stamp, skip counts."""
     imu = []
     temperatures = {}
+    supply = {}
     skipped = {}
     for _, _, record in bag.records():
         if isinstance(record, ImuRecord):
             imu.append(record)
+        elif isinstance(record, SupplyVoltageRecord):
+            supply[record.stamp_ns] = record.voltage_v
         elif isinstance(record, TemperatureRecord):
             if record.stamp_ns in temperatures:
                 skipped[SKIP_DUPLICATED_TIME] = skipped.get(SKIP_DUPLICATED_TIME, 0) + 1
@@ -599,11 +608,12 @@ def _read_bag(bag: RawBagReader, path: Path, temperature_topic: str):
         msg = (f'bag {path} has no message on temperature topic '
                f'{absolute_topic(temperature_topic)}; the bag has: {present}')
         raise RecordingError(msg)
-    return imu, temperatures, skipped
+    return imu, temperatures, supply, skipped
 
 
 def load_bag(path: PathLike, imu_topic: str = '/imu/data',
-             temperature_topic: str = '/imu/temperature') -> Recording:
+             temperature_topic: str = '/imu/temperature',
+             supply_voltage_topic: str = '/imu/supply_voltage') -> Recording:
     """
     Load a rosbag2 recording (folder, or a bare .db3 or .mcap file).
 
@@ -611,9 +621,9 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
     ----------
     path
         The bag.
-    imu_topic, temperature_topic
-        ``sensor_msgs/Imu`` and ``sensor_msgs/Temperature`` topics; a leading
-        slash is optional.
+    imu_topic, temperature_topic, supply_voltage_topic
+        ``sensor_msgs/Imu``, ``sensor_msgs/Temperature`` and
+        ``sensor_msgs/BatteryState`` topics; a leading slash is optional.
 
     Returns
     -------
@@ -622,7 +632,10 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
         messages are counted in ``skipped``. Axes are those whose angular
         velocity is finite in some paired message (NaN marks an unmeasured
         axis). Acceleration is included unless a message flags it unreported
-        (``linear_acceleration_covariance[0] == -1``).
+        (``linear_acceleration_covariance[0] == -1``). With messages on the
+        supply-voltage topic, each sample has the latest voltage stamped at or
+        before it (or the first one); samples more than 5 s from any voltage
+        are skipped and counted.
 
     Raises
     ------
@@ -632,8 +645,9 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
     """
     path = Path(path)
     try:
-        with RawBagReader(path, RawTopics(imu=imu_topic, temperature=temperature_topic)) as bag:
-            imu, temperatures, skipped = _read_bag(bag, path, temperature_topic)
+        with RawBagReader(path, RawTopics(imu=imu_topic, temperature=temperature_topic,
+                                          supply_voltage=supply_voltage_topic)) as bag:
+            imu, temperatures, supply, skipped = _read_bag(bag, path, temperature_topic)
     except BagError as err:
         raise RecordingError(_bag_message(path, err)) from None
     stamps_ns = np.array([record.stamp_ns for record in imu], dtype=np.int64)
@@ -649,6 +663,19 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
     unpaired = {SKIP_IMU_UNPAIRED: int(np.count_nonzero(~paired)),
                 SKIP_TEMPERATURE_UNPAIRED: len(temperatures) - len(used_stamps)}
     skipped.update((reason, count) for reason, count in unpaired.items() if count)
+    supply_v = None
+    if supply:
+        held = sorted(supply)
+        supply_v, usable = zero_order_hold(stamps_ns, held, [supply[s] for s in held],
+                                           SUPPLY_MAX_AGE_NS)
+        if not usable.all():
+            skipped[SKIP_NO_SUPPLY] = int(np.count_nonzero(~usable))
+            imu = [record for record, used in zip(imu, usable) if used]
+            stamps_ns, supply_v = stamps_ns[usable], supply_v[usable]
+            if not imu:
+                msg = (f'bag {path}: no IMU message within 5 s of a supply voltage on '
+                       f'{absolute_topic(supply_voltage_topic)}')
+                raise RecordingError(msg)
     rate_rad_s = np.array([record.angular_velocity_rad_s for record in imu])
     axes = [i for i in range(3) if np.isfinite(rate_rad_s[:, i]).any()]
     if not axes:
@@ -661,26 +688,29 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
     if all(record.linear_acceleration_covariance[0] != -1 for record in imu):
         acceleration = np.array([record.linear_acceleration_m_s2 for record in imu])
         columns.update((f'acc_{a}', acceleration[:, i]) for i, a in enumerate(AXES))
+    if supply_v is not None:
+        columns['supply_voltage'] = supply_v
     return _recording(str(path), columns, np.zeros(len(imu), dtype=bool), skipped)
 
 
 def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = None,
                    preset: Optional[str] = None, imu_topic: str = '/imu/data',
-                   temperature_topic: str = '/imu/temperature') -> Recording:
+                   temperature_topic: str = '/imu/temperature',
+                   supply_voltage_topic: str = '/imu/supply_voltage') -> Recording:
     """
     Load a recording: a folder, ``.db3`` or ``.mcap`` as a bag, anything else as CSV.
 
     ``columns`` (a ColumnMap or its command-line form) or ``preset`` (a name
     in PRESETS) say how to read a CSV file; the default map reads the
     canonical columns. They do not apply to bags, whose topics are given by
-    ``imu_topic`` and ``temperature_topic``.
+    ``imu_topic``, ``temperature_topic`` and ``supply_voltage_topic``.
     """
     path = Path(path)
     if path.is_dir() or path.suffix.lower() in BAG_SUFFIXES:
         if columns is not None or preset is not None:
             msg = f'{path} is a rosbag2 bag: a column map or preset applies to CSV files only'
             raise RecordingError(msg)
-        return load_bag(path, imu_topic, temperature_topic)
+        return load_bag(path, imu_topic, temperature_topic, supply_voltage_topic)
     if columns is not None and preset is not None:
         msg = f'{path}: give a column map or a preset, not both'
         raise RecordingError(msg)

@@ -61,12 +61,17 @@ def add_recording_options(parser: argparse.ArgumentParser) -> None:
                         help='Imu topic of a bag (default: %(default)s)')
     parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
                         help='Temperature topic of a bag (default: %(default)s)')
+    parser.add_argument('--supply-voltage-topic', default='/imu/supply_voltage',
+                        metavar='TOPIC',
+                        help='BatteryState topic of a bag, held per sample as the node holds '
+                             'it (default: %(default)s)')
 
 
 def load(args: argparse.Namespace) -> Recording:
     """Load the recording named by the options `add_recording_options` defines."""
     try:
         return load_recording(args.input, columns=args.columns, preset=args.preset,
-                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic)
+                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic,
+                              supply_voltage_topic=args.supply_voltage_topic)
     except RecordingError as err:
         raise UserError(str(err)) from None

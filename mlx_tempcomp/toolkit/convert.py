@@ -6,7 +6,8 @@ The bag holds what `driver_node` publishes, so ``driver_node`` with
 ``/imu/data_raw`` (unmeasured axes NaN, acceleration flagged unreported with
 covariance[0] = -1 when the recording has none) and ``sensor_msgs/Temperature``
 on ``/imu/temperature_raw``; a second temperature goes to
-``/imu/temperature_2_raw``. Header stamps and bag times are the recording's
+``/imu/temperature_2_raw``, a supply voltage to ``/imu/supply_voltage``
+(``sensor_msgs/BatteryState``). Header stamps and bag times are the recording's
 time, which must not be negative.
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 from .common import add_recording_options, load, UserError
 from .progress import add_progress_option, Progress
 from ..sources.bag import (BagError, EepromRecord, ImuRecord, RawBagWriter, RawTopics, STORAGES,
-                           TemperatureRecord)
+                           SupplyVoltageRecord, TemperatureRecord)
 from ..sources.recording import AXES, Recording
 
 TEMPERATURE_2_TOPIC = '/imu/temperature_2_raw'
@@ -62,6 +63,7 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
     rates = np.full((len(recording), 3), math.nan)
     rates[:, [AXES.index(a) for a in recording.axes]] = recording.gyro_rad_s
     acceleration = recording.acceleration_m_s2
+    supply_v = recording.supply_voltage_v
     written = 0
     try:
         with RawBagWriter(path, storage, RawTopics(), extra) as bag, \
@@ -79,6 +81,10 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
                     bag.write_temperature(stamp, TemperatureRecord(
                         stamp, FRAME_ID, recording.temperature_2_c[row], 0.0),
                         TEMPERATURE_2_TOPIC)
+                if supply_v is not None:
+                    bag.write_supply_voltage(stamp, SupplyVoltageRecord(stamp, FRAME_ID,
+                                                                        supply_v[row]))
+                    written += 1
                 bag.write_temperature(stamp, TemperatureRecord(
                     stamp, FRAME_ID, recording.temperature_c[row], 0.0))
                 bag.write_imu(stamp, ImuRecord(
@@ -107,6 +113,8 @@ def convert_command(args: argparse.Namespace) -> int:
     topics = ['/imu/data_raw', '/imu/temperature_raw']
     if recording.temperature_2_c is not None:
         topics.append(TEMPERATURE_2_TOPIC)
+    if recording.supply_voltage_v is not None:
+        topics.append(RawTopics.supply_voltage)
     print(f'wrote {args.out} ({args.storage}): {messages} messages on {", ".join(topics)}')
     print(f'replay: driver_node --ros-args -p source:=bag -p bag.path:={args.out} '
           f"-p \"axes:=[{', '.join(repr(a) for a in recording.axes)}]\"")
@@ -118,7 +126,9 @@ def add_parser(commands) -> None:
     convert = commands.add_parser(
         'convert', help='write a CSV recording as a rosbag2 bag on the raw topics',
         description='Write a recording (CSV with the usual column options) as a rosbag2 '
-                    'bag on the raw topics /imu/data_raw and /imu/temperature_raw, so '
+                    'bag on the raw topics /imu/data_raw and /imu/temperature_raw (and '
+                    '/imu/temperature_2_raw, /imu/supply_voltage from the temperature_2 and '
+                    'supply_voltage columns), so '
                     'driver_node (source bag) replays it through compensation_node. '
                     'Stamps are the recording time, which must be >= 0.')
     add_recording_options(convert)

@@ -167,6 +167,8 @@ def _device_recording(args, out: Path, progress_enabled) -> tuple:
         source=str(out), time_s=time_s[kept], temperature_c=axis_temperatures_c.mean(axis=1),
         axes=axes, gyro_rad_s=rate_rad_s,
         acceleration_m_s2=acceleration[kept] if with_acceleration else None,
+        supply_voltage_v=np.interp(time_s[kept], supply_times, supply_v)
+        if args.supply_v_given else None,
         skipped={'saturated': int(np.count_nonzero(~kept))})
     truth = {
         'source': 'simulated MLX90609 chips through the SPI protocol and the nominal '
@@ -233,6 +235,8 @@ def _write_csv(path: Path, recording: Recording) -> None:
                        for i, a in enumerate(AXES))
     if recording.temperature_2_c is not None:
         columns['temperature_2'] = recording.temperature_2_c
+    if recording.supply_voltage_v is not None:
+        columns['supply_voltage'] = recording.supply_voltage_v
     try:
         np.savetxt(path, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
                    delimiter=',', header=','.join(columns), comments='')
@@ -247,6 +251,8 @@ def _check_turntable_options(args: argparse.Namespace) -> None:
     given = [name for name in effects if getattr(args, name)]
     if any(args.acceleration_dps_per_m_s2):
         given.append('acceleration_dps_per_m_s2')
+    if args.supply_v_given:
+        given.append('supply_v')
     if given:
         names = ', '.join('--' + name.replace('_', '-') for name in given)
         msg = f'{names}: effects apply to the chip simulation, not to --turntable'
@@ -256,6 +262,9 @@ def _check_turntable_options(args: argparse.Namespace) -> None:
 def simulate_command(args: argparse.Namespace) -> int:
     out, fmt, truth_path = _output_paths(args)
     args.rate_hz_given = args.rate_hz is not None
+    args.supply_v_given = args.supply_v is not None
+    if args.supply_v is None:
+        args.supply_v = [str(NOMINAL_SUPPLY_V)]
     if args.rate_hz is None:
         args.rate_hz = 10.0
     progress_enabled = args.progress or None
@@ -274,6 +283,8 @@ def simulate_command(args: argparse.Namespace) -> int:
         what = f'{fmt} bag, {messages} messages on /imu/data_raw, /imu/temperature_raw'
         if recording.temperature_2_c is not None:
             what += ', /imu/temperature_2_raw'
+        if recording.supply_voltage_v is not None:
+            what += ', /imu/supply_voltage'
         if images is not None:
             what += ', /imu/eeprom'
         if recording.reference_rad_s is not None:
@@ -359,8 +370,10 @@ def add_parser(commands) -> None:
                                            'S seconds (writes acc_x|y|z)')
     effects.add_argument('--zro-supply-dps-per-v', type=float, default=0.0, metavar='K',
                          help='ZRO shift per volt off the nominal 5 V')
-    effects.add_argument('--supply-v', nargs='+', default=['5.0'], metavar='V',
-                         help='supply: one voltage, or waypoints T:V ... (linear between)')
+    effects.add_argument('--supply-v', nargs='+', metavar='V',
+                         help='supply: one voltage, or waypoints T:V ... (linear between); '
+                              'given, the recording carries it (supply_voltage, '
+                              '/imu/supply_voltage); default 5')
     simulate.add_argument('--turntable', action='store_true',
                           help='rate plateaus on each axis at several chamber temperatures '
                                'with a reference rate and a second temperature (seed 004)')
