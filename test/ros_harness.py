@@ -17,7 +17,7 @@ import sys
 import tempfile
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mlx_tempcomp.model_params import nest_parameters, write_parameter_file
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import EEPROM_QOS
@@ -440,6 +440,26 @@ def simulated_driver_params(**overrides) -> dict:
     """Return parameters of a fast simulated driver: 100 Hz, 5 x real time."""
     return {'publish_rate_hz': 100.0, 'sample_rate_hz': 100.0,
             'simulation.real_time_factor': 5.0, **overrides}
+
+
+def start_pipeline(launcher, probe, driver: dict, compensation: dict, axes=('z',),
+                   timeout: float = 30.0) -> dict:
+    """
+    Start the simulated driver and a compensation node on ``axes``; return their statuses.
+
+    Returns once both report OK and both streams reach the probe, which has
+    subscribed to what it records (and to the diagnostics) beforehand.
+    """
+    launcher.driver(simulated_driver_params(axes=list(axes), **driver))
+    launcher.compensation({'axes': list(axes),
+                           'recalibration.state_file': str(launcher.folder / 'zro.yaml'),
+                           **compensation})
+    statuses = probe.wait_statuses(
+        {DRIVER_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK,
+         COMPENSATION_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK},
+        timeout, 'both nodes OK', launcher)
+    probe.wait_streaming(['imu/data_raw', 'imu/data'], timeout, launcher)
+    return statuses
 
 
 def first_line_with(text: str, needle: str) -> str:

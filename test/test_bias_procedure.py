@@ -2,11 +2,11 @@
 
 import math
 import os
-from pathlib import Path
 import signal
 import subprocess
 import sys
 
+from cli_checks import assert_user_error, node_values
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.bias_procedure import (averaging_time_s, BiasPoint, BiasProcedure,
                                               btc_rad_s_per_c, Phase, ProcedureSettings)
@@ -14,14 +14,12 @@ from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import format_btc_table
 from mlx_tempcomp.core.models import LinearBtcModel
 from mlx_tempcomp.core.noise import allan_deviation, NoiseFigures
-from mlx_tempcomp.ros.params import build_model, COMPENSATION_SPECS
+from mlx_tempcomp.ros.params import build_model
 from mlx_tempcomp.simulation.adis16130 import (ADIS16130_NOISE, Adis16130Truth,
                                                self_heating_profile)
 from mlx_tempcomp.sources.adis16130 import SimulatedSensor, SimulationConfig
 import numpy as np
 import pytest
-from rclpy.parameter import Parameter
-import yaml
 
 # AN-1042 Table 6: TBIAS 0.04 deg/s/C, (TEMP - T3) in 0.02 C steps -> (TEMP - T3) x BTC.
 TABLE_6 = ((0.12, -0.0048), (0.10, -0.0040), (0.08, -0.0032), (0.06, -0.0024),
@@ -210,27 +208,6 @@ def test_btc_and_pbc_on_the_simulated_part(slope_dps_per_c):
     assert math.degrees(result.noise.rate_noise_rad_s) == pytest.approx(WHITE_DPS, rel=0.1)
 
 
-def node_values(path):
-    """Give the compensation node's values: the file's parameters over the declared defaults."""
-    tree = yaml.safe_load(Path(path).read_text())['compensation_node']['ros__parameters']
-    flat = {}
-
-    def walk(prefix, node):
-        for key, value in node.items():
-            if isinstance(value, dict):
-                walk(f'{prefix}{key}.', value)
-            else:
-                flat[prefix + key] = value
-
-    walk('', tree)
-    specs = {spec.name: spec for spec in COMPENSATION_SPECS}
-    assert set(flat) <= set(specs)
-    values = {name: [] if isinstance(spec.default, Parameter.Type) else spec.default
-              for name, spec in specs.items()}
-    values.update(flat)
-    return values
-
-
 def adis_bias(tmp_path, *options):
     out = tmp_path / 'adis.yaml'
     options = ['--average-s', '10', '--self-heat-s', '600', '--settle-s', '600',
@@ -265,25 +242,21 @@ def test_cli_writes_parameters_that_flatten_the_simulated_bias(tmp_path, capsys)
     assert abs(math.degrees(np.mean(corrected))) < SIGMAS * window_sigma_dps(300.0, 50.0)
 
 
-def assert_user_error(code, capsys, out, *needles):
-    err = capsys.readouterr().err
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    for needle in needles:
-        assert needle in err
+def assert_refused(code, capsys, out, *needles):
+    assert_user_error(code, capsys, *needles)
     assert not out.exists()
 
 
 def test_cli_refuses_too_small_a_temperature_change(tmp_path, capsys):
     code, out = adis_bias(tmp_path, '--source', 'simulated', '--self-heat-rise-c', '0')
-    assert_user_error(code, capsys, out, 'T1 ', 'T2 ', 'did not warm itself')
+    assert_refused(code, capsys, out, 'T1 ', 'T2 ', 'did not warm itself')
 
 
 def test_cli_spidev_without_a_device(tmp_path, capsys):
     code, out = adis_bias(tmp_path, '--source', 'spidev', '--bus', '97')
-    assert_user_error(code, capsys, out, '/dev/spidev97.0')
+    assert_refused(code, capsys, out, '/dev/spidev97.0')
     code, out = adis_bias(tmp_path, '--source', 'spidev', '--bias-slope-dps-per-c', '0.1')
-    assert_user_error(code, capsys, out, '--bias-slope-dps-per-c does not apply')
+    assert_refused(code, capsys, out, '--bias-slope-dps-per-c does not apply')
 
 
 def test_cli_ctrl_c_writes_nothing(tmp_path):

@@ -2,6 +2,7 @@
 
 import json
 
+from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 import numpy as np
 import pytest
@@ -41,13 +42,6 @@ def test_allan_without_out_writes_nothing(tmp_path, capsys):
     assert main(['allan', white_noise_csv(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ['still.csv']
     assert 'wrote' not in capsys.readouterr().out
-
-
-def assert_user_error(code, capsys, needle):
-    out, err = capsys.readouterr()
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    assert needle in err
 
 
 def test_allan_missing_file_is_one_error_line(tmp_path, capsys):

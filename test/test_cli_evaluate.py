@@ -6,6 +6,7 @@ from pathlib import Path
 import subprocess
 import sys
 
+from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.models import PolynomialModel
@@ -58,14 +59,6 @@ def polynomial_params(tmp_path) -> str:
 def evaluate_json(capsys, *args) -> dict:
     assert main(['evaluate', *args, '--json']) == 0
     return json.loads(capsys.readouterr().out)
-
-
-def assert_user_error(code, capsys, needle):
-    out, err = capsys.readouterr()
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    assert needle in err
-    assert 'Traceback' not in err
 
 
 def test_statistics_of_the_error_per_sample_and_averaged(tmp_path, capsys):

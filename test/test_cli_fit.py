@@ -2,18 +2,18 @@
 
 import math
 
+from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.chain import ChainModel, ChainSettings, fit_chain, STAGE_NAMES
 from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.ros.params import build_model, COMPENSATION_SPECS
+from mlx_tempcomp.ros.params import build_model
 from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
 from mlx_tempcomp.simulation.turntable import simulate_turntable
 import numpy as np
 from numpy.polynomial.polynomial import polyval
 import pytest
-from rclpy.parameter import Parameter
 from ros_harness import by_stamp
 from sensor_msgs.msg import Imu, Temperature
 import yaml
@@ -56,14 +56,6 @@ def model_from_yaml(path, node_name='compensation_node'):
         temperature_min_c=polynomial['temperature_min_c'],
         temperature_max_c=polynomial['temperature_max_c'])
     return tuple(values['axes']), model
-
-
-def assert_user_error(code, capsys, needle):
-    out, err = capsys.readouterr()
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    assert needle in err
-    assert 'Traceback' not in err
 
 
 @pytest.fixture
@@ -191,38 +183,6 @@ def test_bad_column_spec_is_a_user_error(tmp_path, capsys):
     code = main(['fit', sweep_csv(tmp_path), '--columns', 'bogus=gz', '--out',
                  str(tmp_path / 'p.yaml')])
     assert_user_error(code, capsys, 'bogus')
-
-
-def node_values(path, node_name='compensation_node'):
-    """
-    Give the compensation node's parameter values with the file's loaded over the defaults.
-
-    Every key of the file must be a declared parameter of the node, floats where the
-    declared type is a double (rcl refuses ints there), as rcl would require.
-    """
-    with open(path) as stream:
-        tree = yaml.safe_load(stream)[node_name]['ros__parameters']
-    flat = {}
-
-    def walk(prefix, node):
-        for key, value in node.items():
-            if isinstance(value, dict):
-                walk(f'{prefix}{key}.', value)
-            else:
-                flat[prefix + key] = value
-
-    walk('', tree)
-    specs = {spec.name: spec for spec in COMPENSATION_SPECS}
-    assert set(flat) <= set(specs), f'undeclared: {sorted(set(flat) - set(specs))}'
-    for name, value in flat.items():
-        default = specs[name].default
-        if default in (Parameter.Type.DOUBLE, Parameter.Type.DOUBLE_ARRAY) or \
-                isinstance(default, float):
-            assert all(isinstance(v, float) for v in np.ravel(value)), name
-    values = {name: [] if isinstance(spec.default, Parameter.Type) else spec.default
-              for name, spec in specs.items()}
-    values.update(flat)
-    return values
 
 
 def write_csv(path, columns):

@@ -3,6 +3,7 @@
 import json
 import math
 
+from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.sources.bag import RawBagReader
@@ -23,14 +24,6 @@ def simulate(tmp_path, capsys, name, *options):
     truth_path = path.with_name(path.stem + '.truth.json')
     assert f'truth in {truth_path}' in out
     return path, json.loads(truth_path.read_text()), out
-
-
-def assert_user_error(code, capsys, needle):
-    out, err = capsys.readouterr()
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    assert needle in err
-    assert 'Traceback' not in err
 
 
 def noiseless_bias_rad_s(truth, axis, temperature_c):

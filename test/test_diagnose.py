@@ -13,6 +13,7 @@ import io
 import json
 import math
 
+from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
@@ -379,13 +380,6 @@ def test_cli_record_effects_puts_the_step_into_the_parameter_file(tmp_path):
     effects = parameters_of(out)['effects']
     assert effects['bias_step_time_s']['y'] == [pytest.approx(STEP_TIME_S, abs=5.0)]
     assert 'Holds record-only effects (bias_step)' in (out / 'params.yaml').read_text()
-
-
-def assert_user_error(code, capsys, needle):
-    _, err = capsys.readouterr()
-    assert code == 2
-    assert err.startswith('error: ') and err.count('\n') == 1, err
-    assert needle in err and 'Traceback' not in err
 
 
 def test_cli_bad_input_exits_2(tmp_path, capsys):

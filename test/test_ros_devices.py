@@ -20,7 +20,7 @@ from mlx_tempcomp.state_file import write_state
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with,
-                         rates, simulated_driver_params, status_values)
+                         rates, simulated_driver_params, start_pipeline, status_values)
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String, UInt8MultiArray
 from std_srvs.srv import Trigger
@@ -42,28 +42,20 @@ def mean_dps(msgs, index: int) -> float:
     return math.degrees(float(np.mean([rates(m)[index] for m in msgs])))
 
 
-def start_pipeline(launcher, probe, driver: dict, compensation: dict, axes=('z',)) -> dict:
-    """Start both nodes; once both report OK and stream, return their statuses."""
+def start_recorded_pipeline(launcher, probe, driver: dict, compensation: dict,
+                            axes=('z',)) -> dict:
+    """Record the streams, the EEPROM and diagnostics; start both nodes (start_pipeline)."""
     for topic in ('imu/data_raw', 'imu/data'):
         probe.subscribe(Imu, topic)
     probe.subscribe(Temperature, 'imu/temperature_raw')
     probe.subscribe(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
     probe.subscribe_diagnostics()
-    launcher.driver(simulated_driver_params(axes=list(axes), **driver))
-    launcher.compensation({'axes': list(axes),
-                           'recalibration.state_file': str(launcher.folder / 'zro.yaml'),
-                           **compensation})
-    statuses = probe.wait_statuses(
-        {DRIVER_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK,
-         COMPENSATION_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK},
-        TIMEOUT_S, 'both nodes OK', launcher)
-    probe.wait_streaming(['imu/data_raw', 'imu/data'], TIMEOUT_S, launcher)
-    return statuses
+    return start_pipeline(launcher, probe, driver, compensation, axes, TIMEOUT_S)
 
 
 def test_mlx90609_by_name_streams_with_its_eeprom(launcher, probe):
-    statuses = start_pipeline(launcher, probe, {'device': 'mlx90609', 'simulation.seed': SEED},
-                              {})
+    statuses = start_recorded_pipeline(launcher, probe,
+                                       {'device': 'mlx90609', 'simulation.seed': SEED}, {})
     data = probe.wait_count('imu/data', 200, TIMEOUT_S, launcher)
     assert statuses[DRIVER_DIAGNOSTIC].hardware_id == f'simulated MLX90609 x1 (seed {SEED})'
     assert statuses[COMPENSATION_DIAGNOSTIC].message == 'compensating (eeprom)'
@@ -73,7 +65,7 @@ def test_mlx90609_by_name_streams_with_its_eeprom(launcher, probe):
 
 def test_adis16130_streams_through_linear_btc(launcher, probe):
     bias_dps = 0.8
-    statuses = start_pipeline(
+    statuses = start_recorded_pipeline(
         launcher, probe, {'device': 'adis16130', 'simulation.bias_dps': bias_dps},
         {'model': 'linear_btc', 'linear_btc.pbc_rad_s': [-math.radians(bias_dps)],
          'linear_btc.btc_rad_s_per_c': [0.0], 'linear_btc.t3_c': 25.0})
@@ -114,7 +106,7 @@ def test_mpu6000_streams_through_polynomial(launcher, probe, tmp_path):
     polynomial = {'model': 'polynomial', 'polynomial.reference_temperature_c': 25.0}
     for axis, bias in zip(MPU_AXES, bias_rad_s):
         polynomial[f'polynomial.bias.{axis}'] = [float(bias)]
-    statuses = start_pipeline(
+    statuses = start_recorded_pipeline(
         launcher, probe, {'device': 'mpu6000', 'simulation.seed': SEED,
                           'mpu6000.offsets_file': str(tmp_path / 'offsets.yaml')},
         polynomial, axes=MPU_AXES)

@@ -8,7 +8,6 @@ simulator's truth, and that the raw topics reproduce the node's output exactly.
 from dataclasses import dataclass
 import math
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.table import sensor_tables
 from mlx_tempcomp.ros.params import build_model, COMPENSATION_SPECS, transfer_of
@@ -17,7 +16,7 @@ from mlx_tempcomp.sources.mlx90609 import SimulatedArray, SimulationConfig
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, Launcher, Probe,
-                         rates, simulated_driver_params, status_values)
+                         rates, start_pipeline, status_values)
 
 pytestmark = pytest.mark.ros
 
@@ -48,16 +47,8 @@ def run_pipeline(launcher: Launcher, probe: Probe, driver: dict, compensation: d
                  axes=('z',), samples: int = SAMPLES) -> Run:
     """Start both nodes; once both report OK, record ``samples`` compensated messages."""
     probe.subscribe_pipeline(axes)
-    launcher.driver(simulated_driver_params(axes=list(axes), **driver))
-    launcher.compensation({'axes': list(axes),
-                           'recalibration.state_file': str(launcher.folder / 'zro.yaml'),
-                           **compensation})
-    statuses = probe.wait_statuses(
-        {DRIVER_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK,
-         COMPENSATION_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK},
-        TIMEOUT_S, 'both nodes OK', launcher)
     # Record from the moment both streams reach the probe, so every stamp can match.
-    probe.wait_streaming(['imu/data_raw', 'imu/data'], TIMEOUT_S, launcher)
+    statuses = start_pipeline(launcher, probe, driver, compensation, axes, TIMEOUT_S)
     probe.wait_count('imu/data', samples, TIMEOUT_S, launcher)
     values = probe.get_parameters('compensation_node', COMPENSATION_NAMES)
     launcher.stop_all()

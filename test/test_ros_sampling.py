@@ -80,7 +80,7 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
     # The first message heard: the interval whose mean it is (the probe joined late).
     first = next(j for j, mean in enumerate(means) if mean[0] == rates(received[stamps[0]])[2])
     start_ns = stamps[0] - int(round(means[first][2] * 1e9))
-    matched, number = 0, first
+    matched, matched_temperatures, number = 0, 0, first
     for stamp in stamps:
         # Each stamp names its interval: the mean time of its samples after the start.
         while abs(start_ns + means[number + 1][2] * 1e9 - stamp) < \
@@ -89,11 +89,16 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
         rate_rad_s, temperature_c, time_s = means[number]
         assert abs(start_ns + int(round(time_s * 1e9)) - stamp) <= 1
         assert rates(received[stamp])[2] == rate_rad_s
-        assert temperatures[stamp].temperature == temperature_c
+        # Best effort: a temperature may be lost on the way (the Imu was heard).
+        if stamp in temperatures:
+            assert temperatures[stamp].temperature == temperature_c
+            matched_temperatures += 1
         matched += 1
     print(f'{matched} messages heard of {published} published (intervals {first} to '
-          f'{first + matched - 1} seen), each the mean of its 5 or 6 device samples')
+          f'{first + matched - 1} seen), each the mean of its 5 or 6 device samples; '
+          f'{matched_temperatures} temperatures')
     assert matched >= 0.9 * MESSAGES
+    assert matched_temperatures >= 0.9 * MESSAGES
     # Within noise, the published mean is the device's: 3 deg/s plus its bias.
     mean_dps = np.degrees(np.mean([rates(received[s])[2] for s in stamps]))
     bias_dps = driver_values(overrides)['simulation.bias_dps']
