@@ -337,6 +337,10 @@ class CompensationNode(Node):
             # samples' subscriptions first.
             for message in self._waiting(self.input_subscriptions[_SUPPLY]):
                 self.on_supply_voltage(message)
+            if not self.held_supply:
+                # At start, before the monitor's first reading: waiting, not a fault.
+                self.samples_waiting += len(samples)
+                return
             held_supply, usable = zero_order_hold(
                 [stamp for stamp, _ in samples], [stamp for stamp, _ in self.held_supply],
                 [volts for _, volts in self.held_supply],
@@ -539,6 +543,9 @@ class CompensationNode(Node):
                            f'{self.no_supply_samples} samples not compensated')
         elif model is None:
             level, text = DiagnosticStatus.WARN, 'waiting for the EEPROM tables'
+        elif _SUPPLY in self.auxiliary and self.supply_hold and not self.held_supply:
+            level, text = (DiagnosticStatus.WARN,
+                           'waiting for a supply voltage on imu/supply_voltage')
         elif self.clamped_recent:
             level, text = (DiagnosticStatus.WARN,
                            'temperature outside the calibrated range: clamped')

@@ -12,7 +12,8 @@ chips their mean, and each chip's on ``imu/temperature_raw/<axis>``),
 images, so the raw topics reproduce compensation exactly) and ``/diagnostics``;
 a bag with a second temperature (``bag.temperature_2_topic``) also gives
 ``imu/temperature_2_raw``, one with a supply voltage (``bag.supply_voltage_topic``)
-``imu/supply_voltage`` (sensor_msgs/BatteryState).
+``imu/supply_voltage`` (sensor_msgs/BatteryState), and so does the simulated
+MLX90609's supply monitor (``simulation.supply_monitor_hz``).
 """
 
 import collections
@@ -87,6 +88,12 @@ class DriverNode(Node):
         # handed to it directly, once per timer tick: (pairer stream, message) pairs.
         self.local_consumers = []
         self.handoff = []
+        self.simulated_mlx = self.device == 'mlx90609' and self.values['source'] == 'simulated'
+        if self.values['simulation.supply_monitor_hz'] and not self.simulated_mlx:
+            msg = ('invalid parameter simulation.supply_monitor_hz: the supply monitor belongs '
+                   'to the simulated MLX90609 (device mlx90609, source simulated); a real '
+                   'board monitor publishes imu/supply_voltage itself')
+            raise ParameterError(msg)
         if self.values['source'] == 'bag':
             self.stream = BagStream(self)
         elif self.device == 'adis16130':
@@ -107,6 +114,9 @@ class DriverNode(Node):
                 raise ParameterError('invalid parameter frame_id: must not be empty')
             if 'simulation.fault' in values:
                 self.stream.check_fault(values['simulation.fault'])
+            if 'simulation.supply_v' in values and not self.simulated_mlx:
+                raise ParameterError('simulation.supply_v changes at runtime on the simulated '
+                                     'MLX90609 only')
         except ParameterError as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
@@ -119,6 +129,8 @@ class DriverNode(Node):
                                                    self.values['rate_noise_rad_s'])
         if self.stream.simulated:
             self.stream.set_fault(self.values['simulation.fault'])
+        if self.simulated_mlx:
+            self.stream.array.supply_v = self.values['simulation.supply_v']
 
     def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c, acceleration_m_s2=None,
                     acceleration_covariance=None) -> None:
@@ -207,6 +219,11 @@ class SensorStream(TimedStream):
         self.oversample = values['oversample']
         self.simulated = real_time_factor is not None
         self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ)
+        monitor_hz = values['simulation.supply_monitor_hz']
+        self.supply_publisher = node.create_publisher(
+            BatteryState, 'imu/supply_voltage', SENSOR_QOS) if monitor_hz else None
+        self.supply_period_s = 1.0 / monitor_hz if monitor_hz else None
+        self.supply_readings = 0
         node.get_logger().info(
             f'{self.hardware_id}: EEPROM VERSION {[f.version for f in self.tables.fields]}, '
             f'full scale {self.tables.full_scale_dps:g} deg/s, {self.rates}')
@@ -226,6 +243,24 @@ class SensorStream(TimedStream):
 
     def advance_to(self, time_s: float) -> None:
         self.array.advance_to(time_s)
+
+    def tick(self) -> None:
+        super().tick()
+        if self.supply_publisher is not None:
+            self._monitor_supply()
+
+    def _monitor_supply(self) -> None:
+        """Publish the supply readings due by now, on instants of their own (not the samples')."""
+        while True:
+            time_s = (self.supply_readings + 1.0 / 3.0) * self.supply_period_s
+            if time_s > self.array.clock.now_s:
+                return
+            stamp = messages.ns_to_stamp(self.start_ns + int(round(time_s * 1e9)))
+            # Over DDS even in bringup: the compensation node subscribes to its auxiliary
+            # inputs, as it would to a real monitor.
+            self.supply_publisher.publish(messages.supply_voltage_message(
+                stamp, self.node.frame_id, self.array.supply_v))
+            self.supply_readings += 1
 
     def read(self):
         return self.array.read(self.oversample)

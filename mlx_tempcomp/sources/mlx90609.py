@@ -5,7 +5,7 @@ An MLX90609 measures one axis, so an N-axis gyro is N chips, each with its
 own chip select, EEPROM table and temperature sensor.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -134,6 +134,18 @@ class SimulatedArray(Mlx90609Array):
     def fault(self, fault: Fault) -> None:
         for device in self.devices:
             device.fault = fault
+
+    @property
+    def supply_v(self) -> float:
+        """Give the chips' supply voltage now."""
+        return self.devices[0].physics.scenario.supply_voltage_v(self.clock.now_s)
+
+    @supply_v.setter
+    def supply_v(self, volts: float) -> None:
+        """Switch every chip's supply to ``volts`` from now on (a step)."""
+        for device in self.devices:
+            device.physics.scenario = replace(device.physics.scenario, supply_times_s=(0.0,),
+                                              supply_v=(float(volts),))
 
     def advance_to(self, time_s: float) -> None:
         """Let simulated time pass up to ``time_s`` (never backwards)."""
