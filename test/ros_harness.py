@@ -447,8 +447,9 @@ def start_pipeline(launcher, probe, driver: dict, compensation: dict, axes=('z',
     """
     Start the simulated driver and a compensation node on ``axes``; return their statuses.
 
-    Returns once both report OK and both streams reach the probe, which has
-    subscribed to what it records (and to the diagnostics) beforehand.
+    Returns once both report OK and the raw rate, raw temperature and compensated
+    streams reach the probe, which has subscribed to them (and to the diagnostics)
+    beforehand.
     """
     launcher.driver(simulated_driver_params(axes=list(axes), **driver))
     launcher.compensation({'axes': list(axes),
@@ -458,7 +459,8 @@ def start_pipeline(launcher, probe, driver: dict, compensation: dict, axes=('z',
         {DRIVER_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK,
          COMPENSATION_DIAGNOSTIC: lambda s: s.level == DiagnosticStatus.OK},
         timeout, 'both nodes OK', launcher)
-    probe.wait_streaming(['imu/data_raw', 'imu/data'], timeout, launcher)
+    # Each reader matches on its own: under load one can start a second of sensor time late.
+    probe.wait_streaming(['imu/data_raw', 'imu/temperature_raw', 'imu/data'], timeout, launcher)
     return statuses
 
 

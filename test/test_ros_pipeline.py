@@ -47,7 +47,7 @@ def run_pipeline(launcher: Launcher, probe: Probe, driver: dict, compensation: d
                  axes=('z',), samples: int = SAMPLES) -> Run:
     """Start both nodes; once both report OK, record ``samples`` compensated messages."""
     probe.subscribe_pipeline(axes)
-    # Record from the moment both streams reach the probe, so every stamp can match.
+    # Record from the moment the streams reach the probe, so every stamp can match.
     statuses = start_pipeline(launcher, probe, driver, compensation, axes, TIMEOUT_S)
     probe.wait_count('imu/data', samples, TIMEOUT_S, launcher)
     values = probe.get_parameters('compensation_node', COMPENSATION_NAMES)
