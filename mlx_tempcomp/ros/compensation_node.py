@@ -15,6 +15,7 @@ temperature (``stamp``). The ``imu/recalibrate_zro`` service
 
 import bisect
 from datetime import datetime, timezone
+import itertools
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -275,7 +276,7 @@ class CompensationNode(Node):
         while budget > 0:
             taken = 0
             for name, subscription in self.inputs():
-                for message in self._waiting(subscription, budget):
+                for message in itertools.islice(self._waiting(subscription), budget):
                     complete += self.pairer.add(name, messages.stamp_to_ns(message.header.stamp),
                                                 message)
                     taken += 1
@@ -286,16 +287,14 @@ class CompensationNode(Node):
             self.process(complete)
 
     @staticmethod
-    def _waiting(subscription, limit: int = None):
-        """Take the messages waiting on ``subscription`` (``limit`` at most) without a callback."""
-        while limit is None or limit > 0:
+    def _waiting(subscription):
+        """Take the messages waiting on ``subscription``, one by one, without a callback."""
+        while True:
             with subscription.handle:
                 message = subscription.handle.take_message(subscription.msg_type,
                                                            subscription.raw)
             if message is None:
                 return
-            if limit is not None:
-                limit -= 1
             yield message[0]
 
     def take_local(self, handoff: list) -> None:
