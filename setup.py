@@ -34,6 +34,7 @@ setup(
         # test/test_colcon_build.py.
         'test': [
             'pytest',
+            'hypothesis==6.170.17',   # property-based tests of the readers and loaders
             'flake8==7.5.0',
             'flake8-builtins==3.1.0',
             'flake8-comprehensions==3.17.0',
