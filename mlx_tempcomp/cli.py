@@ -20,16 +20,17 @@ from .core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, for
 from .core.conversion import Output
 from .core.eeprom import decode_eeprom, VOTED_FIELDS
 from .core.errors import TempCompError
-from .core.fitting import (fit_linear_btc, fit_polynomial, format_btc_table, format_order_table,
-                           relative_polynomial, select_orders, table_step_c)
+from .core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
+                           format_order_table, relative_polynomial, select_orders, table_step_c)
 from .core.models import AXIS_NAMES
 from .core.noise import allan_deviation
 from .core.table import factory_table, TRIPLET_TEMPERATURES_C
 from .model_params import (chain_parameters, linear_btc_parameters, parameter_file,
                            polynomial_parameters, write_parameter_file)
 from .toolkit import adis_bias, convert, diagnose, evaluate, simulate
-from .toolkit.common import (add_recording_options, EXIT_USER_ERROR, finite_float, load,
-                             non_negative_int, positive_float, UserError)
+from .toolkit.common import (add_recording_options, check_output_file, check_output_folder,
+                             EXIT_USER_ERROR, finite_float, load, non_negative_int,
+                             positive_float, UserError)
 
 # Each adds its subcommand with add_parser(commands).
 _COMMAND_MODULES = (adis_bias, convert, diagnose, evaluate, simulate)
@@ -108,6 +109,12 @@ def _rate_error(recording) -> tuple:
 
 def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
     """Choose the orders (or take --order), fit, print the orders; return the model."""
+    readings_c = np.unique(np.round(recording.temperature_c, DISTINCT_DECIMALS))
+    if readings_c.size == 1:
+        msg = (f'{args.input}: the temperature does not vary: every row reads '
+               f'{readings_c[0]:.2f} C; a bias(T) fit needs a recording over a temperature '
+               'range (heat or cool the sensor while recording)')
+        raise UserError(msg)
     blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
     folds = DEFAULT_FOLDS if args.folds is None else args.folds
     if args.order is None:
@@ -289,15 +296,13 @@ def fit_command(args: argparse.Namespace) -> int:
         options = ', '.join('--' + name.replace('_', '-') for name in given)
         msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
         raise UserError(msg)
+    check_output_file(args.out, '--out')
     recording = load(args)
     try:
         parameters, header = fit(args, recording)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
-    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
-                        if count)
-    print(f'rows used: {len(recording)}; skipped: {skipped or "none"}')
     content = parameter_file(args.node_name, parameters)
     header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
     try:
@@ -347,6 +352,8 @@ def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
 
 
 def allan_command(args: argparse.Namespace) -> int:
+    if args.out is not None:
+        check_output_folder(args.out, '--out')
     recording = load(args)
     try:
         figures = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)

@@ -201,11 +201,21 @@ def test_bad_recordings_are_user_errors_or_counted(tmp_path, capsys):
     assert_user_error(code, capsys, 'has no gyro_x, gyro_z but the parameter file compensates')
     path = tmp_path / 'rows.csv'
     path.write_text('time,temperature,gyro_x,gyro_z\n0,25,0.01,0\n1,nan,0,0\n2,26,inf,0\n'
-                    '2,26,0.01,0\n3,27,0.01,0\n3,27,0.02,0\n2.5,27,0,0\n4,28,0.01,0\n')
+                    '2,26,0.01,0\n3,27,0.01,0\n3,27,0.01,0\n2.5,27,0,0\n4,28,0.01,0\n')
     assert main(['evaluate', str(path), '--params', params]) == 0
     out = capsys.readouterr().out
-    assert ('4 rows, skipped: non-finite values 2, duplicated time 1, '
-            'time going backwards 1') in out
+    assert out.startswith(f'{path}: 5 rows used; skipped: non-finite values 2, repeated rows 1; '
+                          '1 row out of time order (whole blocks) sorted into place\n')
+    assert main(['evaluate', str(path), '--params', params, '--json']) == 0
+    out, err = capsys.readouterr()
+    assert err.startswith(f'{path}: 5 rows used;')
+    report = json.loads(out)
+    assert report['rows'] == 5 and report['sorted_rows'] == 1
+    assert report['skipped'] == {'non-finite values': 2, 'repeated rows': 1}
+    path.write_text('time,temperature,gyro_x,gyro_z\n0,25,0.01,0\n1,26,0.01,0\n'
+                    '1,26,0.02,0\n')
+    code = main(['evaluate', str(path), '--params', params])
+    assert_user_error(code, capsys, f'{path}: line 4 has time 1.0 s like line 3 but other values')
 
 
 def test_empty_and_unreadable_bags_are_user_errors(tmp_path, capsys):

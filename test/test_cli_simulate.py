@@ -165,20 +165,21 @@ def test_convert_skips_and_counts_bad_rows(tmp_path, capsys):
     path = tmp_path / 'rows.csv'
     rows = ['time,temperature,gyro_z,temperature_2', '0.0,25.0,0.01,30.0',
             '0.5,25.1,nan,30.0', '1.0,25.2,0.02,inf', '1.0,25.3,0.03,30.0',
-            '0.8,25.4,0.04,30.0', '1.5,25.5,0.05,30.1', '1.5,25.9,0.07,30.1',
+            '0.8,25.4,0.04,30.0', '1.5,25.5,0.05,30.1', '1.5,25.5,0.05,30.1',
             '2.0,25.6,0.06,30.2']
     path.write_text('\n'.join(rows) + '\n')
     bag = tmp_path / 'rows_bag'
     assert main(['convert', str(path), '--out', str(bag), '--storage', 'mcap']) == 0
     out = capsys.readouterr().out
-    assert (f'{path}: 4 rows, axes z, 2.0 s; skipped: non-finite values 2, duplicated time 1, '
-            'time going backwards 1') in out
-    assert f'wrote {bag} (mcap): 12 messages on /imu/data_raw, /imu/temperature_raw, ' \
+    assert out.startswith(f'{path}: 5 rows used; skipped: non-finite values 2, repeated rows 1; '
+                          '1 row out of time order (whole blocks) sorted into place\n'
+                          f'{path}: axes z, 2.0 s\n')
+    assert f'wrote {bag} (mcap): 15 messages on /imu/data_raw, /imu/temperature_raw, ' \
            '/imu/temperature_2_raw' in out
     recording = load_recording(bag, **RAW_TOPICS)
-    np.testing.assert_allclose(recording.time_s, [0.0, 1.0, 1.5, 2.0])
-    np.testing.assert_allclose(recording.gyro_rad_s[:, 0], [0.01, 0.03, 0.05, 0.06])
-    np.testing.assert_allclose(recording.temperature_c, [25.0, 25.3, 25.5, 25.6])
+    np.testing.assert_allclose(recording.time_s, [0.0, 0.8, 1.0, 1.5, 2.0])
+    np.testing.assert_allclose(recording.gyro_rad_s[:, 0], [0.01, 0.04, 0.03, 0.05, 0.06])
+    np.testing.assert_allclose(recording.temperature_c, [25.0, 25.4, 25.3, 25.5, 25.6])
     assert recording.acceleration_m_s2 is None
 
 
@@ -188,7 +189,7 @@ def test_convert_measured_preset(tmp_path, capsys):
         pytest.skip(f'measured data not present: {measured}')
     bag = tmp_path / 'measured'
     assert main(['convert', str(measured), '--preset', 'tofupilot', '--out', str(bag)]) == 0
-    assert '8399 rows, axes x, y, z' in capsys.readouterr().out
+    assert '8399 rows used; skipped: dropped by preset 1\n' in capsys.readouterr().out
     original = load_recording(measured, preset='tofupilot')
     replayed = load_recording(bag, **RAW_TOPICS)
     np.testing.assert_allclose(replayed.time_s, original.time_s, rtol=0, atol=1e-6)

@@ -11,8 +11,8 @@ from mlx_tempcomp.sources.bag import (ImuRecord, RawBagWriter, RawTopics, Supply
                                       TemperatureRecord)
 from mlx_tempcomp.sources.recording import (
     ColumnMap, load_bag, load_csv, load_recording, parse_column_map, PRESETS, Recording,
-    RecordingError, SKIP_DUPLICATED_TIME, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY, SKIP_NON_FINITE,
-    SKIP_NON_NUMERIC, SKIP_PRESET, SKIP_TEMPERATURE_UNPAIRED, SKIP_TIME_BACKWARDS)
+    RecordingError, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY, SKIP_NON_FINITE, SKIP_NON_NUMERIC,
+    SKIP_PRESET, SKIP_REPEATED_ROW, SKIP_TEMPERATURE_UNPAIRED)
 import numpy as np
 import pytest
 
@@ -192,14 +192,67 @@ def test_non_finite_and_non_numeric_rows_are_skipped_and_counted(tmp_path):
     assert dict(recording.skipped) == {SKIP_NON_NUMERIC: 3, SKIP_NON_FINITE: 3}
 
 
-def test_duplicated_and_backward_time_keeps_the_first(tmp_path):
-    rows = [[0, 20, 0.1], [1, 21, 0.2], [1, 99, 9.9], [0.5, 99, 9.9], [1, 99, 9.9],
-            [2, 22, 0.3], ['nan', 99, 9.9], [3, 23, 0.4]]
+def test_repeated_rows_are_dropped_and_counted(tmp_path):
+    rows = [[0, 20, 0.1], [1, 21, 0.2], [1, 21, 0.2], [2, 22, 0.3], ['nan', 99, 9.9],
+            [0, 20, 0.1], [3, 23, 0.4], [1, 21, 0.2]]
     recording = load_csv(simple_csv(tmp_path / 'time.csv', rows))
     np.testing.assert_array_equal(recording.time_s, [0.0, 1.0, 2.0, 3.0])
     np.testing.assert_array_equal(recording.temperature_c, [20.0, 21.0, 22.0, 23.0])
-    assert dict(recording.skipped) == {SKIP_NON_FINITE: 1, SKIP_DUPLICATED_TIME: 2,
-                                       SKIP_TIME_BACKWARDS: 1}
+    assert dict(recording.skipped) == {SKIP_NON_FINITE: 1, SKIP_REPEATED_ROW: 3}
+    assert recording.sorted_rows == 0
+
+
+def test_a_time_shared_by_other_values_is_refused_naming_both_lines(tmp_path):
+    rows = [[0, 20, 0.1], [1, 21, 0.2], [2, 22, 0.3], [1, 99, 9.9], [3, 23, 0.4]]
+    path = simple_csv(tmp_path / 'clash.csv', rows)
+    with pytest.raises(RecordingError, match=r'clash\.csv: line 5 has time 1\.0 s like line 3 '
+                                             r'but other values'):
+        load_csv(path)
+
+
+def spliced(table: np.ndarray, start: int, stop: int, to: int) -> np.ndarray:
+    """Move rows start..stop-1 so that they follow row ``to`` of the rest."""
+    block, rest = table[start:stop], np.delete(table, np.s_[start:stop], axis=0)
+    return np.concatenate([rest[:to], block, rest[to:]])
+
+
+# sorted: the rows read behind the latest time so far (the moved block, or what it skipped).
+@pytest.mark.parametrize('start, stop, to, sorted_rows', [(100, 300, 600, 200),
+                                                          (700, 800, 0, 700),
+                                                          (0, 500, 500, 500)])
+def test_blocks_out_of_time_order_are_sorted_and_counted(tmp_path, start, stop, to,
+                                                         sorted_rows):
+    table = canonical_table(1000)
+    path = write_csv(tmp_path / 'spliced.csv', HEADER, spliced(table, start, stop, to).tolist())
+    recording = load_csv(path)
+    np.testing.assert_array_equal(recording.time_s, table[:, 0])
+    np.testing.assert_array_equal(recording.gyro_rad_s, table[:, 2:5])
+    np.testing.assert_array_equal(recording.supply_voltage_v, table[:, 12])
+    assert dict(recording.skipped) == {}
+    assert recording.sorted_rows == sorted_rows
+
+
+def test_several_moved_blocks_are_sorted(tmp_path):
+    table = canonical_table(2000)
+    # Rows 100..199 go forward, behind 800 later rows; rows 1500..1599 go back before 1000.
+    moved = spliced(spliced(table, 100, 200, 900), 1500, 1600, 1000)
+    recording = load_csv(write_csv(tmp_path / 'two.csv', HEADER, moved.tolist()))
+    np.testing.assert_array_equal(recording.time_s, table[:, 0])
+    assert recording.sorted_rows == 100 + 500
+
+
+def test_a_clock_reset_is_refused_at_the_first_backward_line(tmp_path):
+    table = canonical_table(1000)
+    table[500:, 0] -= 30.05          # the second half restarts 30 s back, between earlier rows
+    path = write_csv(tmp_path / 'reset.csv', HEADER, table.tolist())
+    with pytest.raises(RecordingError) as raised:
+        load_csv(path)
+    message = str(raised.value)
+    after, before = float(table[500, 0]), float(table[499, 0])
+    assert message.startswith(f'{path}: time goes back at line 502 ({after!r} s after '
+                              f'{before!r} s at line 501) and later rows fall between earlier '
+                              'ones')
+    assert 'a clock reset or two recordings joined?' in message
 
 
 def test_time_scale_and_skip_rows(tmp_path):
@@ -361,6 +414,34 @@ def test_bag_supply_voltage_on_its_own_stamps_is_held_per_sample(tmp_path):
     np.testing.assert_array_equal(recording.supply_voltage_v, expected)
     # Without the topic in the bag there is no supply column, and nothing is skipped for it.
     assert load_bag(tmp_path / 'bag').supply_voltage_v is None
+
+
+def write_stamped_bag(path: Path, stamps_ns) -> Path:
+    """One IMU and one temperature message per stamp, in the order given (bag time rising)."""
+    topics = RawTopics(imu='/imu/data', temperature='/imu/temperature')
+    with RawBagWriter(path, 'mcap', topics) as bag:
+        for k, stamp_ns in enumerate(stamps_ns):
+            i = (stamp_ns - T0_NS) // PERIOD_NS
+            bag.write_temperature(T0_NS + k, temperature_record(stamp_ns, 25.0 + i))
+            bag.write_imu(T0_NS + k, dataclasses.replace(imu_record(i), stamp_ns=stamp_ns))
+    return path
+
+
+def test_bag_block_out_of_stamp_order_is_sorted(tmp_path):
+    order = list(range(0, 20)) + list(range(40, 60)) + list(range(20, 40)) + [60]
+    path = write_stamped_bag(tmp_path / 'bag', [T0_NS + i * PERIOD_NS for i in order])
+    recording = load_bag(path)
+    np.testing.assert_array_equal(recording.temperature_c, 25.0 + np.arange(61))
+    np.testing.assert_allclose(recording.gyro_rad_s[:, 0], 0.01 * np.arange(61))
+    assert recording.sorted_rows == 20 and dict(recording.skipped) == {}
+
+
+def test_bag_clock_reset_is_refused_naming_the_message(tmp_path):
+    stamps = [T0_NS + i * PERIOD_NS for i in range(30)]
+    stamps += [T0_NS + i * PERIOD_NS + PERIOD_NS // 2 for i in range(30)]
+    path = write_stamped_bag(tmp_path / 'bag', stamps)
+    with pytest.raises(RecordingError, match='time goes back at /imu/data message 31 '):
+        load_bag(path)
 
 
 def test_bad_bags_give_a_clear_error(tmp_path):

@@ -7,6 +7,16 @@ value finite. Rows that cannot be used are dropped and counted by reason in
 usable row, or a file that cannot be read at all, raises `RecordingError`
 with a message naming the file and what is wrong.
 
+Time order: a row that repeats an earlier row exactly (same
+time, same values) is dropped and counted. Rows out of time order are sorted
+into place, and counted in ``Recording.sorted_rows``, when that is all they
+are: whole blocks of rows in the wrong place, each backward jump of the time
+explaining at most three more cuts of the file's row order (moving one block
+cuts it three times). Two rows with the same time but different values, or
+rows whose times fall between earlier rows far more often than the backward
+jumps explain (a clock reset, two recordings joined), raise `RecordingError`
+naming the first offending row: sorting would mix two time bases.
+
 CSV files have one header row. Canonical columns: ``time`` (s),
 ``temperature`` (degC), any of ``gyro_x``, ``gyro_y``, ``gyro_z`` (rad/s);
 optional ``ref_x|y|z`` (turntable reference rate, rad/s), ``acc_x|y|z``
@@ -42,8 +52,8 @@ BAG_SUFFIXES = ('.db3', '.mcap')
 SKIP_PRESET = 'dropped by preset'
 SKIP_NON_NUMERIC = 'non-numeric values'
 SKIP_NON_FINITE = 'non-finite values'
+SKIP_REPEATED_ROW = 'repeated rows'
 SKIP_DUPLICATED_TIME = 'duplicated time'
-SKIP_TIME_BACKWARDS = 'time going backwards'
 SKIP_IMU_UNPAIRED = 'IMU without temperature'
 SKIP_TEMPERATURE_UNPAIRED = 'temperature without IMU'
 SKIP_CORRUPT = 'corrupt messages'
@@ -94,7 +104,8 @@ class Recording:
     is strictly increasing and starts wherever the data starts. ``axes``
     names the gyro axes present, in x, y, z order, and orders the columns
     of ``gyro_rad_s`` and ``reference_rad_s``. ``skipped`` counts the rows
-    dropped while loading, by reason.
+    dropped while loading, by reason; ``sorted_rows`` the rows that were out
+    of time order in the source and were sorted into place.
     """
 
     source: str
@@ -107,6 +118,7 @@ class Recording:
     temperature_2_c: Optional[np.ndarray] = None
     supply_voltage_v: Optional[np.ndarray] = None
     skipped: Mapping[str, int] = field(default_factory=dict)
+    sorted_rows: int = 0
 
     def __post_init__(self):
         source = str(self.source)
@@ -135,6 +147,10 @@ class Recording:
                 object.__setattr__(self, name, _column(source, name, value, shape))
         skipped = {str(reason): int(count) for reason, count in dict(self.skipped).items()}
         object.__setattr__(self, 'skipped', MappingProxyType(skipped))
+        if int(self.sorted_rows) < 0:
+            msg = f'{source}: sorted_rows must be >= 0, got {self.sorted_rows!r}'
+            raise RecordingError(msg)
+        object.__setattr__(self, 'sorted_rows', int(self.sorted_rows))
 
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
@@ -157,8 +173,8 @@ class Recording:
         Returns
         -------
         Recording
-            The selected rows, same source, axes and ``skipped`` counts (they
-            describe how the source was loaded).
+            The selected rows, same source, axes, ``skipped`` and
+            ``sorted_rows`` counts (they describe how the source was loaded).
 
         """
         try:
@@ -389,24 +405,77 @@ def parse_column_map(spec: str) -> ColumnMap:
     return _map_from_sources(sources, required=required, **options)
 
 
-def _usable_rows(time_s: np.ndarray, values: np.ndarray, non_numeric: np.ndarray,
-                 skipped: Dict[str, int]) -> np.ndarray:
-    """Give the mask of rows to keep; count the others in ``skipped`` by reason."""
+# Moving one block of rows elsewhere cuts the file's row order in three places.
+CUTS_PER_BACKWARD_JUMP = 3
+
+
+@dataclass(frozen=True)
+class _RowNames:
+    """Names rows in messages: ``noun`` and the 1-based number of each row in the source."""
+
+    noun: str
+    numbers: np.ndarray
+
+    def __call__(self, row: int) -> str:
+        return f'{self.noun} {int(self.numbers[row])}'
+
+
+def _count(skipped: Dict[str, int], reason: str, count) -> None:
+    if count:
+        skipped[reason] = skipped.get(reason, 0) + int(count)
+
+
+def _drop_repeats(source: str, time_s: np.ndarray, values: np.ndarray, rows: np.ndarray,
+                  names: _RowNames, skipped: Dict[str, int]) -> np.ndarray:
+    """Drop rows that repeat an earlier row exactly; refuse a time shared by other values."""
+    order = np.argsort(time_s[rows], kind='stable')
+    same = np.flatnonzero(np.diff(time_s[rows[order]]) == 0)
+    if not same.size:
+        return rows
+    first, later = rows[order[same]], rows[order[same + 1]]
+    repeated = np.all(values[first] == values[later], axis=1)
+    if not repeated.all():
+        clash = np.flatnonzero(~repeated)
+        pick = clash[np.argmin(later[clash])]
+        msg = (f'{source}: {names(later[pick])} has time {float(time_s[later[pick]])!r} s '
+               f'like {names(first[pick])} but other values; two samples cannot share a time '
+               '(a clock reset or two recordings joined?): fix the times or split the file')
+        raise RecordingError(msg)
+    _count(skipped, SKIP_REPEATED_ROW, later.size)
+    return np.setdiff1d(rows, later, assume_unique=True)
+
+
+def _time_ordered_rows(source: str, time_s: np.ndarray, values: np.ndarray,
+                       non_numeric: np.ndarray, names: _RowNames,
+                       skipped: Dict[str, int]) -> tuple:
+    """
+    Give the usable rows in time order and how many were out of order.
+
+    Rows with a non-numeric or non-finite value and exact repeats are counted
+    in ``skipped``; see the module notes for when rows are sorted or refused.
+    """
     finite = np.isfinite(values).all(axis=1)
-    valid = ~non_numeric & finite
-    rows = np.flatnonzero(valid)
+    _count(skipped, SKIP_NON_NUMERIC, np.count_nonzero(non_numeric))
+    _count(skipped, SKIP_NON_FINITE, np.count_nonzero(~non_numeric & ~finite))
+    rows = _drop_repeats(source, time_s, values, np.flatnonzero(~non_numeric & finite), names,
+                         skipped)
     times = time_s[rows]
-    previous = np.maximum.accumulate(np.concatenate(([-np.inf], times[:-1])))
-    keep = np.zeros(time_s.shape, dtype=bool)
-    keep[rows[times > previous]] = True
-    counts = ((SKIP_NON_NUMERIC, np.count_nonzero(non_numeric)),
-              (SKIP_NON_FINITE, np.count_nonzero(~non_numeric & ~finite)),
-              (SKIP_DUPLICATED_TIME, np.count_nonzero(times == previous)),
-              (SKIP_TIME_BACKWARDS, np.count_nonzero(times < previous)))
-    for reason, count in counts:
-        if count:
-            skipped[reason] = skipped.get(reason, 0) + int(count)
-    return keep
+    backward = np.flatnonzero(np.diff(times) < 0)
+    if not backward.size:
+        return rows, 0
+    order = np.argsort(times, kind='stable')
+    cuts = int(np.count_nonzero(np.diff(order) != 1))
+    if cuts > CUTS_PER_BACKWARD_JUMP * backward.size:
+        before, after = rows[backward[0]], rows[backward[0] + 1]
+        msg = (f'{source}: time goes back at {names(after)} ({float(time_s[after])!r} s '
+               f'after {float(time_s[before])!r} s at {names(before)}) and later rows fall '
+               f'between earlier ones: in time order the rows come in {cuts + 1} pieces for '
+               f'{backward.size} backward jump(s), not whole blocks out of place (a clock '
+               'reset or two recordings joined?); sorting would mix them: fix the times or '
+               'split the file')
+        raise RecordingError(msg)
+    previous = np.maximum.accumulate(times)[:-1]
+    return rows[order], int(np.count_nonzero(times[1:] < previous))
 
 
 def _skip_summary(skipped: Mapping[str, int]) -> str:
@@ -414,11 +483,12 @@ def _skip_summary(skipped: Mapping[str, int]) -> str:
 
 
 def _recording(source: str, columns: Dict[str, np.ndarray], non_numeric: np.ndarray,
-               skipped: Dict[str, int]) -> Recording:
-    """Drop unusable rows of canonical columns (each of N rows) and build the Recording."""
+               skipped: Dict[str, int], names: _RowNames) -> Recording:
+    """Drop unusable rows of canonical columns (each of N rows), order them, build it."""
     values = np.column_stack(list(columns.values()))
-    keep = _usable_rows(columns['time'], values, non_numeric, skipped)
-    if not keep.any():
+    keep, sorted_rows = _time_ordered_rows(source, columns['time'], values, non_numeric,
+                                           names, skipped)
+    if not keep.size:
         msg = (f'{source}: no usable row; all {sum(skipped.values())} rows skipped '
                f'({_skip_summary(skipped)})')
         raise RecordingError(msg)
@@ -437,16 +507,19 @@ def _recording(source: str, columns: Dict[str, np.ndarray], non_numeric: np.ndar
                      gyro_rad_s=stack('gyro', axes), reference_rad_s=stack('ref', axes),
                      acceleration_m_s2=stack('acc', AXES),
                      temperature_2_c=single('temperature_2'),
-                     supply_voltage_v=single('supply_voltage'), skipped=skipped)
+                     supply_voltage_v=single('supply_voltage'), skipped=skipped,
+                     sorted_rows=sorted_rows)
 
 
 def _read_csv_rows(path: Path, delimiter: Optional[str]):
-    """Give the header and the data rows (lists of cells) of a CSV file; skip blank lines."""
+    """Give the header, the data rows (lists of cells) and their line numbers; skip blanks."""
     try:
         with path.open(newline='', encoding='utf-8-sig') as stream:
             line = stream.readline()
+            header_line = 1
             while line and not line.strip():
                 line = stream.readline()
+                header_line += 1
             if not line:
                 msg = f'{path} is empty'
                 raise RecordingError(msg)
@@ -457,7 +530,12 @@ def _read_csv_rows(path: Path, delimiter: Optional[str]):
             if delimiter is None:
                 delimiter = max('\t,;', key=line.count)
             header = [name.strip() for name in next(csv.reader([line], delimiter=delimiter))]
-            rows = [row for row in csv.reader(stream, delimiter=delimiter) if row]
+            reader = csv.reader(stream, delimiter=delimiter)
+            rows, lines = [], []
+            for row in reader:
+                if row:
+                    rows.append(row)
+                    lines.append(header_line + reader.line_num)
     except UnicodeDecodeError:
         msg = f'{path} is not a text CSV file (not UTF-8)'
         raise RecordingError(msg) from None
@@ -467,7 +545,7 @@ def _read_csv_rows(path: Path, delimiter: Optional[str]):
     except OSError as err:
         msg = f'cannot read {path}: {err.strerror or err}'
         raise RecordingError(msg) from None
-    return header, rows
+    return header, rows, np.array(lines, dtype=np.int64)
 
 
 def _pick_columns(path: Path, header: list, columns: ColumnMap) -> Dict[str, int]:
@@ -553,7 +631,7 @@ def load_csv(path: PathLike, columns: ColumnMap = ColumnMap()) -> Recording:
 
     """
     path = Path(path)
-    header, rows = _read_csv_rows(path, columns.delimiter)
+    header, rows, lines = _read_csv_rows(path, columns.delimiter)
     if not rows:
         msg = f'{path} has a header but no data rows'
         raise RecordingError(msg)
@@ -561,7 +639,7 @@ def load_csv(path: PathLike, columns: ColumnMap = ColumnMap()) -> Recording:
     skipped = {}
     if columns.skip_rows:
         skipped[SKIP_PRESET] = min(columns.skip_rows, len(rows))
-        rows = rows[columns.skip_rows:]
+        rows, lines = rows[columns.skip_rows:], lines[columns.skip_rows:]
     positions = list(index.values())
     width = max(positions) + 1
     getter = operator.itemgetter(*positions)
@@ -577,7 +655,7 @@ def load_csv(path: PathLike, columns: ColumnMap = ColumnMap()) -> Recording:
         raise RecordingError(msg)
     data = dict(zip(index, values.T))
     data['time'] = data['time'] * columns.time_scale
-    return _recording(str(path), data, non_numeric, skipped)
+    return _recording(str(path), data, non_numeric, skipped, _RowNames('line', lines))
 
 
 def _bag_message(path: PathLike, err: BagError) -> str:
@@ -659,6 +737,7 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
         raise RecordingError(msg)
     imu = [record for record, used in zip(imu, paired) if used]
     stamps_ns = stamps_ns[paired]
+    imu_numbers = np.flatnonzero(paired) + 1
     used_stamps = set(stamps_ns.tolist())
     unpaired = {SKIP_IMU_UNPAIRED: int(np.count_nonzero(~paired)),
                 SKIP_TEMPERATURE_UNPAIRED: len(temperatures) - len(used_stamps)}
@@ -671,6 +750,7 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
         if not usable.all():
             skipped[SKIP_NO_SUPPLY] = int(np.count_nonzero(~usable))
             imu = [record for record, used in zip(imu, usable) if used]
+            imu_numbers = imu_numbers[usable]
             stamps_ns, supply_v = stamps_ns[usable], supply_v[usable]
             if not imu:
                 msg = (f'bag {path}: no IMU message within 5 s of a supply voltage on '
@@ -690,7 +770,8 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
         columns.update((f'acc_{a}', acceleration[:, i]) for i, a in enumerate(AXES))
     if supply_v is not None:
         columns['supply_voltage'] = supply_v
-    return _recording(str(path), columns, np.zeros(len(imu), dtype=bool), skipped)
+    return _recording(str(path), columns, np.zeros(len(imu), dtype=bool), skipped,
+                      _RowNames(f'{absolute_topic(imu_topic)} message', imu_numbers))
 
 
 def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = None,

@@ -16,7 +16,8 @@ import math
 import sys
 import time
 
-from .common import finite_float, non_negative_float, non_negative_int, positive_float, UserError
+from .common import (check_output_file, finite_float, non_negative_float, non_negative_int,
+                     positive_float, UserError)
 from .progress import add_progress_option, Progress
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
                                    MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
@@ -207,6 +208,7 @@ def _run(sensor, procedure: BiasProcedure, args: argparse.Namespace) -> None:
 
 def adis_bias_command(args: argparse.Namespace) -> int:
     _check_options(args)
+    check_output_file(args.out, '--out')
     try:
         settings = ProcedureSettings(
             average_s=args.average_s, self_heat_s=args.self_heat_s, settle_s=args.settle_s,

@@ -3,11 +3,18 @@ What the ``mlx-tempcomp`` subcommands share: the user-error type and recording o
 
 User mistakes (a missing or malformed file, data that cannot support what was
 asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
-``error:`` and exits with code 2, never a traceback.
+``error:`` and exits with code 2, never a traceback. Every subcommand that
+reads a recording prints the same loading line (rows used, rows skipped by
+reason, rows sorted into time order) through `load`. Output paths are
+checked before the work (`check_output_file`, `check_output_folder`), so a
+typo'd folder fails at once, not after a long fit.
 """
 
 import argparse
 import math
+import os
+from pathlib import Path
+import sys
 
 from ..sources.recording import load_recording, Recording, RecordingError
 
@@ -67,11 +74,75 @@ def add_recording_options(parser: argparse.ArgumentParser) -> None:
                              'it (default: %(default)s)')
 
 
+def loading_summary(recording: Recording) -> str:
+    """Say how many rows a recording kept, skipped (by reason) and sorted into time order."""
+    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
+                        if count)
+    text = f'{recording.source}: {len(recording)} rows used; skipped: {skipped or "none"}'
+    if recording.sorted_rows:
+        rows = 'row' if recording.sorted_rows == 1 else 'rows'
+        text += (f'; {recording.sorted_rows} {rows} out of time order (whole blocks) sorted '
+                 'into place')
+    return text
+
+
 def load(args: argparse.Namespace) -> Recording:
-    """Load the recording named by the options `add_recording_options` defines."""
+    """
+    Load the recording named by the options `add_recording_options` defines.
+
+    Prints `loading_summary` on stdout, or on stderr when ``args.json`` keeps
+    stdout for JSON.
+    """
     try:
-        return load_recording(args.input, columns=args.columns, preset=args.preset,
-                              imu_topic=args.imu_topic, temperature_topic=args.temperature_topic,
-                              supply_voltage_topic=args.supply_voltage_topic)
+        recording = load_recording(args.input, columns=args.columns, preset=args.preset,
+                                   imu_topic=args.imu_topic,
+                                   temperature_topic=args.temperature_topic,
+                                   supply_voltage_topic=args.supply_voltage_topic)
     except RecordingError as err:
         raise UserError(str(err)) from None
+    print(loading_summary(recording),
+          file=sys.stderr if getattr(args, 'json', False) else sys.stdout)
+    return recording
+
+
+def _check_writable_folder(folder: Path, option: str, path) -> None:
+    if not folder.exists():
+        msg = f'{option} {path}: folder {folder} does not exist'
+        raise UserError(msg)
+    if not folder.is_dir():
+        msg = f'{option} {path}: {folder} is not a folder'
+        raise UserError(msg)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        msg = f'{option} {path}: folder {folder} is not writable'
+        raise UserError(msg)
+
+
+def check_output_file(path, option: str) -> None:
+    """Raise UserError unless a file can be written at ``path`` (its folder must exist)."""
+    target = Path(path)
+    if target.is_dir():
+        msg = f'{option} {path} is a folder; give a file name'
+        raise UserError(msg)
+    _check_writable_folder(target.parent, option, path)
+    if target.exists() and not os.access(target, os.W_OK):
+        msg = f'{option} {path} exists and is not writable'
+        raise UserError(msg)
+
+
+def check_output_folder(path, option: str, new: bool = False) -> None:
+    """
+    Raise UserError unless files can be written into folder ``path``.
+
+    The folder may exist (unless ``new``) or be created; its parent must exist.
+    """
+    target = Path(path)
+    if target.exists():
+        if new:
+            msg = f'{option} {path} exists already; give a new folder'
+            raise UserError(msg)
+        if not target.is_dir():
+            msg = f'{option} {path} is a file, not a folder'
+            raise UserError(msg)
+        _check_writable_folder(target, option, path)
+        return
+    _check_writable_folder(target.parent, option, path)

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .common import add_recording_options, load, UserError
+from .common import add_recording_options, check_output_folder, load, UserError
 from .progress import add_progress_option, Progress
 from ..sources.bag import (BagError, EepromRecord, ImuRecord, RawBagWriter, RawTopics, STORAGES,
                            SupplyVoltageRecord, TemperatureRecord)
@@ -103,13 +103,11 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
 
 
 def convert_command(args: argparse.Namespace) -> int:
+    check_output_folder(args.out, '--out', new=True)
     recording = load(args)
     messages = write_raw_bag(args.out, args.storage, recording,
                              progress_enabled=args.progress or None)
-    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
-                        if count)
-    print(f'{args.input}: {len(recording)} rows, axes {", ".join(recording.axes)}, '
-          f'{recording.duration_s:.1f} s; skipped: {skipped or "none"}')
+    print(f'{args.input}: axes {", ".join(recording.axes)}, {recording.duration_s:.1f} s')
     topics = ['/imu/data_raw', '/imu/temperature_raw']
     if recording.temperature_2_c is not None:
         topics.append(TEMPERATURE_2_TOPIC)

@@ -15,8 +15,8 @@ import json
 import math
 from pathlib import Path
 
-from .common import (add_recording_options, float_type, load, non_negative_float,
-                     non_negative_int, UserError)
+from .common import (add_recording_options, check_output_folder, float_type, load,
+                     non_negative_float, non_negative_int, UserError)
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.effects import RECORD_EFFECTS
@@ -110,6 +110,7 @@ class _Bars:
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
+    check_output_folder(args.out, '--out')
     recording = load(args)
     bars = _Bars(True if args.progress else None)
     try:
@@ -129,7 +130,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     report = _report(args.input, recording, diagnosis)
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(exist_ok=True)
         (out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
         (out / 'report.md').write_text(_markdown(report))
         _plots(out, diagnosis)
@@ -238,7 +239,8 @@ def _report(source: str, recording, diagnosis) -> dict:
         'truth': diagnosis.truth,
         'rows': {'diagnosed': diagnosis.rows, 'test': diagnosis.test_rows,
                  'bins': diagnosis.bins,
-                 'skipped_while_loading': dict(recording.skipped)},
+                 'skipped_while_loading': dict(recording.skipped),
+                 'sorted_while_loading': recording.sorted_rows},
         'settings': {'folds': settings.folds, 'blocks': settings.blocks,
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
@@ -348,7 +350,9 @@ def _markdown(report: dict) -> str:
              f'- rows diagnosed: {rows["diagnosed"]} ({rows["bins"]} bins); test rows: '
              f'{rows["test"]}; skipped while loading: '
              + (', '.join(f'{k} {v}' for k, v in rows['skipped_while_loading'].items() if v)
-                or 'none'),
+                or 'none')
+             + (f'; rows out of time order sorted into place: {rows["sorted_while_loading"]}'
+                if rows['sorted_while_loading'] else ''),
              f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
              f'- held-out scheme: {settings["blocks"]} contiguous blocks dealt round-robin '
              f'to {settings["folds"]} folds; stateful inputs (temperature slope over '

@@ -23,7 +23,8 @@ import numpy as np
 from rclpy.parameter import Parameter
 import yaml
 
-from .common import add_recording_options, float_type, load, positive_float, UserError
+from .common import (add_recording_options, check_output_file, float_type, load,
+                     positive_float, UserError)
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
@@ -232,6 +233,8 @@ def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, a
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
+    if args.out_csv is not None:
+        check_output_file(args.out_csv, '--out-csv')
     values = node_values(args.params, args.node_name)
     try:
         axes = axes_of(values)
@@ -279,6 +282,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'input': args.input, 'params': args.params, 'model': model.name, 'axes': list(axes),
         'truth': 'reference' if recording.reference_rad_s is not None else 'zero (at rest)',
         'rows': len(recording), 'skipped': dict(recording.skipped),
+        'sorted_rows': recording.sorted_rows,
         'test_fraction': args.test_fraction,
         'evaluated_from_s': float(recording.time_s[part][0]),
         'evaluated_to_s': float(recording.time_s[-1]),
@@ -295,10 +299,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
-                        if count)
-    print(f'{args.input}: {len(recording)} rows, skipped: {skipped or "none"}; model '
-          f'{model.name} from {args.params}; truth: {report["truth"]}')
+    print(f'model {model.name} from {args.params}; truth: {report["truth"]}')
     print(f'evaluated {len(recording) - part.start} samples from '
           f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
           f'(last {args.test_fraction:g} of the rows); '

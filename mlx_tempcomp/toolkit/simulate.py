@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import non_negative_float, non_negative_int, positive_float, UserError
+from .common import (check_output_file, check_output_folder, non_negative_float,
+                     non_negative_int, positive_float, UserError)
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
@@ -76,10 +77,13 @@ def _supply(items) -> tuple:
 def _output_paths(args: argparse.Namespace) -> tuple:
     out = Path(args.out)
     fmt = args.format or ('csv' if out.suffix.lower() == '.csv' else 'sqlite3')
-    if fmt != 'csv' and out.exists():
-        msg = f'{out} exists already; a bag is written into a new folder'
-        raise UserError(msg)
-    return out, fmt, out.with_name(out.stem + '.truth.json')
+    if fmt == 'csv':
+        check_output_file(out, '--out')
+    else:
+        check_output_folder(out, '--out', new=True)
+    truth = out.with_name(out.stem + '.truth.json')
+    check_output_file(truth, 'truth file of --out')
+    return out, fmt, truth
 
 
 def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
