@@ -55,6 +55,25 @@ def _read_image(path: str) -> bytes:
         raise UserError(msg) from None
 
 
+def _outvoted_warnings(fields) -> list:
+    """One line per voted field whose copies disagree: the copies and what won."""
+    lines = []
+    for name in VOTED_FIELDS:
+        bits = fields.outvoted_bits[name]
+        if bits:
+            copies = ', '.join(str(value) for value in fields.voted_copies[name])
+            won = _VOTED_VALUES[name](fields)
+            lines.append(f'warning: {name}: {bits} bit{"s" if bits > 1 else ""} out-voted; '
+                         f'copies {copies}; the majority {won} was used (wrong if two copies '
+                         'of a bit went bad)')
+    return lines
+
+
+_VOTED_VALUES = {'RANGE': lambda fields: fields.range_code,
+                 'VERSION': lambda fields: fields.version,
+                 **{f'TC{i}': (lambda fields, i=i: fields.tc_mv[i]) for i in range(3)}}
+
+
 def decode_eeprom_command(args: argparse.Namespace) -> int:
     output = Output(args.output)
     try:
@@ -63,6 +82,13 @@ def decode_eeprom_command(args: argparse.Namespace) -> int:
     except TempCompError as err:
         msg = f'{args.image}: {err}'
         raise UserError(msg) from None
+    warnings = _outvoted_warnings(fields)
+    for line in warnings:
+        print(f'{args.image}: {line}', file=sys.stderr)
+    if warnings and args.strict:
+        names = ', '.join(name for name in VOTED_FIELDS if fields.outvoted_bits[name])
+        msg = f'{args.image}: out-voted bits in {names}; --strict refuses the image'
+        raise UserError(msg)
     result = {
         'image': args.image,
         'range_code': fields.range_code,
@@ -73,6 +99,7 @@ def decode_eeprom_command(args: argparse.Namespace) -> int:
         'ee_zro': list(fields.ee_zro),
         'ee_sf': list(fields.ee_sf),
         'outvoted_bits': dict(fields.outvoted_bits),
+        'voted_copies': {name: list(copies) for name, copies in fields.voted_copies.items()},
         'output': output.value,
     }
     if table is not None:
@@ -395,6 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
     decode.add_argument('--full-scale', type=float, metavar='DPS',
                         help='full scale in deg/s, overriding 5 x RANGE')
     decode.add_argument('--json', action='store_true', help='print JSON')
+    decode.add_argument('--strict', action='store_true',
+                        help='exit with code 2 when any voted field has out-voted bits (the '
+                             'warnings name them)')
     decode.set_defaults(handler=decode_eeprom_command)
     fit = commands.add_parser(
         'fit', help='fit a compensation model to a recording and write a parameter file',

@@ -101,7 +101,9 @@ def test_digital_is_the_default_and_the_text_table(tmp_path, capsys):
     image[0x4A] ^= 0b10                  # one copy of TC1 bit 2: out-voted
     path = write(tmp_path, bytes(image))
     code, out, err = run(['decode-eeprom', path], capsys)
-    assert (code, err) == (0, '')
+    assert code == 0
+    assert err == (f'{path}: warning: TC1: 1 bit out-voted; copies 2507, 2511, 2507; the '
+                   'majority 2507 was used (wrong if two copies of a bit went bad)\n')
     lines = out.splitlines()
     assert lines[0] == f'{path}: VERSION 2, RANGE 15 (full scale 75 deg/s)'
     assert lines[1] == 'digital output: TC in LSB of TEMPOUT, ZRO in LSB, SF in LSB/(deg/s)'
@@ -112,6 +114,41 @@ def test_digital_is_the_default_and_the_text_table(tmp_path, capsys):
                                str(FIELDS.ee_zro[i]), str(FIELDS.ee_sf[i])]
     assert lines[6] == 'out-voted bits: RANGE 0, VERSION 0, TC0 0, TC1 1, TC2 0 (total 1)'
     assert len(lines) == 7
+
+
+def test_every_out_voted_field_is_a_warning_and_strict_refuses_the_image(tmp_path, capsys):
+    image = bytearray(encode_eeprom(FIELDS))
+    image[0x38 + 3] ^= 0b110             # TC0 bit 3 flipped in two of its three copies
+    image[0x68] ^= 0b001                 # RANGE bit 0 flipped in one copy
+    path = write(tmp_path, bytes(image))
+    code, out, err = run(['decode-eeprom', path], capsys)
+    assert code == 0
+    wrong_tc0 = FIELDS.tc_mv[0] ^ 0b1000
+    assert err.splitlines() == [
+        f'{path}: warning: RANGE: 1 bit out-voted; copies 14, 15, 15; the majority 15 was '
+        'used (wrong if two copies of a bit went bad)',
+        f'{path}: warning: TC0: 1 bit out-voted; copies {FIELDS.tc_mv[0]}, {wrong_tc0}, '
+        f'{wrong_tc0}; the majority {wrong_tc0} was used (wrong if two copies of a bit went '
+        'bad)']
+    assert f'{wrong_tc0}' in out.splitlines()[3]
+    code, out, err = run(['decode-eeprom', path, '--strict'], capsys)
+    assert code == 2 and out == ''
+    lines = err.splitlines()
+    assert len(lines) == 3 and 'warning: RANGE' in lines[0] and 'warning: TC0' in lines[1]
+    assert lines[2] == f'error: {path}: out-voted bits in RANGE, TC0; --strict refuses the image'
+    code, out, err = run(['decode-eeprom', path, '--json'], capsys)
+    assert code == 0 and err.count('warning:') == 2
+    decoded = json.loads(out)
+    assert decoded['voted_copies']['TC0'] == [FIELDS.tc_mv[0], wrong_tc0, wrong_tc0]
+    assert decoded['voted_copies']['RANGE'] == [14, 15, 15]
+    assert decoded['tc_mv'][0] == wrong_tc0
+
+
+def test_strict_accepts_a_clean_image(tmp_path, capsys):
+    path = write(tmp_path, encode_eeprom(FIELDS))
+    code, out, err = run(['decode-eeprom', path, '--strict'], capsys)
+    assert (code, err) == (0, '')
+    assert 'out-voted bits: RANGE 0, VERSION 0, TC0 0, TC1 0, TC2 0 (total 0)' in out
 
 
 def test_analog_text_names_millivolts(tmp_path, capsys):

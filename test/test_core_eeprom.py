@@ -127,6 +127,13 @@ def test_one_flipped_copy_is_corrected_and_counted(field, address, copy):
     assert decoded == example_fields()  # the value survives the vote
     assert decoded.outvoted_bits[field] == 1
     assert decoded.total_outvoted_bits == 1
+    # Each copy on its own: the flipped one differs from the value in the flipped bit.
+    values = {'RANGE': (decoded.range_code, 0x68), 'VERSION': (decoded.version, 0x60),
+              **{f'TC{i}': (decoded.tc_mv[i], 0x38 + 16 * i) for i in range(3)}}
+    value, first_address = values[field]
+    flipped = value ^ (1 << (address - first_address))
+    assert decoded.voted_copies[field] == tuple(flipped if i == copy else value
+                                                for i in range(3))
 
 
 def test_two_flipped_copies_lose_the_vote():
@@ -137,6 +144,7 @@ def test_two_flipped_copies_lose_the_vote():
     assert decoded.tc_mv[1] == 2500 ^ 1
     assert decoded.tc_mv[1] & 1 != tc1_bit0
     assert decoded.outvoted_bits['TC1'] == 1
+    assert decoded.voted_copies['TC1'] == (2501, 2501, 2500)
 
 
 def test_unknown_version_names_the_value():

@@ -55,7 +55,9 @@ class EepromFields:
 
     ``outvoted_bits`` counts, per voted field, the bits whose three copies
     disagreed (a worn cell or a bad SPI read); the majority value was used.
-    It describes the read, not the table, so equality ignores it.
+    ``voted_copies`` gives, per voted field, the value each copy holds on its
+    own (copy i is stored in the i-th vote bit). Both describe the read, not
+    the table, so equality ignores them.
     """
 
     range_code: int
@@ -65,6 +67,7 @@ class EepromFields:
     ee_sf: tuple
     outvoted_bits: Mapping[str, int] = field(
         default_factory=lambda: dict.fromkeys(VOTED_FIELDS, 0), compare=False)
+    voted_copies: Mapping[str, tuple] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         if self.version not in KNOWN_VERSIONS:
@@ -100,14 +103,15 @@ def _check_width(name: str, values: tuple, width: int) -> None:
 
 
 def _read_field(image: np.ndarray, layout: _FieldLayout) -> tuple:
-    """Return (value, outvoted bit count) of one field."""
+    """Return (value, outvoted bit count, value of each copy) of one field."""
     cells = image[layout.first_address:layout.first_address + layout.width_bits]
     copies = np.stack([(cells >> b) & 1 for b in layout.bits])
     votes = copies.sum(axis=0)
     bits = (2 * votes > len(layout.bits)).astype(np.int64)
     outvoted = int(np.count_nonzero((votes != 0) & (votes != len(layout.bits))))
-    value = int((bits << np.arange(layout.width_bits)).sum())
-    return value, outvoted
+    weights = np.int64(1) << np.arange(layout.width_bits, dtype=np.int64)
+    value = int((bits * weights).sum())
+    return value, outvoted, tuple(int((copy * weights).sum()) for copy in copies)
 
 
 def decode_eeprom(image: bytes) -> EepromFields:
@@ -125,16 +129,16 @@ def decode_eeprom(image: bytes) -> EepromFields:
         raise EepromError(msg)
     cells = np.frombuffer(bytes(image), dtype=np.uint8).astype(np.int64)
     outvoted = {}
-    range_code, outvoted['RANGE'] = _read_field(cells, _RANGE)
-    version, outvoted['VERSION'] = _read_field(cells, _VERSION)
-    tc = []
-    for layout in _TC:
-        value, outvoted[layout.name] = _read_field(cells, layout)
-        tc.append(value)
+    copies = {}
+    values = {}
+    for layout in (_RANGE, _VERSION) + _TC:
+        values[layout.name], outvoted[layout.name], copies[layout.name] = \
+            _read_field(cells, layout)
     ee_zro = tuple(_read_field(cells, layout)[0] for layout in _EE_ZRO)
     ee_sf = tuple(_read_field(cells, layout)[0] for layout in _EE_SF)
-    return EepromFields(range_code=range_code, version=version, tc_mv=tuple(tc),
-                        ee_zro=ee_zro, ee_sf=ee_sf, outvoted_bits=outvoted)
+    return EepromFields(range_code=values['RANGE'], version=values['VERSION'],
+                        tc_mv=tuple(values[layout.name] for layout in _TC), ee_zro=ee_zro,
+                        ee_sf=ee_sf, outvoted_bits=outvoted, voted_copies=copies)
 
 
 def encode_eeprom(fields: EepromFields, *, fill: bytes = bytes(EEPROM_SIZE)) -> bytes:
