@@ -12,7 +12,7 @@ from mlx_tempcomp.sources.bag import (ImuRecord, RawBagWriter, RawTopics, Supply
 from mlx_tempcomp.sources.recording import (
     ColumnMap, load_bag, load_csv, load_recording, parse_column_map, PRESETS, Recording,
     RecordingError, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY, SKIP_NON_FINITE, SKIP_NON_NUMERIC,
-    SKIP_PRESET, SKIP_REPEATED_ROW, SKIP_TEMPERATURE_UNPAIRED)
+    SKIP_OUT_OF_RANGE, SKIP_PRESET, SKIP_REPEATED_ROW, SKIP_TEMPERATURE_UNPAIRED)
 import numpy as np
 import pytest
 
@@ -190,6 +190,14 @@ def test_non_finite_and_non_numeric_rows_are_skipped_and_counted(tmp_path):
     recording = load_csv(simple_csv(tmp_path / 'bad.csv', rows))
     np.testing.assert_array_equal(recording.time_s, [0.0, 7.0])
     assert dict(recording.skipped) == {SKIP_NON_NUMERIC: 3, SKIP_NON_FINITE: 3}
+
+
+def test_implausible_values_are_skipped_and_counted(tmp_path):
+    rows = [[0, 20, 0.1], [1, -999, 0.1], [2, 21, 1e308], [3, 21, -2e3], [1.7e18, 22, 0.1],
+            [5, 250, 0.1], [6, 22, 0.2]]
+    recording = load_csv(simple_csv(tmp_path / 'glitches.csv', rows))
+    np.testing.assert_array_equal(recording.time_s, [0.0, 6.0])
+    assert dict(recording.skipped) == {SKIP_OUT_OF_RANGE: 5}
 
 
 def test_repeated_rows_are_dropped_and_counted(tmp_path):

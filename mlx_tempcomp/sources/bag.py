@@ -26,6 +26,7 @@ import functools
 import math
 import operator
 from pathlib import Path
+import struct
 from typing import Iterator, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -51,7 +52,11 @@ BAG_VERSION = 8  # rosbag2 metadata version of ROS 2 Jazzy
 _NS_PER_S = 1_000_000_000
 _INT32_MAX = 2**31 - 1
 _INT64_MAX = 2**63 - 1
-_STORAGE_ERRORS = (ReaderError, OSError, _SqliteError)
+# rosbags reading a corrupt file: besides its ReaderError, a flipped byte or a cut file
+# surfaces as a bad UTF-8 name or a negative seek (ValueError), an unknown type or schema
+# id (KeyError), or a length too large to allocate (found by test/test_fuzz_readers.py).
+_CORRUPT_FILE_ERRORS = (ValueError, KeyError, MemoryError, OverflowError, struct.error)
+_STORAGE_ERRORS = (ReaderError, OSError, _SqliteError) + _CORRUPT_FILE_ERRORS
 _STORAGE_PLUGINS = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
 
 PathLike = Union[str, Path]
@@ -59,6 +64,12 @@ PathLike = Union[str, Path]
 
 class BagError(Exception):
     """A bag cannot be read or written, or a record does not fit its message."""
+
+
+def _storage_problem(err: Exception) -> str:
+    if isinstance(err, _CORRUPT_FILE_ERRORS):
+        return f'the file is corrupt ({type(err).__name__}: {err})'
+    return str(err)
 
 
 @functools.lru_cache(maxsize=None)
@@ -402,7 +413,7 @@ class RawBagReader:
             reader = Reader(self.path)
             reader.open()
         except _STORAGE_ERRORS as err:
-            msg = f'cannot open bag {self.path}: {err}'
+            msg = f'cannot open bag {self.path}: {_storage_problem(err)}'
             raise BagError(msg) from None
         return reader
 
@@ -477,7 +488,7 @@ class RawBagReader:
         try:
             yield from self._open().messages(connections=connections)
         except _STORAGE_ERRORS as err:
-            msg = f'cannot read bag {self.path}: {err}'
+            msg = f'cannot read bag {self.path}: {_storage_problem(err)}'
             raise BagError(msg) from None
 
     def _decode(self, connection, data):

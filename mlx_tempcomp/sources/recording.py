@@ -5,7 +5,9 @@ A `Recording` holds clean float64 columns: time strictly increasing, every
 value finite. Rows that cannot be used are dropped and counted by reason in
 ``Recording.skipped`` (the ``SKIP_*`` constants); anything that leaves no
 usable row, or a file that cannot be read at all, raises `RecordingError`
-with a message naming the file and what is wrong.
+with a message naming the file and what is wrong. Values no gyro recording
+holds (`PLAUSIBLE_RANGES`: a glitch, a -999 sentinel, a time in ns read as s)
+are skipped like non-finite ones, so nothing downstream overflows.
 
 Time order: a row that repeats an earlier row exactly (same
 time, same values) is dropped and counted. Rows out of time order are sorted
@@ -52,6 +54,7 @@ BAG_SUFFIXES = ('.db3', '.mcap')
 SKIP_PRESET = 'dropped by preset'
 SKIP_NON_NUMERIC = 'non-numeric values'
 SKIP_NON_FINITE = 'non-finite values'
+SKIP_OUT_OF_RANGE = 'values out of range'
 SKIP_REPEATED_ROW = 'repeated rows'
 SKIP_DUPLICATED_TIME = 'duplicated time'
 SKIP_IMU_UNPAIRED = 'IMU without temperature'
@@ -60,6 +63,16 @@ SKIP_CORRUPT = 'corrupt messages'
 SKIP_NO_SUPPLY = 'IMU without a supply voltage within 5 s'
 # The compensation node's default supply_voltage.max_age_s.
 SUPPLY_MAX_AGE_NS = 5_000_000_000
+
+# What a gyro recording can hold, by canonical column prefix; a row beyond is a glitch or a
+# sentinel (e.g. -999) and is skipped. Temperatures: the node's reference-temperature range.
+PLAUSIBLE_RANGES = MappingProxyType({
+    'time': (-1e10, 1e10),                # s: ROS stamps end in 2038 (2.1e9 s)
+    'temperature': (-100.0, 200.0),       # degC, temperature and temperature_2
+    'gyro': (-1e3, 1e3), 'ref': (-1e3, 1e3),   # rad/s: 57,000 deg/s
+    'acc': (-1e4, 1e4),                   # m/s^2: 1000 g
+    'supply_voltage': (-1e3, 1e3),        # V
+})
 
 _GROUPS = (('gyro', 'gyro'), ('reference', 'ref'), ('acceleration', 'acc'))
 CANONICAL_COLUMNS = (('time', 'temperature')
@@ -445,20 +458,25 @@ def _drop_repeats(source: str, time_s: np.ndarray, values: np.ndarray, rows: np.
     return np.setdiff1d(rows, later, assume_unique=True)
 
 
-def _time_ordered_rows(source: str, time_s: np.ndarray, values: np.ndarray,
+def _time_ordered_rows(source: str, time_s: np.ndarray, values: np.ndarray, bounds: tuple,
                        non_numeric: np.ndarray, names: _RowNames,
                        skipped: Dict[str, int]) -> tuple:
     """
     Give the usable rows in time order and how many were out of order.
 
-    Rows with a non-numeric or non-finite value and exact repeats are counted
-    in ``skipped``; see the module notes for when rows are sorted or refused.
+    Rows with a non-numeric, non-finite or implausible value (outside ``bounds``,
+    the low and high of each column) and exact repeats are counted in
+    ``skipped``; see the module notes for when rows are sorted or refused.
     """
     finite = np.isfinite(values).all(axis=1)
+    low, high = bounds
+    with np.errstate(invalid='ignore'):
+        plausible = ((values >= low) & (values <= high)).all(axis=1)
     _count(skipped, SKIP_NON_NUMERIC, np.count_nonzero(non_numeric))
     _count(skipped, SKIP_NON_FINITE, np.count_nonzero(~non_numeric & ~finite))
-    rows = _drop_repeats(source, time_s, values, np.flatnonzero(~non_numeric & finite), names,
-                         skipped)
+    _count(skipped, SKIP_OUT_OF_RANGE, np.count_nonzero(~non_numeric & finite & ~plausible))
+    rows = _drop_repeats(source, time_s, values, np.flatnonzero(~non_numeric & plausible),
+                         names, skipped)
     times = time_s[rows]
     backward = np.flatnonzero(np.diff(times) < 0)
     if not backward.size:
@@ -486,8 +504,10 @@ def _recording(source: str, columns: Dict[str, np.ndarray], non_numeric: np.ndar
                skipped: Dict[str, int], names: _RowNames) -> Recording:
     """Drop unusable rows of canonical columns (each of N rows), order them, build it."""
     values = np.column_stack(list(columns.values()))
-    keep, sorted_rows = _time_ordered_rows(source, columns['time'], values, non_numeric,
-                                           names, skipped)
+    bounds = np.array([PLAUSIBLE_RANGES[name if name in PLAUSIBLE_RANGES
+                                        else name.rsplit('_', 1)[0]] for name in columns]).T
+    keep, sorted_rows = _time_ordered_rows(source, columns['time'], values, bounds,
+                                           non_numeric, names, skipped)
     if not keep.size:
         msg = (f'{source}: no usable row; all {sum(skipped.values())} rows skipped '
                f'({_skip_summary(skipped)})')
