@@ -187,7 +187,7 @@ def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
     _print_range(model)
     print(f'T_true = {true_c:.2f} C ({how})')
     x = (true_c - fitted.reference_temperature_c) / fitted.temperature_scale_c
-    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, c):.4e}'
+    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, c):.3e}'
                         for axis, c in zip(recording.axes, fitted.bias_coefficients))
     print(f'p(T_true) taken off the constant terms (rad/s): {removed}')
     print("written as model 'polynomial' whose bias is zero at T_true; the compensation "
@@ -206,12 +206,12 @@ def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
     print(f'T3 = {model.t3_c:.2f} C ({how})')
     corrected = model.correct(rate_rad_s, recording.temperature_c).rate_rad_s
     rms = np.sqrt(np.mean(np.square(corrected), axis=0))
-    print(f'{"axis":<6}{"bias slope":>16}{"BTC":>16}{"PBC":>14}{"RMS after":>14}')
-    print(f'{"":<6}{"deg/s/C":>16}{"rad/s/C":>16}{"rad/s":>14}{"rad/s":>14}')
+    print(f'{"axis":<6}{"BTC":>12}{"PBC":>12}{"RMS after":>12}{"bias slope":>14}')
+    print(f'{"":<6}{"rad/s/C":>12}{"rad/s":>12}{"rad/s":>12}{"deg/s/C":>14}')
     for i, axis in enumerate(recording.axes):
         btc = model.btc_rad_s_per_c[i]
-        print(f'{axis:<6}{math.degrees(-btc):>16.6g}{btc:>16.6g}{model.pbc_rad_s[i]:>14.6g}'
-              f'{rms[i]:>14.4g}')
+        print(f'{axis:<6}{btc:>12.3e}{model.pbc_rad_s[i]:>12.3e}{rms[i]:>12.3e}'
+              f'{math.degrees(-btc):>14.6g}')
     if args.table_step is None:
         extent_c = max(abs(float(np.min(recording.temperature_c)) - model.t3_c),
                        abs(float(np.max(recording.temperature_c)) - model.t3_c))

@@ -79,8 +79,11 @@ def test_table_6_of_the_note():
     np.testing.assert_allclose(np.degrees(corrections[:, 0]), [row[1] for row in TABLE_6],
                                atol=1e-12)
     printed = [line.split() for line in format_btc_table(model, ('z',), 0.02).splitlines()[1:]]
-    assert [float(cell) for row in printed for cell in row] == \
+    # Columns: TEMP - T3, the correction in rad/s, and beside it in deg/s as the note prints.
+    assert [float(cell) for row in printed for cell in (row[0], row[2])] == \
         pytest.approx([value for row in TABLE_6 for value in row], abs=1e-12)
+    assert [float(row[1]) for row in printed] == \
+        pytest.approx([math.radians(row[1]) for row in TABLE_6], rel=1e-3)
 
 
 def test_btc_refuses_too_small_a_temperature_change():

@@ -262,12 +262,14 @@ def test_linear_btc_recovers_the_slope_and_prints_table_6(tmp_path, capsys):
     assert 'T3 = 25.00 C (given by --t3)' in out
     rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
             if line.split() and line.split()[0] in ('+0.12', '0', '-0.12')}
-    assert set(rows) == {'+0.12', '0', '-0.12'} and rows['0'] == ['0']
+    assert set(rows) == {'+0.12', '0', '-0.12'} and rows['0'] == ['0', '0']
     # Slope error: noise / (sqrt(3000) x 7.1 C) = 5e-6 rad/s/C; BTC is minus the slope.
     tolerance_rad_s_per_c = 2.5e-5
     for offset, correction_dps in (('+0.12', -0.0048), ('-0.12', 0.0048)):
-        assert float(rows[offset][0]) == pytest.approx(
-            correction_dps, abs=0.12 * math.degrees(tolerance_rad_s_per_c))
+        rad_s, dps = (float(cell) for cell in rows[offset])
+        assert rad_s == pytest.approx(math.radians(correction_dps),
+                                      abs=0.12 * tolerance_rad_s_per_c)
+        assert dps == pytest.approx(correction_dps, abs=0.12 * math.degrees(tolerance_rad_s_per_c))
     model = build_model(node_values(out_path))
     assert isinstance(model, LinearBtcModel)
     assert model.btc_rad_s_per_c[0] == pytest.approx(-slope_rad_s_per_c,

@@ -93,12 +93,12 @@ def test_linear_btc_recovers_the_slope_with_the_note_sign():
 def test_table_6_of_the_note():
     model = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(-SLOPE_RAD_S_PER_C,), t3_c=25.0)
     lines = format_btc_table(model, ('z',), 0.02).splitlines()
-    assert lines[0].split() == ['TEMP', '-', 'T3', '(C)', 'z', '(deg/s)']
+    assert lines[0].split() == ['TEMP', '-', 'T3', '(C)', 'z', '(rad/s)', 'z', '(deg/s)']
     rows = [line.split() for line in lines[1:]]
-    assert rows[0] == ['+0.12', '-0.0048']
-    assert rows[5] == ['+0.02', '-0.0008']
-    assert rows[6] == ['0', '0']
-    assert rows[-1] == ['-0.12', '+0.0048']
+    assert rows[0] == ['+0.12', f'{math.radians(-0.0048):+.4g}', '-0.0048']
+    assert rows[5] == ['+0.02', f'{math.radians(-0.0008):+.4g}', '-0.0008']
+    assert rows[6] == ['0', '0', '0']
+    assert rows[-1] == ['-0.12', f'{math.radians(0.0048):+.4g}', '+0.0048']
     assert len(rows) == 13
     # The table is what the model applies: RBC - RATE - PBC at T3 + 0.12 C.
     step = model.correct([[0.0]], [25.12]).rate_rad_s[0, 0]

@@ -17,7 +17,7 @@ import sys
 import time
 
 from .common import (check_output_file, finite_float, non_negative_float, non_negative_int,
-                     positive_float, UserError)
+                     positive_float, rate_text, UserError)
 from .progress import add_progress_option, Progress
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
                                    MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
@@ -54,10 +54,6 @@ _PHASE_TEXT = {
                        'deviation',
     Phase.PBC: 'averaging RATE for {:g} s -> PBC = -mean, T3 = mean TEMP',
 }
-
-
-def _dps(rad_s: float) -> str:
-    return f'{math.degrees(rad_s):+.6f} deg/s ({rad_s:+.4e} rad/s)'
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -126,7 +122,7 @@ def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
     arw_deg_rt_h = math.degrees(figures.angle_random_walk_rad_s_rt_hz) * SECONDS_PER_HOUR ** 0.5
     print(f'  noise of the rest record: ARW {arw_deg_rt_h:.4g} deg/sqrt(h) '
           f'({figures.angle_random_walk_rad_s_rt_hz:.4g} rad/s/rt(Hz)), bias instability '
-          f'{math.degrees(figures.bias_instability_rad_s):.4g} deg/s at tau '
+          f'{rate_text(figures.bias_instability_rad_s)} at tau '
           f'{figures.bias_instability_tau_s:.4g} s, rate_noise_rad_s '
           f'{figures.rate_noise_rad_s:.4g}')
     record_s = procedure.settings.allan_record_s
@@ -134,7 +130,7 @@ def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
     floor_rad_s, _ = adev_at_rad_s(figures, figures.bias_instability_tau_s)
     trusted_s = [tau for tau in figures.taus_s if tau <= record_s / RECORD_FRACTION * 1.000001]
     reached = bool(trusted_s) and figures.bias_instability_tau_s < max(trusted_s)
-    print(f'  Allan minimum {math.degrees(floor_rad_s):.4g} deg/s at tau '
+    print(f'  Allan minimum {rate_text(floor_rad_s)} at tau '
           f'{figures.bias_instability_tau_s:.4g} s'
           + ('' if reached else ' (the curve still falls at a tenth of the record: a longer '
              '--allan-record-s may find a longer one)'))
@@ -147,19 +143,21 @@ def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
         adev_rad_s, inside = adev_at_rad_s(figures, used_s)
         mark = '' if inside else ' (extrapolated)'
         print(f'  {name:<10}{note_s:>10g}{used_s:>10g}'
-              f'{math.degrees(adev_rad_s):>16.4g} deg/s{mark}')
+              f'{adev_rad_s:>16.3e} rad/s ({math.degrees(adev_rad_s):.4g} deg/s){mark}')
 
 
 def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
     if phase is Phase.POINT_1:
         p = procedure.point_1
-        print(f'  T1 = {p.temperature_c:.4f} C, B1 = {_dps(p.bias_rad_s)}, {p.samples} samples')
+        print(f'  T1 = {p.temperature_c:.4f} C, B1 = {rate_text(p.bias_rad_s)}, '
+              f'{p.samples} samples')
     elif phase is Phase.POINT_2:
         p = procedure.point_2
-        print(f'  T2 = {p.temperature_c:.4f} C, B2 = {_dps(p.bias_rad_s)}, {p.samples} samples')
+        print(f'  T2 = {p.temperature_c:.4f} C, B2 = {rate_text(p.bias_rad_s)}, '
+              f'{p.samples} samples')
         btc = procedure.btc_rad_s_per_c
-        print(f'  BTC = -(B2 - B1) / (T2 - T1) = {math.degrees(btc):+.6f} deg/s/C '
-              f'({btc:+.4e} rad/s/C)')
+        print(f'  BTC = -(B2 - B1) / (T2 - T1) = {btc:+.4e} rad/s/C '
+              f'({math.degrees(btc):+.6f} deg/s/C)')
     elif phase is Phase.REST_RECORD:
         _print_noise(procedure, args)
         print(f'  motion check: window rate spread at most '
@@ -167,7 +165,7 @@ def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
               '2 passed')
     elif phase is Phase.PBC:
         r = procedure.result
-        print(f'  PBC = -mean = {_dps(r.pbc_rad_s)}, T3 = {r.t3_c:.4f} C, '
+        print(f'  PBC = -mean = {rate_text(r.pbc_rad_s)}, T3 = {r.t3_c:.4f} C, '
               f'{r.pbc_point.samples} samples')
 
 
@@ -246,15 +244,15 @@ def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> Non
     model = result.model
     p1, p2 = result.point_1, result.point_2
     print('result: RBC = RATE + PBC + (TEMP - T3) x BTC')
-    print(f'  T1 = {p1.temperature_c:.4f} C   B1 = {_dps(p1.bias_rad_s)}')
-    print(f'  T2 = {p2.temperature_c:.4f} C   B2 = {_dps(p2.bias_rad_s)}')
+    print(f'  T1 = {p1.temperature_c:.4f} C   B1 = {rate_text(p1.bias_rad_s)}')
+    print(f'  T2 = {p2.temperature_c:.4f} C   B2 = {rate_text(p2.bias_rad_s)}')
     btc = result.btc_rad_s_per_c
     uncertainty = result.btc_uncertainty_rad_s_per_c
     spread = '' if uncertainty is None else \
-        f' +- {math.degrees(uncertainty):.2g} deg/s/C expected (1 sigma)'
-    print(f'  BTC = {math.degrees(btc):+.6f} deg/s/C ({btc:+.4e} rad/s/C){spread}; '
+        f' +- {uncertainty:.2g} rad/s/C expected (1 sigma)'
+    print(f'  BTC = {btc:+.4e} rad/s/C ({math.degrees(btc):+.6f} deg/s/C){spread}; '
           f'bias slope {math.degrees(-btc):+.6f} deg/s/C')
-    print(f'  PBC = {_dps(result.pbc_rad_s)}   T3 = {result.t3_c:.4f} C')
+    print(f'  PBC = {rate_text(result.pbc_rad_s)}   T3 = {result.t3_c:.4f} C')
     skipped = ', '.join(f'{reason} {count}' for reason, count in procedure.skipped.items()
                         if count)
     print(f'  samples skipped: {skipped or "none"}')

@@ -3,7 +3,9 @@ What the ``mlx-tempcomp`` subcommands share: the user-error type and recording o
 
 User mistakes (a missing or malformed file, data that cannot support what was
 asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
-``error:`` and exits with code 2, never a traceback. Every subcommand that
+``error:`` and exits with code 2, never a traceback. Rates are printed in rad/s,
+deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
+``.3e``. Every subcommand that
 reads a recording prints the same loading line (rows used, rows skipped by
 reason, rows sorted into time order) through `load`. Output paths are
 checked before the work (`check_output_file`, `check_output_folder`), so a
@@ -23,6 +25,11 @@ EXIT_USER_ERROR = 2
 
 class UserError(Exception):
     """A mistake in what the user asked for; reported in one line, exit code 2."""
+
+
+def rate_text(rate_rad_s: float) -> str:
+    """Give a rate as every subcommand prints one: rad/s, with deg/s beside."""
+    return f'{rate_rad_s:+.4e} rad/s ({math.degrees(rate_rad_s):+.4g} deg/s)'
 
 
 def non_negative_int(text: str) -> int:

@@ -309,8 +309,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
         for label, key in (('per sample', 'per_sample'), (f'{args.average_s:g} s mean',
                                                           'averaged')):
             s = report[key][a]
-            print(f'{a:<6}{label:<14}{s["mean"]:>12.4g}{s["sigma"]:>12.4g}{s["rms"]:>12.4g}'
-                  f'{s["peak"]:>12.4g}')
+            print(f'{a:<6}{label:<14}{s["mean"]:>12.3e}{s["sigma"]:>12.3e}{s["rms"]:>12.3e}'
+                  f'{s["peak"]:>12.3e}')
     if args.out_csv is not None:
         print(f'wrote {args.out_csv}')
     return 0
