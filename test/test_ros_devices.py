@@ -12,6 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
+from mlx_tempcomp.ros.devices import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
@@ -190,15 +191,22 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
     again = gyro_mean_dps(launcher, probe)
     assert np.all(np.abs(again) < 0.035), again
 
-    # A corrupt file: logged, the driver starts without offsets (the bias is back).
+    # A damaged file, then one with a value no register holds: each logged at ERROR and
+    # moved aside, the driver starts without offsets (the bias is back).
     restarted.stop()
-    probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
-    path.write_text('gyro_offset_lsb: [1, 2\n')
-    third = start_mpu(launcher, probe, path, 'third')
-    line = first_line_with(third.output(), 'is not valid YAML')
-    assert line.startswith('[ERROR]') and 'starting without offsets' in third.output(), \
-        third.output()
-    assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+    for label, content, reason in (
+            ('third', 'gyro_offset_lsb: [1, 2\n', 'damaged: not valid YAML at line 2'),
+            ('fourth', yaml.safe_dump({**state, 'gyro_offset_lsb': [40000, 0, 0]}),
+             'gyro_offset_lsb[0] 40000 is outside -32768 to 32767')):
+        probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
+        path.write_text(content)
+        driver = start_mpu(launcher, probe, path, label)
+        line = first_line_with(driver.output(), f'saved offsets in {path} unusable: {reason}')
+        assert line.startswith('[ERROR]') and 'moved aside to' in line, driver.output()
+        assert not path.exists()
+        assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+        driver.stop()
+    assert len(list(path.parent.glob('offsets.yaml.bad-*'))) == 2
 
 
 @pytest.mark.parametrize('params, named', [
@@ -278,10 +286,9 @@ def test_mpu6000_gyro_offsets_follow_a_fitted_bias_model(launcher, probe, tmp_pa
     steady.start()
     calibration = steady.calibrate_offsets()
     offsets_path = tmp_path / 'offsets.yaml'
-    write_state(str(offsets_path), {
-        'variant': 'mpu6000', 'gyro_offset_lsb': list(calibration.gyro_lsb),
-        'accel_bias_lsb': list(calibration.accel_bias_lsb),
-        'temperature_c': calibration.temperature_c})
+    write_state(str(offsets_path), offsets_state(
+        'mpu6000', calibration.gyro_lsb, calibration.accel_bias_lsb,
+        calibration.accel_registers, calibration.bias, calibration.temperature_c))
 
     imu = probe.subscribe(Imu, 'imu/data_raw')
     temperature = probe.subscribe(Temperature, 'imu/temperature_raw')
