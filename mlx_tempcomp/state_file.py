@@ -23,6 +23,7 @@ from datetime import datetime, timezone
 import glob
 import math
 import os
+import reprlib
 import tempfile
 from typing import Optional, Tuple, Union
 
@@ -106,6 +107,11 @@ def parse_state(data: bytes) -> dict:
         where = f' at line {mark.line + 1}' if mark is not None else ''
         problem = getattr(err, 'problem', None) or type(err).__name__
         raise StateFileError(f'damaged: not valid YAML{where} ({problem})') from None
+    except (ValueError, OverflowError) as err:
+        # A tagged or implicit value its constructor refuses: a date 2026-13-45, !!int abc.
+        raise StateFileError(f'damaged: not valid YAML ({err})') from None
+    except RecursionError:
+        raise StateFileError('damaged: not valid YAML (nested too deeply)') from None
     if not isinstance(state, dict):
         kind = 'empty' if state is None else f'a {type(state).__name__}, not a mapping'
         raise StateFileError(f'damaged: {kind}')
@@ -142,19 +148,20 @@ def _is_number(value) -> bool:
 def _check_item(field: Field, name: str, value):
     if field.kind == 'text':
         if not isinstance(value, str):
-            raise StateFileError(f'{name} must be text, got {value!r}')
+            raise StateFileError(f'{name} must be text, got {reprlib.repr(value)}')
         if field.choices and value not in field.choices:
             raise StateFileError(f'{name} must be one of {", ".join(field.choices)}, got '
-                                 f'{value!r}')
+                                 f'{reprlib.repr(value)}')
         return value
     if field.kind == 'integer' and not (isinstance(value, int) and not isinstance(value, bool)):
-        raise StateFileError(f'{name} must be an integer, got {value!r}')
+        raise StateFileError(f'{name} must be an integer, got {reprlib.repr(value)}')
     if not _is_number(value):
-        raise StateFileError(f'{name} must be a number, got {value!r}')
+        raise StateFileError(f'{name} must be a number, got {reprlib.repr(value)}')
     if not math.isfinite(value):
-        raise StateFileError(f'{name} must be finite, got {value!r}')
+        raise StateFileError(f'{name} must be finite, got {reprlib.repr(value)}')
     if not field.low <= value <= field.high:
-        raise StateFileError(f'{name} {value!r} is outside {field.low:g} to {field.high:g}')
+        raise StateFileError(f'{name} {reprlib.repr(value)} is outside {field.low:g} to '
+                             f'{field.high:g}')
     return value if field.kind == 'integer' else float(value)
 
 
@@ -181,7 +188,7 @@ def check_state(state: dict, fields) -> dict:
             fewest, most = field.length
         if not isinstance(value, list) or not fewest <= len(value) <= most:
             count = fewest if fewest == most else f'{fewest} to {most}'
-            msg = f'{field.key} must be a list of {count} values, got {value!r}'
+            msg = f'{field.key} must be a list of {count} values, got {reprlib.repr(value)}'
             raise StateFileError(msg)
         values[field.key] = [_check_item(field, f'{field.key}[{index}]', item)
                              for index, item in enumerate(value)]

@@ -185,18 +185,9 @@ class CompensationNode(Node):
                 f'{state["fingerprint"]}; running {model.name}, {list(self.axes)}, '
                 f'{model.fingerprint()}); not applied')
             return model
-        full_scale = self._full_scale_rad_s()
         try:
-            offset_model = model.with_zro_offset(state['zro_offset'])
-            offset_rad_s = offset_model.offset_rad_s(state['temperature_c'])
-            if not all(abs(v) <= full_scale for v in offset_rad_s):
-                unit = state['offset_unit']
-                as_rate = '' if unit == 'rad/s' else \
-                    f' ({[float(v) for v in offset_rad_s]} rad/s at {state["temperature_c"]} C)'
-                msg = (f'zro_offset {state["zro_offset"]} {unit}{as_rate} is beyond the full '
-                       f'scale +-{full_scale:.4g} rad/s ({math.degrees(full_scale):g} deg/s)')
-                raise StateFileError(msg)
-        except (StateFileError, TempCompError) as err:
+            offset_model = saved_offset_model(model, state, self._full_scale_rad_s())
+        except StateFileError as err:
             reject_state(self.state_path, str(err), self.get_logger(), _ZRO_STATE)
             self.saved_state = None
             self.last_recalibration = {}
@@ -592,6 +583,28 @@ def zro_state_fields(full_scale_rad_s: float) -> tuple:
                   high=full_scale_rad_s),
             Field('temperature_c', 'number', low=-273.15, high=1000.0),
             Field('samples', 'integer', low=1), Field('time', 'text'))
+
+
+def saved_offset_model(model, state: dict, full_scale_rad_s: float):
+    """
+    Give ``model`` with the offset of a checked ZRO ``state`` learned on it.
+
+    StateFileError when the offset, as a rate at the state's temperature, is
+    beyond the full scale: no gyro reads such a rate, so no such offset is real.
+    """
+    try:
+        offset_model = model.with_zro_offset(state['zro_offset'])
+        offset_rad_s = offset_model.offset_rad_s(state['temperature_c'])
+    except TempCompError as err:
+        raise StateFileError(str(err)) from None
+    if not all(abs(v) <= full_scale_rad_s for v in offset_rad_s):
+        unit = state['offset_unit']
+        as_rate = '' if unit == 'rad/s' else \
+            f' ({[float(v) for v in offset_rad_s]} rad/s at {state["temperature_c"]} C)'
+        msg = (f'zro_offset {state["zro_offset"]} {unit}{as_rate} is beyond the full scale '
+               f'+-{full_scale_rad_s:.4g} rad/s ({math.degrees(full_scale_rad_s):g} deg/s)')
+        raise StateFileError(msg)
+    return offset_model
 
 
 def messages_value(parameter):
