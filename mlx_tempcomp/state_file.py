@@ -241,10 +241,11 @@ def load_state(path: str, fields, logger, what: str) -> Optional[dict]:
     """
     Give the checked ``fields`` of the state file at ``path``; None when there is none usable.
 
-    Removes leftover temporary files of ``path`` first. No file is logged at
-    INFO; a file that cannot be used at ERROR with the reason, moved aside
-    (`reject_state`). ``what`` names the state in the log ("saved ZRO offset").
-    ``logger`` needs info, warning and error (rclpy's and Python's do).
+    Removes leftover temporary files of ``path`` first (a WARN names them).
+    No file is no state, not logged here; a file that cannot be used is
+    logged at ERROR with the reason and moved aside (`reject_state`).
+    ``what`` names the state in the log ("saved ZRO offset"); ``logger``
+    needs warning and error (rclpy's and Python's have them).
     """
     try:
         removed = remove_leftovers(path)
@@ -261,7 +262,6 @@ def load_state(path: str, fields, logger, what: str) -> Optional[dict]:
         logger.error(f'{err}; starting without {what}')
         return None
     if data is None:
-        logger.info(f'no {what} in {path} yet')
         return None
     try:
         return check_state(parse_state(data), fields)

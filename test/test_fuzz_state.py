@@ -15,7 +15,8 @@ import math
 import os
 import tempfile
 
-from hypothesis import example, given, HealthCheck, settings, strategies as st
+from hypothesis import (currently_in_test_context, event, example, given, HealthCheck, settings,
+                        strategies as st)
 from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.ros.compensation_node import saved_offset_model, zro_state_fields
 from mlx_tempcomp.ros.devices import MPU_OFFSETS_FIELDS
@@ -77,6 +78,7 @@ def assert_loaded_or_refused(data: bytes, schema: str):
     """Assert the property; give the state (None when refused)."""
     fields, _ = SCHEMAS[schema]
     state, errors, names = load(data, schema)
+    count('refused' if state is None else 'loaded')
     if state is None:
         assert len(errors) == 1 and ' unusable: ' in errors[0], errors
         assert errors[0].endswith('; starting without it')
@@ -115,6 +117,12 @@ def assert_applies_finite(state: dict) -> None:
     assert np.all(np.abs(model.zro_offset_rad_s) <= FULL_SCALE_RAD_S)
     rate = model.correct(np.full((4, 3), FULL_SCALE_RAD_S), [-40.0, 0.0, 25.0, 85.0])
     assert np.all(np.isfinite(rate.rate_rad_s))
+
+
+def count(outcome: str) -> None:
+    """Count ``outcome`` in the statistics of a property (--hypothesis-show-statistics)."""
+    if currently_in_test_context():
+        event(outcome)
 
 
 def dump(state) -> bytes:

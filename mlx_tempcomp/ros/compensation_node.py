@@ -103,10 +103,12 @@ class CompensationNode(Node):
         self.transfer = transfer_of(self.values)
         self.state_path = state_file_of(self.values, self.get_name())
         self.sensor = None
+        self.eeprom_error = ''
+        # The model first: a node that cannot start leaves its state file as it is.
+        model = build_model(self.values)
         self.saved_state = self._load_state()
         self.last_recalibration = self.saved_state or {}
-        self.eeprom_error = ''
-        model = self._with_saved_offset(build_model(self.values))
+        model = self._with_saved_offset(model)
         self.model = None
         self.stream = None
         self.window = None

@@ -667,9 +667,11 @@ class MpuStream(DeviceStream):
 
     def _write_saved_offsets(self) -> None:
         logger = self.node.get_logger()
+        if not os.path.lexists(self.offsets_path):
+            logger.info(f'no saved offsets in {self.offsets_path}: offset registers at their '
+                        'power-on values')
         state = load_state(self.offsets_path, MPU_OFFSETS_FIELDS, logger, _MPU_OFFSETS)
         if state is None:
-            logger.info('offset registers at their power-on values')
             return
         if state['variant'] != self.variant:
             logger.warn(f'{_MPU_OFFSETS} in {self.offsets_path} were measured on a '
