@@ -17,11 +17,16 @@ import tempfile
 
 from hypothesis import (currently_in_test_context, event, example, given, HealthCheck, settings,
                         strategies as st)
-from mlx_tempcomp.core.models import PolynomialModel
+from mlx_tempcomp.core.compensation import table_compensation
+from mlx_tempcomp.core.conversion import Output
+from mlx_tempcomp.core.eeprom import EepromFields
+from mlx_tempcomp.core.models import EepromModel, PolynomialModel
+from mlx_tempcomp.core.table import factory_table
 from mlx_tempcomp.ros.compensation_node import saved_offset_model, zro_state_fields
 from mlx_tempcomp.ros.devices import MPU_OFFSETS_FIELDS
 from mlx_tempcomp.state_file import load_state, StateFileError, write_state
 import numpy as np
+import pytest
 import yaml
 
 FULL_SCALE_RAD_S = math.radians(300.0)
@@ -215,3 +220,21 @@ def test_valid_files_with_a_value_replaced(schema, data):
         index = data.draw(st.integers(0, len(state[key]) - 1), label='index')
         changed[key] = [value if i == index else v for i, v in enumerate(state[key])]
     assert_loaded_or_refused(dump(changed), schema)
+
+
+def test_an_eeprom_offset_in_lsb_is_held_to_the_full_scale_as_a_rate():
+    fields = EepromFields(range_code=15, version=2, tc_mv=(1854, 2508, 3114),
+                          ee_zro=(132, 133, 145), ee_sf=(120, 145, 133))
+    model = EepromModel(table_compensation([factory_table(fields, Output.DIGITAL)], 75.0,
+                                           Output.DIGITAL))
+    state = {**ZRO_STATE, 'model': 'eeprom', 'fingerprint': model.fingerprint(),
+             'axes': ['z'], 'offset_unit': 'LSB', 'zro_offset_rad_s': [0.01]}
+    full_scale = math.radians(75.0)
+    # 12.8 LSB is about 1 deg/s here: applied.
+    applied = saved_offset_model(model, {**state, 'zro_offset': [12.8]}, full_scale)
+    assert applied.zro_offset == (12.8,)
+    # 1e300 LSB, beside a sane rad/s copy: refused, in LSB and as a rate.
+    with pytest.raises(StateFileError, match=r'^zro_offset \[1e\+300\] LSB \(\[\S+\] rad/s at '
+                                             r'31.5 C\) is beyond the full scale \+-1.309 '
+                                             r'rad/s \(75 deg/s\)$'):
+        saved_offset_model(model, {**state, 'zro_offset': [1e300]}, full_scale)
