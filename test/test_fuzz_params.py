@@ -28,7 +28,9 @@ import pytest
 import yaml
 
 NODE = 'compensation_node'
-FUZZ = settings(max_examples=300, deadline=None, database=None,
+# A few seconds per test, new examples each run; a failure prints the example and a
+# @reproduce_failure blob (no example database in the checkout).
+FUZZ = settings(max_examples=300, deadline=None, database=None, print_blob=True,
                 suppress_health_check=[HealthCheck.too_slow])
 FULL_SCALE_RAD_S = math.radians(2000.0)
 RATES = np.linspace(-FULL_SCALE_RAD_S, FULL_SCALE_RAD_S, 5)

@@ -43,8 +43,9 @@ MPU_STATE = {'variant': 'mpu6000', 'gyro_offset_lsb': [-269, -106, 265],
              'residual_acceleration_m_s2': [0.05, -0.008, -0.011], 'gravity_axis': '+z',
              'temperature_c': 25.0, 'samples': 201, 'time': '2026-11-25T12:00:00+00:00'}
 SCHEMAS = {'zro': (ZRO_FIELDS, ZRO_STATE), 'mpu': (MPU_OFFSETS_FIELDS, MPU_STATE)}
-# A few seconds per test; failures print the example and a reproduction blob.
-FUZZ = settings(max_examples=300, deadline=None, database=None,
+# A few seconds per test, new examples each run; a failure prints the example and a
+# @reproduce_failure blob (no example database in the checkout).
+FUZZ = settings(max_examples=300, deadline=None, database=None, print_blob=True,
                 suppress_health_check=[HealthCheck.too_slow])
 
 
