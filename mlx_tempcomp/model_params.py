@@ -9,15 +9,12 @@ number is a Python float (rcl refuses an int for a double parameter) and
 axis names are quoted strings (YAML 1.1 reads a bare y as a boolean).
 """
 
-import os
-from pathlib import Path
-import tempfile
-
 import yaml
 
 from .core.chain import ChainModel
 from .core.effects import EffectModel
 from .core.models import AXIS_NAMES, LinearBtcModel, PolynomialModel
+from .state_file import atomic_write
 
 
 class _QuotingDumper(yaml.SafeDumper):
@@ -110,23 +107,11 @@ def parameter_file(node_name: str, parameters: dict) -> dict:
 
 def write_parameter_file(path, content: dict, header: str = '') -> None:
     """
-    Write a ROS 2 parameter file atomically: a temporary file, then os.replace.
+    Write a ROS 2 parameter file atomically, as state files are written (OSError on failure).
 
     ``header`` lines are written as YAML comments first. A crash leaves the
     old file, or none, never half a file.
     """
-    path = Path(path)
     comments = ''.join(f'# {line}\n' for line in header.splitlines())
-    text = comments + yaml.dump(content, Dumper=_QuotingDumper, sort_keys=False)
-    descriptor, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp',
-                                             dir=path.parent)
-    try:
-        with os.fdopen(descriptor, 'w') as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        os.unlink(temporary)
-        raise
+    atomic_write(path, comments + yaml.dump(content, Dumper=_QuotingDumper, sort_keys=False),
+                 0o644)

@@ -12,6 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
+from mlx_tempcomp.ros.devices import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
@@ -139,6 +140,28 @@ def gyro_mean_dps(launcher, probe, samples: int = 200) -> np.ndarray:
     return np.array([mean_dps(raw[:samples], i) for i in range(3)])
 
 
+def gyro_mean_after_change_dps(launcher, probe, old_dps, samples: int = 200) -> np.ndarray:
+    """
+    Return the mean raw rate of the ``samples`` samples after the last one near ``old_dps``.
+
+    Samples published before the registers changed may still be on their way to the probe
+    (on a loaded machine it lags the stream): they are told apart by value, the old level
+    being degrees per second from the new one (near 0).
+    """
+    probe.clear()
+
+    def after() -> np.ndarray:
+        msgs = by_stamp(probe.received['imu/data_raw'])
+        dps = np.degrees(np.array([rates(msgs[s]) for s in sorted(msgs)]).reshape(-1, 3))
+        old = np.linalg.norm(dps - old_dps, axis=1) < np.linalg.norm(dps, axis=1)
+        start = int(np.flatnonzero(old)[-1]) + 1 if old.any() else 0
+        return dps[start:start + samples]
+
+    probe.spin_until(lambda: len(after()) >= samples, TIMEOUT_S,
+                     f'{samples} samples after the registers changed', launcher)
+    return after().mean(axis=0)
+
+
 def start_mpu(launcher, probe, path, label: str):
     params = simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
         'simulation.seed': SEED, 'mpu6000.calibration.duration_s': 2.0,
@@ -176,7 +199,7 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
     assert all(abs(got - want) <= 1 for got, want in zip(state['gyro_offset_lsb'],
                                                          expected_lsb)), state
     assert state['variant'] == 'mpu6000' and len(state['accel_bias_lsb']) == 3
-    after = gyro_mean_dps(launcher, probe)
+    after = gyro_mean_after_change_dps(launcher, probe, before)
     print(f'gyro mean before {np.round(before, 4)}, after {np.round(after, 4)} deg/s')
     # One register step is 0.031 deg/s: the residual is at most half of it, plus the noise
     # of the two 200-sample means (0.063 deg/s per sample: 3 sigma of their sum 0.019).
@@ -190,15 +213,22 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
     again = gyro_mean_dps(launcher, probe)
     assert np.all(np.abs(again) < 0.035), again
 
-    # A corrupt file: logged, the driver starts without offsets (the bias is back).
+    # A damaged file, then one with a value no register holds: each logged at ERROR and
+    # moved aside, the driver starts without offsets (the bias is back).
     restarted.stop()
-    probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
-    path.write_text('gyro_offset_lsb: [1, 2\n')
-    third = start_mpu(launcher, probe, path, 'third')
-    line = first_line_with(third.output(), 'is not valid YAML')
-    assert line.startswith('[ERROR]') and 'starting without offsets' in third.output(), \
-        third.output()
-    assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+    for label, content, reason in (
+            ('third', 'gyro_offset_lsb: [1, 2\n', 'damaged: not valid YAML at line 2'),
+            ('fourth', yaml.safe_dump({**state, 'gyro_offset_lsb': [40000, 0, 0]}),
+             'gyro_offset_lsb[0] 40000 is outside -32768 to 32767')):
+        probe.wait_quiet(['imu/data_raw'], 0.3, TIMEOUT_S, launcher)
+        path.write_text(content)
+        driver = start_mpu(launcher, probe, path, label)
+        line = first_line_with(driver.output(), f'saved offsets in {path} unusable: {reason}')
+        assert line.startswith('[ERROR]') and 'moved aside to' in line, driver.output()
+        assert not path.exists()
+        assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
+        driver.stop()
+    assert len(list(path.parent.glob('offsets.yaml.bad-*'))) == 2
 
 
 @pytest.mark.parametrize('params, named', [
@@ -278,10 +308,9 @@ def test_mpu6000_gyro_offsets_follow_a_fitted_bias_model(launcher, probe, tmp_pa
     steady.start()
     calibration = steady.calibrate_offsets()
     offsets_path = tmp_path / 'offsets.yaml'
-    write_state(str(offsets_path), {
-        'variant': 'mpu6000', 'gyro_offset_lsb': list(calibration.gyro_lsb),
-        'accel_bias_lsb': list(calibration.accel_bias_lsb),
-        'temperature_c': calibration.temperature_c})
+    write_state(str(offsets_path), offsets_state(
+        'mpu6000', calibration.gyro_lsb, calibration.accel_bias_lsb,
+        calibration.accel_registers, calibration.bias, calibration.temperature_c))
 
     imu = probe.subscribe(Imu, 'imu/data_raw')
     temperature = probe.subscribe(Temperature, 'imu/temperature_raw')

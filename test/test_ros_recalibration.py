@@ -6,6 +6,7 @@ know (5.2 V x 5 deg/s/V off 5 V = +1 deg/s): the residual a recalibration at
 rest must learn, save, and apply again after a restart.
 """
 
+import logging
 import math
 import os
 import random
@@ -15,7 +16,7 @@ import subprocess
 import sys
 import time
 
-from mlx_tempcomp.state_file import read_state
+from mlx_tempcomp.state_file import Field, load_state, read_state
 import numpy as np
 import pytest
 from ros_harness import (COMPENSATION_DIAGNOSTIC, parse_list, simulated_driver_params,
@@ -155,17 +156,20 @@ def test_second_recalibration_while_one_runs_is_refused(launcher, probe, tmp_pat
     assert read_state(str(state_file))['samples'] >= 150
 
 
+# The YAML is rendered once, so the loop is all atomic writes (temporary file, fsync,
+# rename): the kills land in them, not in the rendering.
 WRITER = r"""
 import sys
-from mlx_tempcomp.state_file import write_state
+import yaml
+from mlx_tempcomp.state_file import atomic_write
 path = sys.argv[1]
-payloads = [{'name': name, 'zro_offset': [float(i) * scale for i in range(2000)]}
-            for name, scale in (('a', 1.0), ('b', -0.5))]
-write_state(path, payloads[0])
+texts = [yaml.safe_dump({'name': name, 'zro_offset': [float(i) * scale for i in range(2000)]},
+                        sort_keys=False) for name, scale in (('a', 1.0), ('b', -0.5))]
+atomic_write(path, texts[0])
 print('ready', flush=True)
 i = 1
 while True:
-    write_state(path, payloads[i % 2])
+    atomic_write(path, texts[i % 2])
     i += 1
 """
 
@@ -207,3 +211,8 @@ def test_kill_9_during_state_writes_leaves_a_whole_file(tmp_path):
     print(f'{kills_mid_write} of 20 kills left a half-written temporary file')
     assert seen == {'a', 'b'}
     assert kills_mid_write >= 5, 'the kills must hit writes in progress'
+    # The next start removes them and loads the whole file.
+    fields = (Field('name', 'text'), Field('zro_offset', 'number', length=2000))
+    state = load_state(str(path), fields, logging.getLogger('test'), 'saved thing')
+    assert state == expected[state['name']]
+    assert [p.name for p in tmp_path.iterdir()] == ['zro.yaml']

@@ -16,6 +16,7 @@ temperature (``stamp``). The ``imu/recalibrate_zro`` service
 import bisect
 from datetime import datetime, timezone
 import itertools
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -35,11 +36,12 @@ from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
+from ..core.models import AXIS_NAMES
 from ..core.pairing import StampPairer, zero_order_hold
 from ..core.recalibration import check_window
 from ..core.table import sensor_tables
 from ..sources.bag import BagError, eeprom_images_from_multiarray
-from ..state_file import read_state, StateFileError, write_state
+from ..state_file import Field, load_state, reject_state, StateFileError, write_state
 
 # Parameters whose change rebuilds the model.
 _MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
@@ -54,6 +56,10 @@ _AUXILIARY = {
               lambda msg: msg.voltage),
 }
 _POLL_S = 0.05
+# Without sensor.full_scale_dps or the EEPROM's RANGE, a saved offset is held to the widest
+# range of the parts the driver reads (MPU-6000: +-2000 deg/s): no larger offset is real.
+_WIDEST_FULL_SCALE_DPS = 2000.0
+_ZRO_STATE = 'saved ZRO offset'
 # Held supply voltages kept: the slow input is seconds apart, a block spans less.
 _HELD_SUPPLY = 64
 
@@ -96,13 +102,15 @@ class CompensationNode(Node):
         self.indices = messages.axis_indices(self.axes)
         self.transfer = transfer_of(self.values)
         self.state_path = state_file_of(self.values, self.get_name())
-        self.saved_state = self._load_state()
         self.sensor = None
         self.eeprom_error = ''
-        model = self._with_saved_offset(build_model(self.values))
+        # The model first: a node that cannot start leaves its state file as it is.
+        model = build_model(self.values)
+        self.saved_state = self._load_state()
+        self.last_recalibration = self.saved_state or {}
+        model = self._with_saved_offset(model)
         self.model = None
         self.stream = None
-        self.last_recalibration = self.saved_state or {}
         self.window = None
         self.samples_out = 0
         self.blocks = 0
@@ -154,34 +162,41 @@ class CompensationNode(Node):
         self._use(model)
 
     # State file.
+    def _full_scale_rad_s(self) -> float:
+        full_scale_dps = self.values['sensor.full_scale_dps'] or \
+            (self.sensor.full_scale_dps if self.sensor is not None else 0.0) or \
+            _WIDEST_FULL_SCALE_DPS
+        return math.radians(full_scale_dps)
+
     def _load_state(self):
-        try:
-            state = read_state(self.state_path)
-        except StateFileError as err:
-            self.get_logger().error(f'{err}; starting without a saved ZRO offset')
-            return None
-        if state is not None:
-            self.get_logger().info(f'loaded ZRO state from {self.state_path}')
-        return state
+        """Read the ZRO state file, checked field by field (`load_state` logs what it finds)."""
+        full_scale = self._full_scale_rad_s()
+        return load_state(self.state_path, zro_state_fields(full_scale), self.get_logger(),
+                          _ZRO_STATE)
 
     def _with_saved_offset(self, model):
-        """Apply the saved offset if it was learned on this very model."""
+        """Apply the saved offset if it was learned on this very model and is within its range."""
         state = self.saved_state
         if model is None or not state:
             return model
-        if state.get('model') != model.name or state.get('fingerprint') != model.fingerprint():
+        if state['model'] != model.name or state['fingerprint'] != model.fingerprint() or \
+                tuple(state['axes']) != self.axes:
             self.get_logger().warn(
-                f'saved ZRO offset in {self.state_path} was learned on another model or other '
-                'coefficients; not applied')
+                f'{_ZRO_STATE} in {self.state_path} is whole but was learned on another model '
+                f'(model {state["model"]}, axes {state["axes"]}, fingerprint '
+                f'{state["fingerprint"]}; running {model.name}, {list(self.axes)}, '
+                f'{model.fingerprint()}); not applied')
             return model
         try:
-            model = model.with_zro_offset(state['zro_offset'])
-        except (KeyError, TypeError, TempCompError) as err:
-            self.get_logger().error(f'saved ZRO offset in {self.state_path} is unusable: {err}')
+            offset_model = saved_offset_model(model, state, self._full_scale_rad_s())
+        except StateFileError as err:
+            reject_state(self.state_path, str(err), self.get_logger(), _ZRO_STATE)
+            self.saved_state = None
+            self.last_recalibration = {}
             return model
-        self.get_logger().info(f'applied saved ZRO offset {state["zro_offset"]} '
-                               f'{state.get("offset_unit", "")}')
-        return model
+        self.get_logger().info(f'applied {_ZRO_STATE} {state["zro_offset"]} '
+                               f'{state["offset_unit"]} from {self.state_path}')
+        return offset_model
 
     def _use(self, model) -> None:
         """
@@ -558,6 +573,40 @@ class CompensationNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diagnostics_publisher.publish(array)
+
+
+def zro_state_fields(full_scale_rad_s: float) -> tuple:
+    """Give what the ZRO state file must hold: the keys `_finish_window` writes, checked."""
+    return (Field('model', 'text'), Field('fingerprint', 'text'),
+            Field('axes', 'text', length=(1, len(AXIS_NAMES)), choices=AXIS_NAMES),
+            Field('zro_offset', 'number', length='axes'),
+            Field('offset_unit', 'text', choices=('rad/s', 'LSB', 'mV')),
+            Field('zro_offset_rad_s', 'number', length='axes', low=-full_scale_rad_s,
+                  high=full_scale_rad_s),
+            Field('temperature_c', 'number', low=-273.15, high=1000.0),
+            Field('samples', 'integer', low=1), Field('time', 'text'))
+
+
+def saved_offset_model(model, state: dict, full_scale_rad_s: float):
+    """
+    Give ``model`` with the offset of a checked ZRO ``state`` learned on it.
+
+    StateFileError when the offset, as a rate at the state's temperature, is
+    beyond the full scale: no gyro reads such a rate, so no such offset is real.
+    """
+    try:
+        offset_model = model.with_zro_offset(state['zro_offset'])
+        offset_rad_s = offset_model.offset_rad_s(state['temperature_c'])
+    except TempCompError as err:
+        raise StateFileError(str(err)) from None
+    if not all(abs(v) <= full_scale_rad_s for v in offset_rad_s):
+        unit = state['offset_unit']
+        as_rate = '' if unit == 'rad/s' else \
+            f' ({[float(v) for v in offset_rad_s]} rad/s at {state["temperature_c"]} C)'
+        msg = (f'zro_offset {state["zro_offset"]} {unit}{as_rate} is beyond the full scale '
+               f'+-{full_scale_rad_s:.4g} rad/s ({math.degrees(full_scale_rad_s):g} deg/s)')
+        raise StateFileError(msg)
+    return offset_model
 
 
 def messages_value(parameter):

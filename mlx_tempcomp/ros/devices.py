@@ -39,7 +39,7 @@ from ..simulation.mpu6000 import MpuTruth
 from ..simulation.physics import ThermalProfile
 from ..sources import adis16130, mpu6000
 from ..sources.decimation import Decimator
-from ..state_file import read_state, StateFileError, write_state
+from ..state_file import Field, load_state, StateFileError, write_state
 from ..toolkit.common import UserError
 from ..toolkit.evaluate import node_values
 
@@ -486,13 +486,33 @@ class _RestWindow:
             self.future.set_result('')
 
 
-def _register_triple(state: dict, key: str) -> tuple:
-    values = state.get(key)
-    if not isinstance(values, list) or len(values) != 3 or \
-            not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
-        msg = f'{key} must be a list of 3 integers, got {values!r}'
-        raise ValueError(msg)
-    return tuple(values)
+_INT16 = {'low': -2**15, 'high': 2**15 - 1}
+# What imu/calibrate_offsets saves, checked at start: registers are int16.
+MPU_OFFSETS_FIELDS = (
+    Field('variant', 'text'),
+    Field('gyro_offset_lsb', 'integer', length=3, **_INT16),
+    Field('accel_bias_lsb', 'integer', length=3, **_INT16),
+    Field('accel_registers', 'integer', length=3, **_INT16),
+    Field('residual_gyro_rad_s', 'number', length=3),
+    Field('residual_acceleration_m_s2', 'number', length=3),
+    Field('gravity_axis', 'text', choices=('+x', '-x', '+y', '-y', '+z', '-z')),
+    Field('temperature_c', 'number', low=-273.15, high=1000.0),
+    Field('samples', 'integer', low=1),
+    Field('time', 'text'))
+_MPU_OFFSETS = 'saved offsets'
+
+
+def offsets_state(variant: str, gyro_lsb, accel_lsb, registers, bias, temperature_c: float
+                  ) -> dict:
+    """Give what imu/calibrate_offsets saves (`MPU_OFFSETS_FIELDS`) for offsets it wrote."""
+    return {'variant': variant, 'gyro_offset_lsb': [int(v) for v in gyro_lsb],
+            'accel_bias_lsb': [int(v) for v in accel_lsb],
+            'accel_registers': [int(v) for v in registers],
+            'residual_gyro_rad_s': [float(v) for v in bias.gyro_rad_s],
+            'residual_acceleration_m_s2': [float(v) for v in bias.acceleration_m_s2],
+            'gravity_axis': f'{"+" if bias.gravity_sign > 0 else "-"}{"xyz"[bias.gravity_axis]}',
+            'temperature_c': float(temperature_c), 'samples': int(bias.samples),
+            'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
 
 
 def _offset_refresh(values: dict):
@@ -647,38 +667,30 @@ class MpuStream(DeviceStream):
 
     def _write_saved_offsets(self) -> None:
         logger = self.node.get_logger()
-        try:
-            state = read_state(self.offsets_path)
-        except StateFileError as err:
-            logger.error(f'{err}; starting without offsets')
-            return
-        if state is None:
+        if not os.path.lexists(self.offsets_path):
             logger.info(f'no saved offsets in {self.offsets_path}: offset registers at their '
                         'power-on values')
+        state = load_state(self.offsets_path, MPU_OFFSETS_FIELDS, logger, _MPU_OFFSETS)
+        if state is None:
             return
+        if state['variant'] != self.variant:
+            logger.warn(f'{_MPU_OFFSETS} in {self.offsets_path} were measured on a '
+                        f'{state["variant"]!r}, this is a {self.variant}: not written')
+            return
+        gyro, accel = state['gyro_offset_lsb'], state['accel_bias_lsb']
         try:
-            if state.get('variant') != self.variant:
-                msg = f'they were measured on a {state.get("variant")!r}, this is a {self.variant}'
-                raise ValueError(msg)
-            gyro = _register_triple(state, 'gyro_offset_lsb')
-            accel = _register_triple(state, 'accel_bias_lsb')
-            temperature_c = state.get('temperature_c')
-            if self.refresh is not None and not (
-                    isinstance(temperature_c, (int, float)) and math.isfinite(temperature_c)):
-                msg = (f'temperature_c (the base of mpu6000.offset_model_file) must be a '
-                       f'number, got {temperature_c!r}')
-                raise ValueError(msg)
             registers = self.source.write_offsets(gyro, accel)
-        except (ValueError, HardwareError) as err:
-            logger.error(f'saved offsets in {self.offsets_path} are unusable: {err}; starting '
-                         'without offsets')
+        except HardwareError as err:
+            logger.error(f'writing the {_MPU_OFFSETS} from {self.offsets_path} failed: {err}; '
+                         'starting without offsets')
             return
         self._offsets_now(gyro, accel, registers, 'saved file')
         if self.refresh is not None:
-            self.refresh.base_lsb, self.refresh.base_temperature_c = gyro, float(temperature_c)
-        logger.info(f'wrote the saved offsets from {self.offsets_path}: gyro {list(gyro)} LSB, '
-                    f'accel registers {list(registers)} (bias {list(accel)} LSB at 16 g, '
-                    f'calibrated {state.get("time", "at an unknown time")})')
+            self.refresh.base_lsb = tuple(gyro)
+            self.refresh.base_temperature_c = state['temperature_c']
+        logger.info(f'wrote the saved offsets from {self.offsets_path}: gyro {gyro} LSB, '
+                    f'accel registers {list(registers)} (bias {accel} LSB at 16 g, '
+                    f'calibrated {state["time"]})')
 
     def _offsets_now(self, gyro, accel, registers, origin: str) -> None:
         self.gyro_lsb, self.accel_bias_lsb = tuple(gyro), tuple(accel)
@@ -808,14 +820,7 @@ class MpuStream(DeviceStream):
             # The new registers cancel the whole bias at the window's temperature.
             self.refresh.base_lsb, self.refresh.base_temperature_c = gyro_lsb, temperature_c
             self.refresh.temperature_c = temperature_c
-        state = {'variant': self.variant, 'gyro_offset_lsb': list(gyro_lsb),
-                 'accel_bias_lsb': list(accel_lsb), 'accel_registers': list(registers),
-                 'residual_gyro_rad_s': list(bias.gyro_rad_s),
-                 'residual_acceleration_m_s2': list(bias.acceleration_m_s2),
-                 'gravity_axis': f'{"+" if bias.gravity_sign > 0 else "-"}'
-                                 f'{"xyz"[bias.gravity_axis]}',
-                 'temperature_c': temperature_c, 'samples': bias.samples,
-                 'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
+        state = offsets_state(self.variant, gyro_lsb, accel_lsb, registers, bias, temperature_c)
         residual = ', '.join(f'{math.degrees(v):+.4f}' for v in bias.gyro_rad_s)
         text = (f'gyro offsets {list(gyro_lsb)} LSB, accel offset registers {list(registers)} '
                 f'(bias {list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '

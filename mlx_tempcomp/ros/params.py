@@ -12,6 +12,7 @@ import math
 import os
 from typing import Any, Optional
 
+import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
                               ParameterUninitializedException)
@@ -432,8 +433,44 @@ def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: fl
 
     ``tables`` are the factory tables from the sensor's EEPROM and
     ``full_scale_dps`` the full scale they were decoded with (None while the
-    EEPROM has not arrived: the eeprom model is then None).
+    EEPROM has not arrived: the eeprom model is then None). A model whose
+    output over what a gyro gives is not finite or not plausible is refused
+    (`_check_output`).
     """
+    model = _build_model(values, tables, full_scale_dps)
+    if model is not None:
+        _check_output(model, values['model'], axes_of(values))
+    return model
+
+
+# A model is probed before it runs: rates of -1, 0 and 1 rad/s (any gyro's range), die
+# temperatures -40 to 125 C rising 0.05 C/s (every extra input given). Coefficients that
+# overflow there, or put the compensated rate beyond ten times +-2000 deg/s (the widest range
+# of the parts the driver reads), are a typo or a unit mix-up, never a gyro.
+_PROBE_RATE, _PROBE_TEMPERATURE = (a.reshape(-1) for a in np.meshgrid(
+    [-1.0, 0.0, 1.0], np.arange(-40.0, 125.5, 0.5)))
+_PROBE_TIME_S = 10.0 * np.arange(_PROBE_RATE.size)
+MAX_COMPENSATED_RATE_RAD_S = 10.0 * math.radians(2000.0)
+
+
+def _check_output(model, name: str, axes: tuple) -> None:
+    samples = _PROBE_RATE.size
+    with np.errstate(all='ignore'):
+        corrected = model.stream().correct_block(
+            np.repeat(_PROBE_RATE[:, None], model.axes, axis=1), _PROBE_TEMPERATURE,
+            getattr(model, 'time_reference_s', 0.0) + _PROBE_TIME_S, _PROBE_TEMPERATURE,
+            np.tile([0.0, 0.0, 9.81], (samples, 1)), np.full(samples, 5.0)).rate_rad_s
+    beyond = ~(np.abs(corrected) <= MAX_COMPENSATED_RATE_RAD_S)   # NaN included
+    if beyond.any():
+        row, axis = np.argwhere(beyond)[0]
+        msg = (f'invalid {name} model parameters: axis {axes[axis]} gives '
+               f'{corrected[row, axis]:.4g} rad/s at {_PROBE_TEMPERATURE[row]:g} C and a raw '
+               f'rate of {_PROBE_RATE[row]:g} rad/s, beyond +-{MAX_COMPENSATED_RATE_RAD_S:.4g} '
+               'rad/s; check the coefficients and their units')
+        raise ParameterError(msg)
+
+
+def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
     axes = axes_of(values)
     name = values['model']
     try:

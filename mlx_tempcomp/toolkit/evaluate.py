@@ -62,10 +62,11 @@ def _read_overrides(path: str, node_name: str) -> dict:
     except OSError as err:
         msg = f'cannot read parameter file {path}: {err.strerror}'
         raise UserError(msg) from None
-    except (yaml.YAMLError, UnicodeDecodeError) as err:
+    except (yaml.YAMLError, ValueError, RecursionError) as err:
+        # ValueError: not UTF-8, or a value YAML's constructors refuse (2026-13-45, !!int a).
         mark = getattr(err, 'problem_mark', None)
         where = f' (line {mark.line + 1})' if mark is not None else ''
-        problem = getattr(err, 'problem', None) or type(err).__name__
+        problem = getattr(err, 'problem', None) or str(err).split('\n')[0] or type(err).__name__
         msg = f'parameter file {path} is not YAML{where}: {problem}'
         raise UserError(msg) from None
     if not isinstance(document, dict):

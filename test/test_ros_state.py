@@ -1,0 +1,116 @@
+"""
+State files the compensation node cannot use, over DDS: refused, logged, moved aside.
+
+Each case starts a compensation node (polynomial model) on the simulated driver with a
+state file prepared as a user or a crash could leave it. A file that is damaged or holds
+a wrong value is logged at ERROR with the reason and moved aside to ``*.bad-<stamp>``; a
+whole file learned on another model is a WARN and stays; a leftover temporary file is
+removed. Every compensated sample is then what the model gives without an offset, sample
+by sample; a good file still applies its offset.
+"""
+
+import math
+
+from mlx_tempcomp.ros.params import build_model
+from mlx_tempcomp.state_file import write_state
+from mlx_tempcomp.toolkit.evaluate import node_values
+import numpy as np
+import pytest
+from ros_harness import by_stamp, first_line_with, simulated_driver_params, write_params
+import yaml
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 30.0
+SAMPLES = 100
+MODEL = {'model': 'polynomial', 'polynomial.bias.z': [0.02, 0.001]}
+GOOD_OFFSET_RAD_S = 0.01
+
+
+def good_state(model) -> dict:
+    """Give a state as the node saves it after a recalibration of ``model``."""
+    return {'model': 'polynomial', 'fingerprint': model.fingerprint(), 'axes': ['z'],
+            'zro_offset': [GOOD_OFFSET_RAD_S], 'offset_unit': 'rad/s',
+            'zro_offset_rad_s': [GOOD_OFFSET_RAD_S], 'temperature_c': 25.0, 'samples': 200,
+            'time': '2026-11-25T12:00:00+00:00'}
+
+
+def prepare(case: str, folder, state: dict) -> None:
+    """Write the state file of ``case`` into ``folder`` (as zro.yaml, or beside it)."""
+    path = folder / 'zro.yaml'
+    if case == 'good':
+        write_state(str(path), state)
+    elif case == 'abc':
+        write_state(str(path), {**state, 'zro_offset': ['abc']})
+    elif case == '1e300':
+        # zro_offset edited alone: the rad/s copy beside it still looks sane.
+        write_state(str(path), {**state, 'zro_offset': [1.0e300]})
+    elif case == 'truncated':
+        text = yaml.safe_dump(state, sort_keys=False)
+        path.write_text(text[:text.index('offset_unit')])
+    elif case == 'another model':
+        write_state(str(path), {**state, 'fingerprint': '0123456789abcdef'})
+    elif case == 'leftover tmp':
+        # A kill between the temporary file and the rename: a whole state, never renamed.
+        (folder / '.zro.yaml.k1ll3d.tmp').write_text(yaml.safe_dump(state, sort_keys=False))
+
+
+# case -> (level and text of the log line, files left in the folder, offset applied)
+CASES = {
+    'good': ('[INFO]', 'applied saved ZRO offset [0.01] rad/s from', ['zro.yaml'],
+             GOOD_OFFSET_RAD_S),
+    'abc': ('[ERROR]', "unusable: zro_offset[0] must be a number, got 'abc'; moved aside to",
+            ['zro.yaml.bad-'], 0.0),
+    '1e300': ('[ERROR]', 'unusable: zro_offset [1e+300] rad/s is beyond the full scale '
+                         '+-34.91 rad/s (2000 deg/s); moved aside to', ['zro.yaml.bad-'], 0.0),
+    'truncated': ('[ERROR]', 'unusable: damaged: offset_unit, zro_offset_rad_s, '
+                             'temperature_c, samples, time missing (truncated?); moved aside '
+                             'to', ['zro.yaml.bad-'], 0.0),
+    'another model': ('[WARN]', 'is whole but was learned on another model (model '
+                                "polynomial, axes ['z'], fingerprint 0123456789abcdef",
+                      ['zro.yaml'], 0.0),
+    'leftover tmp': ('[WARN]', 'removed 1 temporary file(s) an interrupted save of', [], 0.0),
+}
+
+
+def paired(probe) -> tuple:
+    """Give the stamps of imu/data seen with their raw inputs, and the three by stamp."""
+    out, raw = by_stamp(probe.received['imu/data']), by_stamp(probe.received['imu/data_raw'])
+    temperature = by_stamp(probe.received['imu/temperature_raw'])
+    return [s for s in out if s in raw and s in temperature], out, raw, temperature
+
+
+def test_unusable_state_files_are_refused_and_the_node_compensates_without_them(
+        launcher, probe, tmp_path):
+    params_path = write_params(tmp_path / 'model.yaml', 'compensation_node', MODEL)
+    model = build_model(node_values(params_path, 'compensation_node'))
+    probe.subscribe_pipeline()
+    launcher.driver(simulated_driver_params(**{'simulation.seed': 4,
+                                               'simulation.rate_dps': [3.0]}))
+    for case, (level, text, files, offset_rad_s) in CASES.items():
+        folder = tmp_path / case.replace(' ', '_')
+        folder.mkdir()
+        prepare(case, folder, good_state(model))
+        node = launcher.compensation(
+            {**MODEL, 'recalibration.state_file': str(folder / 'zro.yaml')}, label=case)
+        probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
+        probe.spin_until(lambda: len(paired(probe)[0]) >= SAMPLES, TIMEOUT_S,
+                         f'{SAMPLES} compensated samples with their raw inputs', launcher)
+        stamps, out, raw, temperature = paired(probe)
+        node.stop()
+        probe.wait_quiet(['imu/data'], 0.3, TIMEOUT_S, launcher)
+
+        line = first_line_with(node.output(), text)
+        assert line.startswith(level), f'{case}: {node.output()}'
+        assert sorted(p.name[:len(f)] for p, f in zip(sorted(folder.iterdir()), files)) == \
+            files and len(list(folder.iterdir())) == len(files), \
+            f'{case}: {sorted(p.name for p in folder.iterdir())}'
+        got = np.array([out[s].angular_velocity.z for s in stamps])
+        expected = model.correct(
+            np.array([[raw[s].angular_velocity.z] for s in stamps]),
+            np.array([temperature[s].temperature for s in stamps])).rate_rad_s[:, 0]
+        assert np.all(np.isfinite(got)), case
+        assert got == pytest.approx(expected - offset_rad_s, rel=1e-12, abs=1e-15), case
+        print(f'{case}: {len(stamps)} samples, mean {math.degrees(float(np.mean(got))):.4f} '
+              f'deg/s; {line.split("]: ", 1)[-1]}')
+        probe.clear()
