@@ -17,7 +17,7 @@ from mlx_tempcomp.model_params import chain_parameters
 from mlx_tempcomp.ros.qos import STATUS_QOS
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable,
-                         rates, simulated_driver_params, write_sections)
+                         rates, simulated_driver_params, start_in_namespace, write_sections)
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -102,19 +102,6 @@ STOP_CASES = (
     ('compensation_node', 'mpu', 'chain_node', IDENTITY_CHAIN, None),
     ('bringup', 'bringup', 'bringup', {**MPU, **POLYNOMIAL_XYZ}, 'imu/data'),
 )
-
-
-def start_in_namespace(launcher, executable_name: str, namespace: str, node: str,
-                       params: dict, tmp_path):
-    """Start ``executable_name`` as /``namespace``/``node`` with a state file of its own."""
-    label = f'{namespace}_{node}'
-    args = ['-r', f'__ns:=/{namespace}']
-    if node not in ('driver_node', 'compensation_node', 'bringup'):
-        args += ['-r', f'__node:={node}', '-r', f'imu/data:=imu/data_{node[:-5]}']
-    # A /** section: a node-name section would miss the namespaced node.
-    return launcher.start(executable_name, '/**', {
-        **simulated_driver_params(), 'recalibration.state_file': str(tmp_path / label),
-        **params}, extra_args=args, label=label)
 
 
 def assert_stopped_cleanly(process, signum) -> float:

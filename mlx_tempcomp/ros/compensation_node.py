@@ -56,7 +56,7 @@ _AUXILIARY = {
 _POLL_S = 0.05
 # An input missing this long after the start is a WARN naming what to set, repeated at most
 # once a period (wall time).
-WAIT_WARN_S = 3.0
+WAIT_WARN_S = 5.0
 WAIT_WARN_PERIOD_S = 30.0
 # Held supply voltages kept: the slow input is seconds apart, a block spans less.
 _HELD_SUPPLY = 64

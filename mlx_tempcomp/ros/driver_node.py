@@ -106,7 +106,8 @@ class DriverNode(Node):
         self.add_post_set_parameters_callback(self.apply_parameters)
         outputs = [p.topic_name for p in self.publishers
                    if p.topic_name not in ('/rosout', '/parameter_events')]
-        services = [s.srv_name for s in self.services if 'imu/' in s.srv_name]
+        services = [self.resolve_service_name(s.srv_name) for s in self.services
+                    if 'imu/' in s.srv_name]
         self.get_logger().info(
             f'device {self.device}, source {self.values["source"]}, axes {list(self.axes)}: '
             f'{self.stream.hardware_id}; publishes {", ".join(outputs)}'

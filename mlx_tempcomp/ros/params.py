@@ -458,7 +458,7 @@ def check_command_line(node, args=None) -> None:
         node_name = node.get_name()
         msg = (f'-p {name}:={text} did not take effect ({name} is {value!r}): a '
                f"'{node_name}:' section of a parameter file outranks a plain -p; give "
-               f'-p {node_name}:{name}:={text}, or set it in that file')
+               f'-p {node_name}:{name}:={text}, or set it in a file after that one')
         raise ParameterError(msg)
 
 
