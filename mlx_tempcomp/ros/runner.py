@@ -50,9 +50,9 @@ def _stop_on_signals(stop: Future, logger_name: str) -> None:
 
     def watch():
         stop.set_result(os.read(read_fd, 1)[0])
-        signum = os.read(read_fd, 1)[0]
-        get_logger(logger_name).error(f'{signal.Signals(signum).name} again while stopping: '
-                                      'exiting without clean-up')
+        os.read(read_fd, 1)
+        get_logger(logger_name).error('a second stop signal while stopping: exiting without '
+                                      'clean-up')
         os._exit(1)
     threading.Thread(target=watch, daemon=True).start()
 
