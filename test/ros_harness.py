@@ -502,3 +502,21 @@ def finish_model_replay(launcher, probe, stamps_ns, messages_in_bag: int,
     assert not missing, f'{len(missing)} stamps missing, first {missing[0]}'
     assert len(received) == samples
     return [rates(received[s]) for s in stamps_ns]
+
+
+def start_in_namespace(launcher, executable_name: str, namespace: str, node: str,
+                       params: dict, tmp_path):
+    """
+    Start ``executable_name`` as /``namespace``/``node`` with a state file of its own.
+
+    Several pipelines run side by side that way; a node renamed from its default
+    (``chain_node``) publishes on ``imu/data_chain``, beside the one it shares a driver with.
+    """
+    label = f'{namespace}_{node}'
+    args = ['-r', f'__ns:=/{namespace}']
+    if node not in ('driver_node', 'compensation_node', 'bringup'):
+        args += ['-r', f'__node:={node}', '-r', f'imu/data:=imu/data_{node[:-5]}']
+    # A /** section: a node-name section would miss the namespaced node.
+    return launcher.start(executable_name, '/**', {
+        **simulated_driver_params(), 'recalibration.state_file': str(tmp_path / label),
+        **params}, extra_args=args, label=label)

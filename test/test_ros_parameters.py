@@ -1,8 +1,10 @@
 """Parameters of the nodes: bad files stop them with a clear line, runtime changes are checked."""
 
+from pathlib import Path
+
 from mlx_tempcomp.ros import messages
 import pytest
-from ros_harness import by_stamp, simulated_driver_params
+from ros_harness import by_stamp, first_line_with, simulated_driver_params
 
 pytestmark = pytest.mark.ros
 
@@ -72,6 +74,85 @@ def test_parameter_file_rcl_cannot_parse_exits_1_without_traceback(launcher, tmp
     assert '[driver_node]: cannot start: ' in fatal[0]
     assert f"Couldn't parse params file: '--params-file {path}'" in fatal[0]
     assert 'line_num 3' in fatal[0]
+    assert ('YAML reads a bare y, n, yes, no, on or off as a boolean: quote it, '
+            "e.g. axes: ['x', 'y', 'z']") in fatal[0]
+
+
+SHIPPED_CONFIG = str(Path(__file__).resolve().parents[1] / 'config' / 'mlx_tempcomp.yaml')
+
+
+def test_a_p_after_the_shipped_config_takes_effect(launcher, probe, tmp_path):
+    # The bag source was chosen: it looks for the bag (before: the simulator streamed).
+    bag = launcher.start('driver_node', 'driver_node', extra_args=[
+        '--params-file', SHIPPED_CONFIG, '-p', 'source:=bag',
+        '-p', f'bag.path:={tmp_path / "absent"}'])
+    assert bag.wait(TIMEOUT_S) == 1
+    assert f'[driver_node]: bag {tmp_path / "absent"} does not exist' in bag.output()
+    state_file = tmp_path / 'zro.yaml'
+    compensation = launcher.start('compensation_node', 'compensation_node', extra_args=[
+        '--params-file', SHIPPED_CONFIG, '-p', f'recalibration.state_file:={state_file}',
+        '-p', 'supply_voltage.pairing:=stamp', '-p', 'model:=linear_btc',
+        '-p', 'linear_btc.pbc_rad_s:=[0.01]', '-p', 'linear_btc.btc_rad_s_per_c:=[0]'])
+    values = probe.get_parameters('compensation_node', [
+        'recalibration.state_file', 'supply_voltage.pairing', 'model',
+        'linear_btc.btc_rad_s_per_c', 'max_block'])
+    assert values == {'recalibration.state_file': str(state_file),
+                      'supply_voltage.pairing': 'stamp', 'model': 'linear_btc',
+                      'linear_btc.btc_rad_s_per_c': [0.0], 'max_block': 500}
+    assert "model linear_btc on axes ['z']" in compensation.output()
+    assert f'state file {state_file}: nothing saved yet' in compensation.output()
+
+
+def test_a_p_a_node_section_outranks_refuses_the_start(launcher, tmp_path):
+    # A /** section and a node's own one, as the shipped file had them: rcl puts a plain -p
+    # into /**, below the node's section.
+    path = tmp_path / 'own.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    frame_id: imu_link\n'
+                    'driver_node:\n  ros__parameters:\n    source: simulated\n')
+    refused = launcher.start('driver_node', 'driver_node', extra_args=[
+        '--params-file', str(path), '-p', 'source:=bag'])
+    assert refused.wait(TIMEOUT_S) == 1
+    fatal = first_line_with(refused.output(), '[FATAL]')
+    assert ("[driver_node]: -p source:=bag did not take effect (source is 'simulated'): a "
+            "'driver_node:' section of a parameter file outranks a plain -p; give "
+            '-p driver_node:source:=bag, or set it in a file after that one') in fatal
+    assert 'Traceback' not in refused.output()
+    # The way the message names does win over the section.
+    qualified = launcher.start('driver_node', 'driver_node', extra_args=[
+        '--params-file', str(path), '-p', 'driver_node:source:=bag',
+        '-p', f'bag.path:={tmp_path / "absent"}'])
+    assert qualified.wait(TIMEOUT_S) == 1
+    assert 'does not exist' in first_line_with(qualified.output(), '[FATAL]')
+
+
+def test_unknown_keys_warn_with_the_closest_known_one(launcher, probe, tmp_path):
+    driver = launcher.driver({'publish_rate_hx': 50.0, **simulated_driver_params()})
+    compensation = launcher.compensation({'modle': 'polynomial',
+                                          'recalibration.state_file': str(tmp_path / 'z')})
+    expected = {driver: 'unknown parameter publish_rate_hx ignored: no node of mlx_tempcomp '
+                        'has it; did you mean publish_rate_hz?',
+                compensation: 'unknown parameter modle ignored: no node of mlx_tempcomp has '
+                              'it; did you mean model?'}
+    for process, text in expected.items():
+        probe.spin_until(lambda: text in process.output(), TIMEOUT_S, text, launcher)
+        assert first_line_with(process.output(), text).startswith('[WARN]')
+    # The node runs its default model.
+    assert 'model eeprom on axes' in compensation.output()
+
+
+def test_an_integer_is_taken_where_a_double_is_meant(launcher, probe, tmp_path):
+    launcher.driver(simulated_driver_params(**{'publish_rate_hz': 50, 'sample_rate_hz': 100,
+                                               'simulation.rate_dps': [1]}))
+    launcher.compensation({'stale_timeout_s': 2, 'polynomial.bias.z': [0, 1],
+                           'recalibration.state_file': str(tmp_path / 'zro.yaml')})
+    driver = probe.get_parameters('driver_node', ['publish_rate_hz', 'simulation.rate_dps'])
+    assert driver == {'publish_rate_hz': 50.0, 'simulation.rate_dps': [1.0]}
+    assert all(isinstance(v, float) for v in (driver['publish_rate_hz'],
+                                              *driver['simulation.rate_dps']))
+    compensation = probe.get_parameters('compensation_node',
+                                        ['stale_timeout_s', 'polynomial.bias.z'])
+    assert compensation == {'stale_timeout_s': 2.0, 'polynomial.bias.z': [0.0, 1.0]}
+    assert isinstance(compensation['stale_timeout_s'], float)
 
 
 LINEAR_BTC = {'model': 'linear_btc', 'linear_btc.pbc_rad_s': [0.01],

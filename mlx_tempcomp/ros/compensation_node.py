@@ -60,6 +60,10 @@ _POLL_S = 0.05
 # range of the parts the driver reads (MPU-6000: +-2000 deg/s): no larger offset is real.
 _WIDEST_FULL_SCALE_DPS = 2000.0
 _ZRO_STATE = 'saved ZRO offset'
+# An input missing this long after the start is a WARN naming what to set, repeated at most
+# once a period (wall time).
+WAIT_WARN_S = 5.0
+WAIT_WARN_PERIOD_S = 30.0
 # Held supply voltages kept: the slow input is seconds apart, a block spans less.
 _HELD_SUPPLY = 64
 
@@ -160,6 +164,58 @@ class CompensationNode(Node):
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
         self._use(model)
+        self.local_input = local_input
+        self.started = time.monotonic()
+        self.get_logger().info(self._start_summary())
+
+    def _start_summary(self) -> str:
+        """Say what the node runs, reads, writes and what it loaded, in one line."""
+        eeprom = self.values['model'] == 'eeprom'
+        inputs = ['raw rate and temperature from the driver in this process'] if \
+            self.local_input else []
+        inputs += [s.topic_name for s in self.subscriptions
+                   if eeprom or s.msg_type is not UInt8MultiArray]
+        outputs = [p.topic_name for p in self.publishers
+                   if p.topic_name not in ('/rosout', '/parameter_events')]
+        state = self.saved_state
+        loaded = 'nothing saved yet' if not state else \
+            (f"a {state['model']} ZRO offset {state['zro_offset']} {state['offset_unit']} "
+             f"of {state['time']}")
+        return (f'model {self.values["model"]} on axes {list(self.axes)}; waits for '
+                f'{", ".join(inputs)}; publishes {", ".join(outputs)}; state file '
+                f'{self.state_path}: {loaded}')
+
+    def _warn_waiting(self) -> None:
+        """WARN, throttled, for an input still missing a few seconds after the start."""
+        if time.monotonic() - self.started < WAIT_WARN_S:
+            return
+        model = self.values['model']
+        missing = []
+        if self.last_input is None:
+            missing.append('no raw samples yet: start a driver_node (same namespace and '
+                           'ROS_DOMAIN_ID) publishing imu/data_raw and imu/temperature_raw')
+        if model == 'eeprom' and self.sensor is None:
+            missing.append('the eeprom model waits for the factory tables on imu/eeprom, which '
+                           'only an MLX90609 driver (device: mlx90609) or a bag holding them '
+                           'sends; with an ADIS16130 or MPU-6000 choose another model '
+                           '(polynomial, linear_btc, effects or chain)')
+        if _SUPPLY in self.auxiliary and self.supply_hold and not self.held_supply:
+            missing.append(f'the {model} model has supply_voltage terms and waits for a '
+                           'voltage on imu/supply_voltage (sensor_msgs/BatteryState): remap '
+                           "your supply monitor's topic to it, or set "
+                           'simulation.supply_monitor_hz on a simulated MLX90609 driver')
+        if missing:
+            self.get_logger().warn(f'waiting {time.monotonic() - self.started:.0f} s: '
+                                   + '; '.join(missing), throttle_duration_sec=WAIT_WARN_PERIOD_S)
+
+    def destroy_node(self):
+        self.get_logger().info(
+            f'{self.get_name()} stopping: {self.samples_out} samples compensated in '
+            f'{self.blocks} blocks, {self.samples_waiting} waited for a model or voltage, '
+            f'{self.dropped_before + self.pairer.dropped} unpaired dropped, '
+            f'{self.no_supply_samples} without a supply voltage, '
+            f'{self.no_acceleration_samples} without acceleration')
+        return super().destroy_node()
 
     # State file.
     def _full_scale_rad_s(self) -> float:
@@ -519,6 +575,7 @@ class CompensationNode(Node):
             self.get_logger().info(f'model now {self.values["model"]}')
 
     def publish_diagnostics(self) -> None:
+        self._warn_waiting()
         model = self.model
         age = None if self.last_input is None else time.monotonic() - self.last_input
         recal = self.last_recalibration

@@ -23,7 +23,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
-import rclpy.logging
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
@@ -105,6 +104,14 @@ class DriverNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
+        outputs = [p.topic_name for p in self.publishers
+                   if p.topic_name not in ('/rosout', '/parameter_events')]
+        services = [self.resolve_service_name(s.srv_name) for s in self.services
+                    if 'imu/' in s.srv_name]
+        self.get_logger().info(
+            f'device {self.device}, source {self.values["source"]}, axes {list(self.axes)}: '
+            f'{self.stream.hardware_id}; publishes {", ".join(outputs)}'
+            + (f'; services {", ".join(services)}' if services else ''))
 
     def validate_parameters(self, parameters) -> SetParametersResult:
         values = {p.name: p.value for p in parameters}
@@ -170,10 +177,7 @@ class DriverNode(Node):
 
     def destroy_node(self):
         if isinstance(self.stream, TimedStream):
-            # After a stop signal the node logger's /rosout publisher is gone: log elsewhere.
-            logger = self.get_logger() if self.context.ok() else \
-                rclpy.logging.get_logger('mlx_tempcomp')
-            logger.info(f'{self.get_name()} {self.stream.summary()}')
+            self.get_logger().info(f'{self.get_name()} {self.stream.summary()}')
         self.stream.close()
         return super().destroy_node()
 

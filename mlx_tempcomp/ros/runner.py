@@ -1,11 +1,28 @@
-"""Start nodes the Jazzy way: build them first, spin, shut down cleanly; exit 1 on bad set-up."""
+"""
+Start nodes the Jazzy way: build them first, spin, stop cleanly; exit 1 on bad set-up.
+
+SIGINT and SIGTERM are taken by a thread of ours, not by rclpy's handlers. rclpy's
+handlers shut the context down from a thread of their own at any moment, and
+chain SIGINT to Python's KeyboardInterrupt, raised at whatever line the main
+thread runs next: a callback then fails half-way on an invalidated handle, the
+nodes are destroyed on a shut-down context (once seen spinning for minutes in
+``destroy_node``), and a KeyboardInterrupt landing in the clean-up turned a stop
+into exit code 1. Here a signal only ends the spin between two callbacks; the
+nodes are then destroyed, their summaries logged, while the context still works.
+"""
+
+import os
+import signal
+import threading
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.logging import get_logger
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
-from .params import ParameterError
+from .params import check_command_line, explain_parse_error, ParameterError, unknown_parameters
 from ..core.errors import TempCompError
 from ..hardware.errors import HardwareError
 from ..sources.bag import BagError
@@ -13,46 +30,71 @@ from ..state_file import StateFileError
 
 # What a user can get wrong at start: each becomes one fatal log line and exit code 1.
 SETUP_ERRORS = (ParameterError, TempCompError, HardwareError, BagError, StateFileError)
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _stop_on_signals(stop: Future, logger_name: str) -> None:
+    """
+    Resolve ``stop`` at the first SIGINT or SIGTERM; exit at once at a second one.
+
+    Python's C-level handler writes each signal to the wakeup pipe, from whichever
+    thread the kernel picked (numpy's threads, DDS's); a thread of ours reads it and
+    wakes the executor through ``stop``. The Python-level handlers, run later in the
+    main thread, have nothing left to do.
+    """
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, lambda *_: None)
+
+    def watch():
+        stop.set_result(os.read(read_fd, 1)[0])
+        os.read(read_fd, 1)
+        get_logger(logger_name).error('a second stop signal while stopping: exiting without '
+                                      'clean-up')
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp', connect=None) -> int:
     """
-    Build each node with its factory, spin them all until shutdown; return the exit code.
+    Build each node with its factory, spin them all until a stop signal; return the exit code.
 
     ``connect(nodes)``, if given, links the built nodes before they spin.
     """
+    stop = Future()
+    _stop_on_signals(stop, logger_name)
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except rclpy_implementation.RCLError as err:
-        # A --params-file rcl cannot parse (e.g. an unquoted y, a boolean in YAML 1.1).
-        get_logger(logger_name).fatal(f'cannot start: {err}')
+        get_logger(logger_name).fatal(f'cannot start: {explain_parse_error(str(err))}')
         return 1
     nodes = []
     try:
         for factory in node_factories:
             nodes.append(factory())
+        for node in nodes:
+            check_command_line(node, args)
     except SETUP_ERRORS as err:
-        rclpy.logging.get_logger(logger_name).fatal(str(err))
+        get_logger(logger_name).fatal(str(err))
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
         return 1
+    for node in nodes:
+        for warning in unknown_parameters(node):
+            node.get_logger().warn(warning)
     if connect is not None:
         connect(nodes)
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: B902
-        # SIGINT/SIGTERM shut the context down from the signal handler; a callback the
-        # executor was taking then fails on its invalidated handle (RuntimeError from
-        # take_message). That is a stop, not a crash; anything else still raises.
-        if rclpy.ok():
-            raise
+        executor.spin_until_future_complete(stop)
     finally:
+        if stop.done():
+            get_logger(logger_name).info(f'{signal.Signals(stop.result()).name}: stopping')
         executor.shutdown()
         for node in nodes:
             node.destroy_node()
