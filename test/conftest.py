@@ -3,6 +3,7 @@
 import glob
 import os
 
+from hypothesis import HealthCheck, settings
 import pytest
 
 # Set at import time, before any test initializes rclpy. Every subprocess a test starts
@@ -11,6 +12,17 @@ import pytest
 os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
+
+# Property-based tests (test_fuzz_*.py): the same examples on every run by default, so the
+# suite gives one answer; HYPOTHESIS_PROFILE=explore draws new ones each run. Either way a
+# failure prints the example and a @reproduce_failure blob, and no example database is
+# written into the checkout.
+_FUZZ_COMMON = {'deadline': None, 'database': None, 'print_blob': True,
+                'suppress_health_check': [HealthCheck.too_slow,
+                                          HealthCheck.function_scoped_fixture]}
+settings.register_profile('ci', derandomize=True, **_FUZZ_COMMON)
+settings.register_profile('explore', derandomize=False, **_FUZZ_COMMON)
+settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
 def pytest_collection_modifyitems(config, items):

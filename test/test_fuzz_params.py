@@ -15,7 +15,7 @@ import math
 import os
 import tempfile
 
-from hypothesis import (currently_in_test_context, event, example, given, HealthCheck, settings,
+from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
 from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.model_params import (linear_btc_parameters, parameter_file,
@@ -28,10 +28,8 @@ import pytest
 import yaml
 
 NODE = 'compensation_node'
-# A few seconds per test, new examples each run; a failure prints the example and a
-# @reproduce_failure blob (no example database in the checkout).
-FUZZ = settings(max_examples=300, deadline=None, database=None, print_blob=True,
-                suppress_health_check=[HealthCheck.too_slow])
+# A few seconds per test (the profile in conftest.py sets the rest).
+FUZZ = settings(max_examples=300)
 FULL_SCALE_RAD_S = math.radians(2000.0)
 RATES = np.linspace(-FULL_SCALE_RAD_S, FULL_SCALE_RAD_S, 5)
 TEMPERATURES_C = np.linspace(-40.0, 125.0, 34)

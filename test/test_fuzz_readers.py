@@ -14,7 +14,7 @@ from pathlib import Path
 import shutil
 import tempfile
 
-from hypothesis import assume, example, given, HealthCheck, settings, strategies as st
+from hypothesis import assume, example, given, settings, strategies as st
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import decode_eeprom, EEPROM_SIZE
@@ -28,10 +28,8 @@ from mlx_tempcomp.sources.recording import load_recording, Recording, RecordingE
 import numpy as np
 import pytest
 
-# The same examples on every run (derandomize) and no example database in the checkout: the
-# suite gives one answer; a deeper search raises max_examples locally.
-FUZZ = settings(max_examples=150, deadline=None, derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture])
+# Examples per test (the profile in conftest.py sets the rest).
+FUZZ = settings(max_examples=150)
 # Bags cost a copy and a sqlite or mcap open per example.
 BAG_FUZZ = settings(FUZZ, max_examples=60)
 

@@ -15,7 +15,7 @@ import math
 import os
 import tempfile
 
-from hypothesis import (currently_in_test_context, event, example, given, HealthCheck, settings,
+from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output
@@ -43,10 +43,8 @@ MPU_STATE = {'variant': 'mpu6000', 'gyro_offset_lsb': [-269, -106, 265],
              'residual_acceleration_m_s2': [0.05, -0.008, -0.011], 'gravity_axis': '+z',
              'temperature_c': 25.0, 'samples': 201, 'time': '2026-11-25T12:00:00+00:00'}
 SCHEMAS = {'zro': (ZRO_FIELDS, ZRO_STATE), 'mpu': (MPU_OFFSETS_FIELDS, MPU_STATE)}
-# A few seconds per test, new examples each run; a failure prints the example and a
-# @reproduce_failure blob (no example database in the checkout).
-FUZZ = settings(max_examples=300, deadline=None, database=None, print_blob=True,
-                suppress_health_check=[HealthCheck.too_slow])
+# A few seconds per test (the profile in conftest.py sets the rest).
+FUZZ = settings(max_examples=300)
 
 
 class Log(logging.Handler):
