@@ -4,6 +4,8 @@
 PYTHON ?= python3
 VENV := .venv
 VENV_PY := $(VENV)/bin/python
+# The nodes' environment (make demo), then the toolkit and test tools on top (make venv, test).
+NODES_STAMP := $(VENV)/.stamp-nodes
 STAMP := $(VENV)/.stamp
 PYTEST_ARGS ?=
 
@@ -15,13 +17,17 @@ venv: $(STAMP)
 # script into $(VENV)/bin. Without it, pip falls back to the legacy `setup.py develop`
 # whenever `wheel` is importable in the venv, and that obeys setup.cfg's
 # [develop] script_dir (the ament layout $base/lib/mlx_tempcomp meant for colcon).
-$(STAMP): setup.py setup.cfg package.xml
+$(NODES_STAMP): setup.py setup.cfg package.xml
 	test -x $(VENV_PY) || $(PYTHON) -m venv $(VENV)
-	$(VENV_PY) -m pip install --progress-bar off --use-pep517 -e '.[venv,test]'
+	$(VENV_PY) -m pip install --quiet --progress-bar off --use-pep517 -e '.[venv]'
 	test -x $(VENV)/bin/mlx-tempcomp
 	touch $@
 
-demo: venv
+$(STAMP): $(NODES_STAMP)
+	$(VENV_PY) -m pip install --quiet --progress-bar off --use-pep517 -e '.[venv,toolkit,test]'
+	touch $@
+
+demo: $(NODES_STAMP)
 	$(VENV_PY) -m mlx_tempcomp.ros.demo
 
 test: venv

@@ -18,16 +18,21 @@ setup(
     install_requires=['setuptools'],
     extras_require={
         # What a plain virtual environment needs; on a robot, rosdep provides these.
+        # The nodes (and `make demo`):
         'venv': [
             'numpy>=1.24',
             'pyyaml',
-            'matplotlib',
             'spidev',
             'rosbags>=0.11',
-            'allantools',
             'ros-jazzy-rclpy[fastrtps]',
             'ros-jazzy-common-interfaces',
             'ros-jazzy-std-srvs',
+        ],
+        # What the toolkit adds: plots, and the Allan deviation (noise figures, the ADIS16130
+        # bias procedure's rest record).
+        'toolkit': [
+            'matplotlib',
+            'allantools',
         ],
         # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
         # so lint results change only when someone bumps them), and colcon for
