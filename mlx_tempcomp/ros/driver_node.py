@@ -218,7 +218,8 @@ class SensorStream(TimedStream):
         node.eeprom_publisher.publish(messages.eeprom_message(self.images))
         self.oversample = values['oversample']
         self.simulated = real_time_factor is not None
-        self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ)
+        self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ,
+                            self.simulated and values['simulation.lossless'])
         monitor_hz = values['simulation.supply_monitor_hz']
         self.supply_publisher = node.create_publisher(
             BatteryState, 'imu/supply_voltage', SENSOR_QOS) if monitor_hz else None

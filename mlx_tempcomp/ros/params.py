@@ -138,6 +138,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('simulation.real_time_factor', 1.0,
          'simulated seconds per wall second (10 = ten times faster than real time)',
          read_only=True, low=0.001, high=10000.0),
+    Spec('simulation.lossless', False,
+         'read every sample: a driver that falls behind lets the simulated clock lag wall '
+         'time instead of skipping samples as missed reads (for tests)', read_only=True),
     Spec('simulation.eeprom_version', 2, 'EEPROM VERSION the simulated factory writes',
          read_only=True, low=0, high=255),
     Spec('simulation.start_temperature_c', 25.0, 'chamber temperature at start',
