@@ -123,6 +123,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.pace_topic', 'imu/data',
          'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
          read_only=True),
+    Spec('bag.on_end', 'stop', 'at the end of the bag: stop (log a summary, exit 0), loop '
+         '(start over, stamps shifted to keep increasing) or hold (stay up, publish nothing)',
+         read_only=True, choices=('stop', 'loop', 'hold')),
     Spec('bag.imu_topic', '/imu/data_raw', 'Imu topic in the bag', read_only=True),
     Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
          read_only=True),
