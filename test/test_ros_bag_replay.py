@@ -228,8 +228,7 @@ def test_bag_on_end_hold_stays_up_publishing_nothing(launcher, probe, tmp_path):
     assert driver.stop() == 0
 
 
-def test_bag_on_end_loop_starts_over_with_stamps_shifted_by_the_span(launcher, probe,
-                                                                      tmp_path):
+def test_bag_on_end_loop_starts_over_with_stamps_shifted(launcher, probe, tmp_path):
     recorded, imu, driver = start_ramp_replay(launcher, probe, tmp_path, 'loop')
     status = probe.wait_status(DRIVER_DIAGNOSTIC,
                                lambda s: int(status_values(s).get('passes', 0)) >= 3,
