@@ -135,7 +135,7 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
 def test_missed_reads_raise_a_warning_while_they_happen(launcher, probe):
     probe.subscribe(Imu, 'imu/data_raw')
     probe.subscribe_diagnostics()
-    driver = launcher.driver(adis_params())
+    driver = launcher.driver(adis_params(**{'simulation.lossless': False}))
     probe.wait_streaming(['imu/data_raw'], TIMEOUT_S, launcher)
     stall(driver)
     status = probe.wait_status(DRIVER_DIAGNOSTIC, lambda s: s.level == DiagnosticStatus.WARN,
