@@ -465,7 +465,9 @@ class BagStream:
         # The last status says 'finished'; it is reliable: wait until its readers have it.
         self.node.publish_diagnostics()
         self.node.diagnostics_publisher.wait_for_all_acked(ACK_TIMEOUT)
-        self.node.context.try_shutdown()
+        # Out of the executor's spin with the context still up: the runner destroys the
+        # nodes as after a stop signal, and the process exits 0.
+        raise SystemExit(0)
 
     def on_consumed(self, msg: Imu) -> None:
         stamp_ns = messages.stamp_to_ns(msg.header.stamp)
