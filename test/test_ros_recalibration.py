@@ -167,7 +167,6 @@ print('ready', flush=True)
 i = 1
 while True:
     write_state(path, payloads[i % 2])
-    print('wrote', flush=True)
     i += 1
 """
 
@@ -188,11 +187,7 @@ def test_kill_9_during_state_writes_leaves_a_whole_file(tmp_path):
                                   stdout=subprocess.PIPE, text=True)
         try:
             assert writer.stdout.readline() == 'ready\n'
-            # Killed after 0, 1 or 2 whole writes, not after a wall time: on a loaded machine
-            # a write can take longer than any fixed delay. The next write is then under way.
-            for _ in range(rng.randint(0, 2)):
-                assert writer.stdout.readline() == 'wrote\n'
-            time.sleep(rng.uniform(0.0, 0.01))
+            time.sleep(rng.uniform(0.0, 0.1))
             os.kill(writer.pid, signal.SIGKILL)
             writer.wait(5.0)
         finally:
