@@ -14,6 +14,7 @@ Without lossless the same stall misses reads, which must raise a WARN (log and
 diagnostics) while it happens.
 """
 
+import re
 import signal
 import time
 
@@ -97,11 +98,16 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
     assert float(values['sample_rate_hz']) == SAMPLE_RATE_HZ
     assert values['missed_reads'] == '0' and values['failed_reads'] == '0'
     assert values['samples_per_message'] in ('5', '6')
+    # The whole run, up to the stop (the probe hears messages sent after that status).
+    summary = re.search(r'sampling: (\d+) samples read, (\d+) missed, (\d+) failed, '
+                        r'(\d+) saturated; (\d+) messages published', driver.output())
+    assert summary, driver.output()
+    assert summary.group(2, 3, 4) == ('0', '0', '0')
 
     received = by_stamp(imu)
     temperatures = by_stamp(temperature)
     stamps = sorted(received)
-    published = int(values['messages'])
+    published = int(summary.group(5))
     means = replica_intervals(driver_values(overrides), published + 100)
     # The first message heard: the interval whose mean it is (the probe joined late).
     first = next(j for j, mean in enumerate(means) if mean[0] == rates(received[stamps[0]])[2])
