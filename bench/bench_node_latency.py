@@ -20,12 +20,19 @@ Relay and compensation alternate at each rate, because this machine is noisy;
 --rounds repeats the alternation and pools the figures. --sweep finds the
 highest rate each node forwards without a drop.
 
+Part (c), missed device reads: the driver (each part at its natural rate, the
+MLX90609 at its default 1 kHz, the ADIS16130 at 5.7 kHz) feeding a
+compensation node, once on the machine as it is and once beside a CPU hog
+(two busy loops the benchmark starts and stops itself), side by side; the
+figures are the driver's closing summary.
+
 Targets: zero lost samples at 1 kHz publish with 5.7 kHz sampling; at every
 rate, compensation drops no more than the relay and its p99 latency is at
 most 1.2x the relay's.
 
     .venv/bin/python bench/bench_node_latency.py [--rates 1000 2000 4000 5700] [--duration 30]
                                                  [--rounds 1] [--device-duration 20]
+                                                 [--missed-duration 20]
     .venv/bin/python bench/bench_node_latency.py --sweep [--sweep-rates ...] [--sweep-duration 10]
 """
 
@@ -421,6 +428,66 @@ def measure_device(name: str, duration_s: float, warmup_s: float, env) -> dict:
             'cpu': [100.0 * (e - s) / seconds for s, e in zip(cpu_start, cpu_end)]}
 
 
+# Part (c): device, its natural sample rate (the driver's default), publish rate.
+MISSED_DEVICES = (('mlx90609', 1000, 100.0), ('adis16130', 5700, 1000.0))
+HOG = ['sh', '-c', 'while :; do :; done']
+
+
+def _hog(duration_s: float) -> list:
+    """Start two busy loops, each killed by timeout(1) at the latest after ``duration_s``."""
+    return [subprocess.Popen(['timeout', f'{duration_s:g}'] + HOG) for _ in range(2)]
+
+
+def measure_missed(device: str, publish_rate_hz: float, duration_s: float, hog: bool,
+                   env) -> dict:
+    """Run driver and compensation node for ``duration_s``; give the driver's read counts."""
+    with tempfile.TemporaryDirectory(prefix='bench_node_latency_') as folder:
+        params = f'{folder}/missed.yaml'
+        with open(params, 'w') as stream:
+            yaml.safe_dump({
+                'driver_node': {'ros__parameters': {
+                    'device': device, 'publish_rate_hz': publish_rate_hz,
+                    'sample_rate_hz': 0.0, 'simulation': {'real_time_factor': 1.0}}},
+                'compensation_node': {'ros__parameters': {
+                    'model': 'polynomial', 'polynomial': {'bias': {'z': [0.001]}},
+                    'recalibration': {'state_file': f'{folder}/zro.yaml'}}}}, stream)
+        hogs = _hog(duration_s + READY_TIMEOUT_S) if hog else []
+        processes = []
+        try:
+            for name in ('compensation_node', 'driver_node'):
+                processes.append(_start(_executable(name) + ['--ros-args', '--params-file',
+                                                             params], env))
+            driver = _Lines(processes[-1].stdout)
+            if not driver.wait_for('sampling at', READY_TIMEOUT_S):
+                msg = f'{device}: the driver did not start:\n' + '\n'.join(driver.lines)
+                raise RuntimeError(msg)
+            time.sleep(duration_s)
+            for process in reversed(processes):
+                _stop(process)
+            driver.wait_for('sampling: ', READY_TIMEOUT_S)
+        finally:
+            for process in processes + hogs:
+                _stop(process)
+    summary = next((line for line in driver.lines if 'sampling: ' in line), '')
+    counts = [int(word) for word in summary.split('sampling: ')[1].replace(',', '').split()
+              if word.isdigit()] if summary else []
+    read, missed, failed, saturated = counts[:4] if counts else (0, -1, 0, 0)
+    return {'device': device, 'hog': hog, 'missed': missed,
+            'due': read + max(missed, 0) + failed + saturated}
+
+
+def _missed_table(results) -> None:
+    print(f'{"device":<10} {"sample Hz":>9} {"quiet: missed / due":>27} '
+          f'{"2 busy loops: missed / due":>34}')
+    for device, sample_hz, _ in MISSED_DEVICES:
+        cells = []
+        for hog in (False, True):
+            r = next(r for r in results if r['device'] == device and r['hog'] == hog)
+            share = 100.0 * r['missed'] / r['due'] if r['due'] else float('nan')
+            cells.append(f'{r["missed"]} / {r["due"]} ({share:.2f} %)')
+        print(f'{device:<10} {sample_hz:>9} {cells[0]:>27} {cells[1]:>34}')
+
+
 def _device_table(results) -> None:
     print(f'{"node":<13} {"raw msgs":>8} {"not out":>7} {"missed reads":>12} {"p50 ms":>7} '
           f'{"p99 ms":>7} {"+p50 ms":>7} {"+p99 ms":>7} {"CPU % node":>10} {"driver":>6}')
@@ -541,7 +608,11 @@ def main() -> int:
                         default=[1000.0, 2000.0, 4000.0, 5700.0])
     parser.add_argument('--device-duration', type=float, default=20.0,
                         help='seconds per device run (part a); 0 skips part a')
-    parser.add_argument('--duration', type=float, default=30.0, help='feed seconds per run')
+    parser.add_argument('--missed-duration', type=float, default=20.0,
+                        help='seconds per missed-reads run (part c), quiet and beside a CPU '
+                        'hog; 0 skips part c')
+    parser.add_argument('--duration', type=float, default=30.0,
+                        help='feed seconds per run (part b); 0 skips part b')
     parser.add_argument('--warmup', type=float, default=1.0,
                         help='seconds fed at the same rate before each measured window')
     parser.add_argument('--sweep', action='store_true',
@@ -578,7 +649,19 @@ def main() -> int:
         print('latency: arrival of imu/data - its stamp (the mean time of the samples it '
               'averages); +: arrival of imu/data - arrival of the same imu/data_raw')
         _device_table(results)
-        print('\n(b) feeder at fixed rates', flush=True)
+        print(flush=True)
+    if args.missed_duration > 0.0 and not args.sweep:
+        print(f'(c) missed device reads: driver into a compensation node, '
+              f'{args.missed_duration:g} s per run, quiet and beside two busy loops '
+              f'({os.cpu_count()} CPUs)', flush=True)
+        missed = [measure_missed(device, publish_hz, args.missed_duration, hog, env)
+                  for device, _, publish_hz in MISSED_DEVICES for hog in (False, True)]
+        _missed_table(missed)
+        print(flush=True)
+    if not args.sweep:
+        if args.duration <= 0.0:
+            return 0
+        print('(b) feeder at fixed rates', flush=True)
     rates = sorted(args.sweep_rates) if args.sweep else args.rates
     duration = args.sweep_duration if args.sweep else args.duration
     print(f'Raw Temperature + Imu fed at {", ".join(f"{r:g}" for r in rates)} Hz for '

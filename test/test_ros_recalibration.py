@@ -78,8 +78,9 @@ def test_recalibration_at_rest_is_saved_survives_kill_9_and_is_restored(launcher
     assert match, response.message
     offset_rad_s, samples = float(match.group(1)), int(match.group(3))
     assert match.group(5) == str(state_file)
-    # A 2 s window at 100 Hz; best effort under CI load may lose a few on the way in.
-    assert 150 <= samples <= 202, 'a 2 s window at 100 Hz'
+    # A 2 s window at 100 Hz (the driver is lossless); best effort loses some on the way in
+    # under load (CI: 159), but no more than a 1 s window holds.
+    assert 110 <= samples <= 202, 'a 2 s window at 100 Hz'
     assert offset_rad_s == pytest.approx(before, abs=0.002)
     # SIGKILL at once: whatever the node was doing, the file it wrote must be whole.
     compensation.kill()
@@ -152,8 +153,8 @@ def test_second_recalibration_while_one_runs_is_refused(launcher, probe, tmp_pat
     assert first.result().success, first.result().message
     assert 'ZRO offset z' in first.result().message
     # The refusal did not end the first window early (a whole one is 200 samples; best
-    # effort may lose a few under load, as it did once in CI: 159).
-    assert read_state(str(state_file))['samples'] >= 150
+    # effort loses some under load, as it did once in CI: 159; a 1 s window holds 101).
+    assert read_state(str(state_file))['samples'] >= 110
 
 
 # The YAML is rendered once, so the loop is all atomic writes (temporary file, fsync,

@@ -2,21 +2,31 @@
 Device-rate sampling: the driver reads the part at its own rate and publishes interval means.
 
 The simulated ADIS16130 is sampled at its natural 5.7 kHz in real time and
-published at 1 kHz over DDS. A replica of the same simulated part (same
-parameters, same seed) read at k / 5700 s for k = 0, 1, ... gives every device
-sample the driver read; each published message must be, bit for bit, the mean
-of the samples of its interval, stamped at their mean time: no sample is
-dropped, none counted twice.
+published at 1 kHz over DDS, lossless (`simulation.lossless`): a driver that
+falls behind lets its simulated clock lag instead of skipping samples, so
+"every sample" is a property of the code, not of the machine's speed. The
+driver is stopped (SIGSTOP) for longer than its backlog in the middle of the
+run. A replica of the same simulated part (same parameters, same seed) read at
+k / 5700 s for k = 0, 1, ... gives every device sample the driver read; each
+published message must be, bit for bit, the mean of the samples of its
+interval, stamped at their mean time: no sample is dropped, none counted twice.
+Without lossless the same stall misses reads, which must raise a WARN (log and
+diagnostics) while it happens.
 """
 
-from mlx_tempcomp.ros.devices import simulated_adis
+import re
+import signal
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.ros.devices import MAX_BACKLOG_S, simulated_adis
 from mlx_tempcomp.ros.params import DRIVER_SPECS
 from mlx_tempcomp.sources.decimation import Decimator
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_harness import (by_stamp, DRIVER_DIAGNOSTIC, rates, simulated_driver_params,
-                         status_values)
+from ros_harness import (by_stamp, DRIVER_DIAGNOSTIC, first_line_with, rates,
+                         simulated_driver_params, status_values)
 from sensor_msgs.msg import Imu, Temperature
 
 pytestmark = pytest.mark.ros
@@ -24,7 +34,8 @@ pytestmark = pytest.mark.ros
 TIMEOUT_S = 30.0
 SAMPLE_RATE_HZ = 5700.0
 PUBLISH_RATE_HZ = 1000.0
-MESSAGES = 2000            # 2 s of real time
+MESSAGES = 2000            # 2 s of simulated time
+STALL_S = 2 * MAX_BACKLOG_S
 
 
 def driver_values(overrides: dict) -> dict:
@@ -52,16 +63,32 @@ def replica_intervals(values: dict, intervals: int) -> list:
     return means
 
 
-@pytest.mark.slow
-def test_published_messages_are_the_means_of_every_device_sample(launcher, probe):
-    overrides = simulated_driver_params(**{
+def stall(driver) -> None:
+    """Freeze the driver process for STALL_S (wall time), longer than its backlog."""
+    driver.signal(signal.SIGSTOP)
+    try:
+        time.sleep(STALL_S)
+    finally:
+        driver.signal(signal.SIGCONT)
+
+
+def adis_params(**overrides) -> dict:
+    return simulated_driver_params(**{
         'device': 'adis16130', 'simulation.real_time_factor': 1.0,
         'publish_rate_hz': PUBLISH_RATE_HZ, 'sample_rate_hz': 0.0,   # natural: 5.7 kHz
-        'simulation.rate_dps': [3.0], 'simulation.seed': 4})
+        'simulation.rate_dps': [3.0], 'simulation.seed': 4, **overrides})
+
+
+@pytest.mark.slow
+def test_published_messages_are_the_means_of_every_device_sample(launcher, probe):
+    overrides = adis_params(**{'simulation.lossless': True})
     imu = probe.subscribe(Imu, 'imu/data_raw')
     temperature = probe.subscribe(Temperature, 'imu/temperature_raw')
     probe.subscribe_diagnostics()
-    launcher.driver(overrides)
+    driver = launcher.driver(overrides)
+    probe.spin_until(lambda: len(imu) >= MESSAGES // 4, TIMEOUT_S, 'a first quarter',
+                     launcher)
+    stall(driver)
     probe.spin_until(lambda: len(imu) >= MESSAGES, TIMEOUT_S, f'{MESSAGES} messages', launcher)
     status = probe.wait_status(DRIVER_DIAGNOSTIC, lambda s: int(status_values(s)['messages'])
                                >= MESSAGES, TIMEOUT_S, 'the driver status', launcher)
@@ -71,11 +98,16 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
     assert float(values['sample_rate_hz']) == SAMPLE_RATE_HZ
     assert values['missed_reads'] == '0' and values['failed_reads'] == '0'
     assert values['samples_per_message'] in ('5', '6')
+    # The whole run, up to the stop (the probe hears messages sent after that status).
+    summary = re.search(r'sampling: (\d+) samples read, (\d+) missed, (\d+) failed, '
+                        r'(\d+) saturated; (\d+) messages published', driver.output())
+    assert summary, driver.output()
+    assert summary.group(2, 3, 4) == ('0', '0', '0')
 
     received = by_stamp(imu)
     temperatures = by_stamp(temperature)
     stamps = sorted(received)
-    published = int(values['messages'])
+    published = int(summary.group(5))
     means = replica_intervals(driver_values(overrides), published + 100)
     # The first message heard: the interval whose mean it is (the probe joined late).
     first = next(j for j, mean in enumerate(means) if mean[0] == rates(received[stamps[0]])[2])
@@ -97,9 +129,25 @@ def test_published_messages_are_the_means_of_every_device_sample(launcher, probe
     print(f'{matched} messages heard of {published} published (intervals {first} to '
           f'{first + matched - 1} seen), each the mean of its 5 or 6 device samples; '
           f'{matched_temperatures} temperatures')
-    assert matched >= 0.9 * MESSAGES
-    assert matched_temperatures >= 0.9 * MESSAGES
+    assert matched >= MESSAGES
+    # What the probe hears of a best-effort stream depends on the load, not on the code.
+    assert matched_temperatures >= MESSAGES // 2
     # Within noise, the published mean is the device's: 3 deg/s plus its bias.
     mean_dps = np.degrees(np.mean([rates(received[s])[2] for s in stamps]))
     bias_dps = driver_values(overrides)['simulation.bias_dps']
     assert mean_dps == pytest.approx(3.0 + bias_dps, abs=0.2)
+
+
+def test_missed_reads_raise_a_warning_while_they_happen(launcher, probe):
+    probe.subscribe(Imu, 'imu/data_raw')
+    probe.subscribe_diagnostics()
+    driver = launcher.driver(adis_params(**{'simulation.lossless': False}))
+    probe.wait_streaming(['imu/data_raw'], TIMEOUT_S, launcher)
+    stall(driver)
+    status = probe.wait_status(DRIVER_DIAGNOSTIC, lambda s: s.level == DiagnosticStatus.WARN,
+                               TIMEOUT_S, 'a WARN on missed reads', launcher)
+    assert 'device reads missed since the last status' in status.message, status.message
+    assert int(status_values(status)['missed_reads']) > 0
+    probe.spin_until(lambda: 'device reads missed in the last 1 s' in driver.output(),
+                     TIMEOUT_S, 'the WARN in the log', launcher)
+    assert '[WARN]' in first_line_with(driver.output(), 'device reads missed')

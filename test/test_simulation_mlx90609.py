@@ -275,3 +275,14 @@ def test_thermal_lag_seen_through_the_driver():
     prompt_code = readings(prompt, 1000, period_s=0.01)[-1].temperature_code
     # 10 mV/K = 6.4 LSB/K, so 2 C is 12.8 LSB.
     assert prompt_code - lag_code == pytest.approx(12.8, abs=1.0)
+
+
+@pytest.mark.parametrize('times_s, temperatures_c', [
+    ((0.0,), (25.0,)), ((0.0,), (-40,)), ((0.0, 10.0, 10.0, 30.0), (25.0, 85.0, -40.0, 0.1))])
+def test_profiles_give_what_numpy_interpolation_gives_bit_for_bit(times_s, temperatures_c):
+    # The ends and constant profiles skip numpy (per-sample cost): same values, as floats.
+    profile = ThermalProfile(times_s=times_s, temperatures_c=temperatures_c)
+    for t in (-1.0, 0.0, 1e-9, 5.0, 10.0, 20.0, 30.0, 30.0 + 1e-9, 1e6, math.inf, -math.inf):
+        got = profile.chamber_c(t)
+        assert type(got) is float
+        assert got == float(np.interp(t, times_s, temperatures_c)), t

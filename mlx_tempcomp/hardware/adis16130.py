@@ -119,10 +119,12 @@ def _decode(code, bits: int):
 def _encode(offset_lsb, bits: int):
     # Nearest code, ties away from mid-scale (Table 4 at 16 bits: +-10 and +-250 deg/s
     # fall on ties, +-917.5 and +-22,937.5 LSB); the ADC clips at its code limits.
-    if not np.all(np.isfinite(offset_lsb)):
+    # One value (every simulated sample) in plain floats: numpy costs microseconds here.
+    scalar = np.ndim(offset_lsb) == 0
+    if not (math.isfinite(offset_lsb) if scalar else np.all(np.isfinite(offset_lsb))):
         msg = f'cannot encode a non-finite value as an ADIS16130 code: {offset_lsb!r}'
         raise HardwareError(msg)
-    if np.ndim(offset_lsb) == 0:
+    if scalar:
         rounded = math.copysign(math.floor(abs(offset_lsb) + 0.5), offset_lsb)
         return int(min(max(rounded + mid_scale(bits), 0), full_code(bits)))
     offset = np.asarray(offset_lsb, dtype=np.float64)

@@ -9,8 +9,10 @@ offset registers as the temperature moves; the ADIS16130 stream offers
 ``imu/run_bias_procedure`` (AN-1042, fed from the stream).
 """
 
+import collections
 import dataclasses
 from datetime import datetime, timezone
+import gc
 import math
 import os
 import time
@@ -47,8 +49,13 @@ from ..toolkit.evaluate import node_values
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 # A sampling driver that falls this far behind (wall time) skips the older samples (missed
-# reads).
+# reads); a lossless simulated one lets its clock fall behind instead.
 MAX_BACKLOG_S = 0.25
+# Missed reads above this share of the reads due over the last MISSED_WINDOW_S are a WARN
+# (log, throttled, and diagnostics) while they happen.
+MISSED_WARN_SHARE = 0.001
+MISSED_WINDOW_S = 1.0
+MISSED_LOG_THROTTLE_S = 5.0
 # Shortest timer period of a driver: each tick costs the executor a wake-up.
 MIN_TICK_S = 0.001
 # Natural sample rates: the ADIS16130 refreshes RATE and TEMP at 5.7 kHz (AN-1042); the
@@ -84,6 +91,13 @@ def refuse_fault() -> None:
     raise ParameterError('simulation.fault applies only to the simulated source')
 
 
+def _missed_share(missed: int, due: int, when: str) -> str:
+    if not due or missed <= MISSED_WARN_SHARE * due:
+        return ''
+    return (f'{missed} of {due} device reads missed {when} ({100.0 * missed / due:.2g} %): '
+            'the driver cannot keep up')
+
+
 class TimedStream:
     """
     A part sampled at its own rate and published at a lower one, each message the mean.
@@ -96,10 +110,13 @@ class TimedStream:
     interval that is complete, with the mean of its samples, stamped at their
     mean time (`mlx_tempcomp.sources.decimation`). A failed or saturated read is
     skipped and counted; samples more than MAX_BACKLOG_S behind are skipped and
-    counted as missed reads.
+    counted as missed reads, unless the source is ``lossless`` (simulated only):
+    then the schedule slides instead, so every sample is read and the simulated
+    clock falls behind wall time.
     """
 
-    def start_schedule(self, node, real_time_factor, natural_rate_hz: float) -> None:
+    def start_schedule(self, node, real_time_factor, natural_rate_hz: float,
+                       lossless: bool = False) -> None:
         self.node = node
         values = node.values
         publish_rate_hz = values['publish_rate_hz']
@@ -113,7 +130,12 @@ class TimedStream:
         self.next_index = 0
         self.samples_read = 0
         self.missed_reads = 0
-        self.missed_reported = 0
+        self.reads_due = 0
+        self.reported = (0, 0)      # (reads due, missed) at the last status
+        # (wall time, reads due, reads missed) of the ticks of the last MISSED_WINDOW_S, and
+        # their sums.
+        self.recent_ticks = collections.deque()
+        self.recent_due = self.recent_missed = 0
         self.messages = 0
         self.samples_per_message = 0
         self.failed_reads = 0
@@ -122,24 +144,42 @@ class TimedStream:
         self.last_error = ''
         self.last_sample = time.monotonic()
         self.real_time_factor = real_time_factor
+        self.lossless = lossless
         self.start_ns = node.get_clock().now().nanoseconds
         self.start_wall = time.monotonic()
         tick = 1.0 / publish_rate_hz / (real_time_factor or 1.0)
         self.timer = node.create_timer(max(tick, MIN_TICK_S), self.tick)
+        # What start-up allocated (rclpy, numpy, the part and its tables: about 90,000
+        # objects) lives as long as the process: out of the collector's sight, a full
+        # collection takes well under 1 ms instead of about 60 ms of CPU, which on a busy
+        # machine stretched past MAX_BACKLOG_S and cost device reads.
+        gc.freeze()
 
     @property
     def rates(self) -> str:
         return (f'sampling at {self.decimator.sample_rate_hz:g} Hz, publishing at '
-                f'{self.decimator.publish_rate_hz:g} Hz')
+                f'{self.decimator.publish_rate_hz:g} Hz'
+                + (', lossless (the simulated clock may fall behind wall time)'
+                   if self.lossless else ''))
 
     def tick(self) -> None:
         rate_hz = self.decimator.sample_rate_hz
-        elapsed_s = (time.monotonic() - self.start_wall) * (self.real_time_factor or 1.0)
-        due = int(math.floor(elapsed_s * rate_hz + 1e-9)) + 1   # samples 0 .. due - 1
-        backlog = max(1, int(MAX_BACKLOG_S * (self.real_time_factor or 1.0) * rate_hz))
-        if due - self.next_index > backlog:
-            self.missed_reads += due - backlog - self.next_index
-            self.next_index = due - backlog
+        factor = self.real_time_factor or 1.0
+        now = time.monotonic()
+        due = int(math.floor((now - self.start_wall) * factor * rate_hz + 1e-9)) + 1
+        reads_due = due - self.next_index                     # samples 0 .. due - 1
+        behind = reads_due - max(1, int(MAX_BACKLOG_S * factor * rate_hz))
+        missed = 0
+        if behind > 0:
+            if self.lossless:
+                self.start_wall += behind / rate_hz / factor
+                due -= behind
+                reads_due -= behind
+            else:
+                missed = behind
+                self.missed_reads += missed
+                self.next_index += missed
+        self._count_missed(now, reads_due, missed)
         for index in range(self.next_index, due):
             if self.real_time_factor is not None:
                 self.advance_to(index / rate_hz)
@@ -150,6 +190,30 @@ class TimedStream:
         self.next_index = due
         self._publish(self.decimator.close_before(due))
         self.node.hand_off()
+
+    def _count_missed(self, now: float, reads_due: int, missed: int) -> None:
+        self.reads_due += reads_due
+        recent = self.recent_ticks
+        recent.append((now, reads_due, missed))
+        self.recent_due += reads_due
+        self.recent_missed += missed
+        while recent[0][0] < now - MISSED_WINDOW_S:
+            _, old_due, old_missed = recent.popleft()
+            self.recent_due -= old_due
+            self.recent_missed -= old_missed
+        if missed:
+            warning = _missed_share(self.recent_missed, self.recent_due,
+                                    f'in the last {MISSED_WINDOW_S:g} s')
+            if warning:
+                self.node.get_logger().warn(warning,
+                                            throttle_duration_sec=MISSED_LOG_THROTTLE_S)
+
+    def missing_reads(self) -> str:
+        """Say how many reads were missed since the last call if too many, else ''."""
+        due, missed = self.reported
+        self.reported = (self.reads_due, self.missed_reads)
+        return _missed_share(self.missed_reads - missed, self.reads_due - due,
+                             'since the last status')
 
     def _read_one(self):
         try:
@@ -188,12 +252,6 @@ class TimedStream:
                 f'{self.failed_reads} failed, {self.saturated} saturated; {self.messages} '
                 'messages published')
 
-    def missing_reads(self) -> str:
-        """Say how many reads were missed since the last status, or ''."""
-        missed = self.missed_reads - self.missed_reported
-        self.missed_reported = self.missed_reads
-        return f'{missed} reads missed: the driver cannot keep up' if missed else ''
-
     def advance_to(self, time_s: float) -> None:
         raise NotImplementedError
 
@@ -215,7 +273,8 @@ class DeviceStream(TimedStream):
         # Start-up took simulated time (resets, settling): the schedule starts after it.
         self.source_start_s = source.clock.now_s if simulated else 0.0
         self.start_schedule(node, node.values['simulation.real_time_factor'] if simulated
-                            else None, natural_rate_hz)
+                            else None, natural_rate_hz,
+                            simulated and node.values['simulation.lossless'])
         node.get_logger().info(f'{hardware_id}: {self.rates}')
 
     def advance_to(self, time_s: float) -> None:

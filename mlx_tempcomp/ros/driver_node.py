@@ -52,6 +52,8 @@ ACK_TIMEOUT = Duration(seconds=1.0)
 PACE_WINDOW = 100
 PACE_TIMEOUT_S = 1.0
 MATCH_GRACE_S = 2.0
+# bag.on_end stop: the last messages are on their way before the process exits.
+STOP_LINGER_S = 0.2
 MLX90609_SPEED_HZ = 500_000
 # A reading is a rate and a temperature conversion of more than 115 us each (DS p.14), so
 # one chip gives at most about 4 kHz; the natural rate the driver samples at is a choice
@@ -222,7 +224,8 @@ class SensorStream(TimedStream):
         node.eeprom_publisher.publish(messages.eeprom_message(self.images))
         self.oversample = values['oversample']
         self.simulated = real_time_factor is not None
-        self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ)
+        self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ,
+                            self.simulated and values['simulation.lossless'])
         monitor_hz = values['simulation.supply_monitor_hz']
         self.supply_publisher = node.create_publisher(
             BatteryState, 'imu/supply_voltage', SENSOR_QOS) if monitor_hz else None
@@ -312,7 +315,13 @@ class SensorStream(TimedStream):
 
 
 class BagStream:
-    """Replays the raw topics of a rosbag2 folder at the recorded rate, scaled, or at once."""
+    """
+    Replays the raw topics of a rosbag2 folder at the recorded rate, scaled, or at once.
+
+    At the end (``bag.on_end``) it stops the driver, holds, or loops: pass p
+    (from 0) carries the recorded stamps plus p x the shift, the bag's stamp
+    span plus its mean Imu interval, so stamps keep increasing.
+    """
 
     def __init__(self, node: DriverNode):
         self.node = node
@@ -358,6 +367,7 @@ class BagStream:
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
         self.rate_factor = values['bag.rate_factor']
+        self.on_end = values['bag.on_end']
         self.hardware_id = f'bag {path}'
         self.records = self.reader.records()
         self.next_record = next(self.records, None)
@@ -365,7 +375,13 @@ class BagStream:
         self.start_wall = None
         self.first_subscriber = None
         self.published = 0
+        self.passes = 0
+        self.shift_ns = 0
+        # Stamps of the first pass: the loop shift.
+        self.stamp_span_ns = [None, None]
+        self.imu_count = 0
         self.finished = self.next_record is None
+        self.finished_wall = None
         self.in_flight = collections.deque()
         self.last_progress = time.monotonic()
         self.pace_timeouts = 0
@@ -404,13 +420,12 @@ class BagStream:
 
     def _replay(self, elapsed_ns: float) -> None:
         """Publish the messages due after ``elapsed_ns`` of replay, a burst at most."""
+        if self.finished:
+            self._stop_when_delivered()
+            return
         for _ in range(MAX_SAMPLES_PER_TICK):
             if self.next_record is None:
-                if not self.finished:
-                    self.finished = True
-                    self.node.get_logger().info(f'bag replay finished: {self.published} '
-                                                f'messages, {self.reader.skipped} skipped')
-                    self.timer.cancel()
+                self._end_of_bag()
                 return
             bag_ns, topic, record = self.next_record
             if self.rate_factor > 0.0 and bag_ns - self.first_bag_ns > elapsed_ns:
@@ -419,6 +434,44 @@ class BagStream:
                 return
             self._publish(topic, record)
             self.next_record = next(self.records, None)
+
+    def _end_of_bag(self) -> None:
+        self.passes += 1
+        logger = self.node.get_logger()
+        text = (f'bag replay finished: {self.published} messages, {self.reader.skipped} '
+                'skipped')
+        if self.on_end == 'loop':
+            first_ns, last_ns = self.stamp_span_ns
+            step_ns = (last_ns - first_ns) // (self.imu_count - 1) if self.imu_count > 1 \
+                else 1_000_000_000
+            self.shift_ns = self.passes * (last_ns - first_ns + step_ns)
+            logger.info(f'{text} (pass {self.passes}); bag.on_end loop: starting over, '
+                        f'stamps shifted by {self.shift_ns / 1e9:.9f} s')
+            self.records = self.reader.records()
+            self.next_record = next(self.records, None)
+            self.start_wall = time.monotonic()
+            return
+        self.finished = True
+        self.finished_wall = time.monotonic()
+        if self.on_end == 'hold':
+            logger.info(f'{text}; bag.on_end hold: publishing nothing until stopped')
+            self.timer.cancel()
+        else:
+            logger.info(f'{text}; bag.on_end stop: the driver exits')
+
+    def _stop_when_delivered(self) -> None:
+        """bag.on_end stop: exit once the consumer caught up (rate factor 0) and a linger."""
+        now = time.monotonic()
+        if now - self.finished_wall < STOP_LINGER_S or (
+                self.in_flight and now - self.last_progress < PACE_TIMEOUT_S):
+            return
+        self.timer.cancel()
+        # The last status says 'finished'; it is reliable: wait until its readers have it.
+        self.node.publish_diagnostics()
+        self.node.diagnostics_publisher.wait_for_all_acked(ACK_TIMEOUT)
+        # Out of the executor's spin with the context still up: the runner destroys the
+        # nodes as after a stop signal, and the process exits 0.
+        raise SystemExit(0)
 
     def on_consumed(self, msg: Imu) -> None:
         stamp_ns = messages.stamp_to_ns(msg.header.stamp)
@@ -437,7 +490,14 @@ class BagStream:
         return False
 
     def _publish(self, topic: str, record) -> None:
-        stamp = messages.ns_to_stamp(record.stamp_ns) if hasattr(record, 'stamp_ns') else None
+        if not isinstance(record, (ImuRecord, TemperatureRecord, SupplyVoltageRecord)):
+            return      # the EEPROM: published once at start
+        stamp_ns = record.stamp_ns + self.shift_ns
+        if self.passes == 0:
+            first_ns, last_ns = self.stamp_span_ns
+            self.stamp_span_ns = [stamp_ns if first_ns is None else min(first_ns, stamp_ns),
+                                  stamp_ns if last_ns is None else max(last_ns, stamp_ns)]
+        stamp = messages.ns_to_stamp(stamp_ns)
         if isinstance(record, ImuRecord):
             msg = Imu()
             msg.header.stamp = stamp
@@ -452,8 +512,9 @@ class BagStream:
                                                   record.linear_acceleration_covariance]
             msg.orientation_covariance = [float(v) for v in record.orientation_covariance]
             self.node.send(self.node.imu_publisher, 'imu', msg)
+            self.imu_count += self.passes == 0
             if self.rate_factor == 0.0:
-                self.in_flight.append(record.stamp_ns)
+                self.in_flight.append(stamp_ns)
         elif isinstance(record, TemperatureRecord):
             msg = messages.temperature_message(stamp, record.frame_id, record.temperature_c,
                                                record.variance)
@@ -461,12 +522,10 @@ class BagStream:
                                                     (self.node.temperature_publisher,
                                                      'temperature'))
             self.node.send(publisher, stream, msg)
-        elif isinstance(record, SupplyVoltageRecord):
+        else:
             self.node.send(self.supply_publisher, 'supply_voltage',
                            messages.supply_voltage_message(stamp, record.frame_id,
                                                            record.voltage_v))
-        else:
-            return
         self.published += 1
 
     def status(self) -> tuple:
@@ -475,7 +534,8 @@ class BagStream:
         values = {'state': state,
                   'published': self.published, 'messages': self.reader.message_count,
                   'skipped': self.reader.skipped, 'rate_factor': self.rate_factor,
-                  'pace_timeouts': self.pace_timeouts}
+                  'pace_timeouts': self.pace_timeouts, 'on_end': self.on_end,
+                  'passes': self.passes, 'stamp_shift_ns': self.shift_ns}
         if self.reader.skipped:
             return DiagnosticStatus.WARN, f'{self.reader.skipped} bag messages skipped', values
         return DiagnosticStatus.OK, values['state'], values

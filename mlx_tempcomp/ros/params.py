@@ -128,6 +128,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.pace_topic', 'imu/data',
          'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
          read_only=True),
+    Spec('bag.on_end', 'stop', 'at the end of the bag: stop (log a summary, exit 0), loop '
+         '(start over, stamps shifted to keep increasing) or hold (stay up, publish nothing)',
+         read_only=True, choices=('stop', 'loop', 'hold')),
     Spec('bag.imu_topic', '/imu/data_raw', 'Imu topic in the bag', read_only=True),
     Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
          read_only=True),
@@ -143,6 +146,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('simulation.real_time_factor', 1.0,
          'simulated seconds per wall second (10 = ten times faster than real time)',
          read_only=True, low=0.001, high=10000.0),
+    Spec('simulation.lossless', False,
+         'read every sample: a driver that falls behind lets the simulated clock lag wall '
+         'time instead of skipping samples as missed reads (for tests)', read_only=True),
     Spec('simulation.eeprom_version', 2, 'EEPROM VERSION the simulated factory writes',
          read_only=True, low=0, high=255),
     Spec('simulation.start_temperature_c', 25.0, 'chamber temperature at start',

@@ -13,9 +13,8 @@ byte per frame and the Linux driver's 4-byte frame both work.
 
 from dataclasses import dataclass
 import enum
+import math
 from typing import Optional
-
-import numpy as np
 
 from .mlx90609 import SimClock
 from .physics import Effects, GyroPhysics, GyroTruth, Noise, Scenario, ThermalProfile
@@ -132,7 +131,7 @@ class SimulatedAdis16130:
         """Bring a data register to the latest conversion (sampled at its own instant)."""
         if not self._converting(register):
             return
-        index = int(np.floor(self.clock.now_s * self.update_rate_hz))
+        index = math.floor(self.clock.now_s * self.update_rate_hz)
         if index == self._conversion[register]:
             return
         self._conversion[register] = index

@@ -20,6 +20,13 @@ NOMINAL_SUPPLY_V = 5.0
 
 
 def _interp(times_s: tuple, values: tuple, t: float) -> float:
+    """np.interp of one time; the ends and constant profiles (most calls) without numpy."""
+    # The same values as np.interp, which costs about 3 us a call: a device sample makes
+    # several of these calls.
+    if len(times_s) == 1 or t >= times_s[-1]:
+        return float(values[-1])
+    if t <= times_s[0]:
+        return float(values[0])
     return float(np.interp(t, times_s, values))
 
 
