@@ -487,8 +487,9 @@ def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
                    extra_args=['--params-file', model_file], label='compensation')
     probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
                      'the compensation node publishing imu/data', launcher)
+    # hold: the driver stays up after the replay, so finish_model_replay hears 'finished'.
     return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
-                            **(driver_params or {})}, label='driver')
+                            'bag.on_end': 'hold', **(driver_params or {})}, label='driver')
 
 
 def finish_model_replay(launcher, probe, stamps_ns, messages_in_bag: int,

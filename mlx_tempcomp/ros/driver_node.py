@@ -47,6 +47,9 @@ EEPROM_READ_ATTEMPTS = 3
 # short bursts, so the executor (and subscriber queues) keep up.
 MAX_SAMPLES_PER_TICK = 20
 ACK_TIMEOUT = Duration(seconds=1.0)
+# bag.on_end stop: how long the last status waits for its readers' acknowledgement (a busy
+# reader takes longer than the EEPROM's 1 s; past it the driver exits regardless).
+LAST_STATUS_ACK_TIMEOUT = Duration(seconds=5.0)
 # A bag replayed at rate factor 0 stays this many samples ahead of its consumer; without
 # progress for PACE_TIMEOUT_S it goes on anyway (nobody may be consuming).
 PACE_WINDOW = 100
@@ -468,7 +471,7 @@ class BagStream:
         self.timer.cancel()
         # The last status says 'finished'; it is reliable: wait until its readers have it.
         self.node.publish_diagnostics()
-        self.node.diagnostics_publisher.wait_for_all_acked(ACK_TIMEOUT)
+        self.node.diagnostics_publisher.wait_for_all_acked(LAST_STATUS_ACK_TIMEOUT)
         # Out of the executor's spin with the context still up: the runner destroys the
         # nodes as after a stop signal, and the process exits 0.
         raise SystemExit(0)
