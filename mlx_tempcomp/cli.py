@@ -10,8 +10,9 @@ import argparse
 import os
 import sys
 
+from .errors import MlxTempCompError
 from .toolkit import adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, simulate
-from .toolkit.common import EXIT_USER_ERROR, UserError
+from .toolkit.common import EXIT_USER_ERROR
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
 _COMMAND_MODULES = (eeprom, fit, allan, adis_bias, convert, diagnose, evaluate, simulate)
@@ -34,7 +35,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.handler(args)
-    except UserError as err:
+    except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR
     except BrokenPipeError:

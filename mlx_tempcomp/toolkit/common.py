@@ -18,12 +18,13 @@ import os
 from pathlib import Path
 import sys
 
+from ..errors import MlxTempCompError
 from ..sources.recording import load_recording, Recording, RecordingError
 
 EXIT_USER_ERROR = 2
 
 
-class UserError(Exception):
+class UserError(MlxTempCompError):
     """A mistake in what the user asked for; reported in one line, exit code 2."""
 
 
