@@ -8,11 +8,10 @@ is imported only when the plot is written.
 """
 
 import argparse
-import json
 import math
 from pathlib import Path
 
-from .common import add_recording_options, check_output_folder, load, UserError
+from .common import add_recording_options, check_output_folder, load, UserError, write_json
 from ..core.errors import TempCompError
 from ..core.noise import allan_deviation
 
@@ -61,7 +60,7 @@ def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
     axes.legend()
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        (Path(out_dir) / 'allan.json').write_text(json.dumps(result, indent=2) + '\n')
+        write_json(Path(out_dir) / 'allan.json', result)
         figure.savefig(Path(out_dir) / 'allan.png', dpi=100)
     except OSError as err:
         msg = f'cannot write to {out_dir}: {err.strerror}'

@@ -13,13 +13,16 @@ typo'd folder fails at once, not after a long fit.
 """
 
 import argparse
+import json
 import math
 import os
 from pathlib import Path
 import sys
 
 from ..errors import MlxTempCompError
+from ..model_params import parameter_file, write_parameter_file
 from ..sources.recording import load_recording, Recording, RecordingError
+from ..state_file import atomic_write
 
 EXIT_USER_ERROR = 2
 
@@ -80,6 +83,39 @@ def add_recording_options(parser: argparse.ArgumentParser) -> None:
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '
                              'it (default: %(default)s)')
+
+
+def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') -> None:
+    """Add ``--out`` and ``--node-name``: the compensation node's parameter file to write."""
+    parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
+                        help=f'parameter file to write{when} (replaced atomically)')
+    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                        help='node section of the parameter file (default: %(default)s)')
+
+
+def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
+    """
+    Write ``parameters`` as the file `add_parameter_file_options` names, atomically.
+
+    ``header`` becomes its comment lines, followed by the command that loads
+    the file; a file that cannot be written is a UserError.
+    """
+    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
+    try:
+        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
+    except OSError as err:
+        msg = f'cannot write {args.out}: {err.strerror}'
+        raise UserError(msg) from None
+
+
+def write_result(path, text: str) -> None:
+    """Replace the file at ``path`` with ``text`` atomically (mode 0644); OSError on failure."""
+    atomic_write(path, text, 0o644)
+
+
+def write_json(path, document) -> None:
+    """Write ``document`` as indented JSON with `write_result`."""
+    write_result(path, json.dumps(document, indent=2) + '\n')
 
 
 def loading_summary(recording: Recording) -> str:

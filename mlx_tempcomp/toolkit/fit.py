@@ -12,15 +12,15 @@ import math
 
 import numpy as np
 
-from .common import (add_recording_options, check_output_file, finite_float, load,
-                     non_negative_int, positive_float, UserError)
+from .common import (add_parameter_file_options, add_recording_options, check_output_file,
+                     finite_float, load, non_negative_int, positive_float, UserError,
+                     write_node_parameters)
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
                             format_order_table, relative_polynomial, select_orders, table_step_c)
 from ..core.models import AXIS_NAMES
-from ..model_params import (chain_parameters, linear_btc_parameters, parameter_file,
-                            polynomial_parameters, write_parameter_file)
+from ..model_params import chain_parameters, linear_btc_parameters, polynomial_parameters
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_BLOCKS = 20
@@ -286,10 +286,7 @@ def add_parser(commands) -> None:
     fit.add_argument('--reference-temperature-2', type=finite_float, metavar='C',
                      help='chain: second temperature of stages 1-3 (default: the mean '
                           'second temperature over the plateaus)')
-    fit.add_argument('--out', required=True, metavar='PARAMS.yaml',
-                     help='parameter file to write (replaced atomically)')
-    fit.add_argument('--node-name', default='compensation_node', metavar='NAME',
-                     help='node section of the parameter file (default: %(default)s)')
+    add_parameter_file_options(fit)
     fit.set_defaults(handler=fit_command)
 
 
@@ -308,12 +305,6 @@ def fit_command(args: argparse.Namespace) -> int:
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
-    content = parameter_file(args.node_name, parameters)
-    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
-    try:
-        write_parameter_file(args.out, content, header)
-    except OSError as err:
-        msg = f'cannot write {args.out}: {err.strerror}'
-        raise UserError(msg) from None
+    write_node_parameters(args, parameters, header)
     print(f'wrote {args.out} (model {parameters["model"]})')
     return 0

@@ -15,14 +15,13 @@ written to ``<out stem>.truth.json`` beside the output.
 
 import argparse
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from .common import (check_output_file, check_output_folder, non_negative_float,
-                     non_negative_int, positive_float, UserError)
+                     non_negative_int, positive_float, UserError, write_json)
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
@@ -300,7 +299,7 @@ def simulate_command(args: argparse.Namespace) -> int:
                           'rate_hz': args.rate_hz,
                           'skipped': dict(recording.skipped)}
     try:
-        truth_path.write_text(json.dumps(truth, indent=2) + '\n')
+        write_json(truth_path, truth)
     except OSError as err:
         msg = f'cannot write {truth_path}: {err.strerror}'
         raise UserError(msg) from None
