@@ -1,15 +1,16 @@
 """
-What the ``mlx-tempcomp`` subcommands share: the user-error type and recording options.
+What the ``mlx-tempcomp`` subcommands share: user errors, options, loading and writing.
 
 User mistakes (a missing or malformed file, data that cannot support what was
 asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
 ``error:`` and exits with code 2, never a traceback. Rates are printed in rad/s,
 deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
-``.3e``. Every subcommand that
-reads a recording prints the same loading line (rows used, rows skipped by
-reason, rows sorted into time order) through `load`. Output paths are
-checked before the work (`check_output_file`, `check_output_folder`), so a
-typo'd folder fails at once, not after a long fit.
+``.3e``. Every subcommand that reads a recording prints the same loading line
+(rows used, rows skipped by reason, rows sorted into time order) through
+`load`. Output paths are checked before the work (`check_output_file`,
+`check_output_folder`), so a typo'd folder fails at once, not after a long
+fit. Parameter files (`write_node_parameters`) and JSON or text results
+(`write_json`, `write_result`) are replaced atomically.
 """
 
 import argparse
