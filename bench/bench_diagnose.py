@@ -279,8 +279,8 @@ def main() -> None:
         return
     if args.samples < 1000 or not args.rate_hz > 0.0:
         parser.error('--samples must be at least 1000 and --rate-hz positive')
-    # The defaults of `mlx-tempcomp fit`; read here, as the cli module imports rclpy.
-    from mlx_tempcomp.cli import DEFAULT_BLOCKS, DEFAULT_MAX_ORDER
+    # The defaults of `mlx-tempcomp fit`.
+    from mlx_tempcomp.toolkit.fit import DEFAULT_BLOCKS, DEFAULT_MAX_ORDER
     args.max_order, args.blocks = DEFAULT_MAX_ORDER, DEFAULT_BLOCKS
     start = time.perf_counter()
     data = generate(args.samples, args.rate_hz, args.seed)

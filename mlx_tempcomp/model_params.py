@@ -1,10 +1,12 @@
 """
 ROS 2 parameters of the compensation node for a fitted model, free of rclpy.
 
-`polynomial_parameters` builds the ``ros__parameters`` mapping of a
-`PolynomialModel`; `parameter_file` wraps it in the section of a node and
-`write_parameter_file` writes it so that
-``compensation_node --ros-args --params-file FILE`` loads it as is. Every
+One function per model the toolkit fits builds its ``ros__parameters``
+mapping: `polynomial_parameters` (bias polynomials, also the relative
+correction), `linear_btc_parameters`, `effect_parameters` (the effect model
+of ``diagnose``) and `chain_parameters`. `parameter_file` wraps the mapping
+in the section of a node and `write_parameter_file` writes it atomically so
+that ``compensation_node --ros-args --params-file FILE`` loads it as is. Every
 number is a Python float (rcl refuses an int for a double parameter) and
 axis names are quoted strings (YAML 1.1 reads a bare y as a boolean).
 """
@@ -31,8 +33,11 @@ def polynomial_parameters(model: PolynomialModel, axes) -> dict:
     Return the compensation node's parameters for a polynomial bias model.
 
     ``axes`` names the Imu axis of each of the model's bias polynomials, in
-    order. Scale-factor polynomials and ZRO offsets are not parameters of
-    the node, so a model holding them is refused with ValueError.
+    order. Only the bias polynomials are written (the toolkit fits no
+    scale): a model holding scale-factor polynomials (``polynomial.scale.*``
+    of the node) or ZRO offsets (learnt by a recalibration, kept in the state
+    file, not a parameter) is refused with ValueError rather than written in
+    part.
     """
     axes = tuple(str(axis) for axis in axes)
     if len(axes) != len(model.bias_coefficients) or not set(axes) <= set(AXIS_NAMES) or \
@@ -94,7 +99,7 @@ def linear_btc_parameters(model: LinearBtcModel, axes) -> dict:
 
 
 def chain_parameters(model: ChainModel) -> dict:
-    """Return the compensation node's parameters for the seed-004 chain (axes x, y, z)."""
+    """Return the compensation node's parameters for the calibration chain (axes x, y, z)."""
     flat = {key: [float(v) for v in value] if isinstance(value, (list, tuple)) else float(value)
             for key, value in model.chain.to_parameters().items()}
     return {'model': 'chain', 'axes': list(AXIS_NAMES), 'chain': nest_parameters(flat)}

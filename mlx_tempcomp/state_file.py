@@ -29,8 +29,10 @@ from typing import Optional, Tuple, Union
 
 import yaml
 
+from .errors import MlxTempCompError
 
-class StateFileError(Exception):
+
+class StateFileError(MlxTempCompError):
     """The state file cannot be read or written, or holds what its user cannot use."""
 
 

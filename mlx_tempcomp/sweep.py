@@ -1,7 +1,8 @@
 """
 Temperature sweep of a simulated MLX90609, read through the SPI driver.
 
-The main job of `make demo`: simulate a -40..85 C sweep of one device at
+The sensor-level demo, without ROS (``make demo`` runs the ROS pipeline,
+`mlx_tempcomp.ros.demo`): simulate a -40..85 C sweep of one device at
 zero rate, read it frame by frame through `Mlx90609`, compensate it with the
 factory table read from its own EEPROM, and print the ZRO error of the
 nominal conversion (AN2 method 1) beside the EEPROM-compensated one (method 4).

@@ -221,7 +221,7 @@ def test_relative_model_is_the_seed_002_correction(tmp_path, capsys):
     temperature_c, rate_rad_s = data[:, 1], data[:, 2:]
     corrected = model.correct(rate_rad_s, temperature_c).rate_rad_s
     for axis in range(2):
-        # The seed's own formula, p fitted on the measured temperature (float64).
+        # The note's own formula, p fitted on the measured temperature (float64).
         p = np.polyfit(temperature_c, rate_rad_s[:, axis], 3)
         expected = rate_rad_s[:, axis] - (np.polyval(p, temperature_c) - np.polyval(p, 30.0))
         np.testing.assert_allclose(corrected[:, axis], expected, rtol=0.0, atol=1e-12)

@@ -1,5 +1,5 @@
 """
-The seed-004 calibration chain on simulated rate-table data.
+The calibration chain of the PSI 3-axis teslameter paper on simulated rate-table data.
 
 Noise budget behind the tolerances (default `TurntableProtocol`): white noise
 sigma = 0.05 deg/s = 8.7e-4 rad/s per sample, 40 samples per plateau, so a plateau mean

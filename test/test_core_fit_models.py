@@ -1,4 +1,4 @@
-"""The seed-002 relative correction and the ADIS16130 linear BTC/PBC fit."""
+"""The relative correction of "Temperature Correction in MPU6000" and the ADIS16130 BTC/PBC fit."""
 
 import math
 
@@ -36,7 +36,7 @@ def test_relative_correction_is_the_seed_formula():
     model = relative_polynomial(fit_polynomial(temperature_c, rate_rad_s, 3), true_c)
     corrected = model.correct(rate_rad_s, temperature_c).rate_rad_s
     for axis in range(2):
-        # Seed 002 as written: p = polyfit on the measured temperature, then
+        # The note as written: p = polyfit on the measured temperature, then
         # gyro - (polyval(p, mt) - polyval(p, tt)); float64 here.
         p = np.polyfit(temperature_c, rate_rad_s[:, axis], 3)
         expected = rate_rad_s[:, axis] - (np.polyval(p, temperature_c) - np.polyval(p, true_c))

@@ -1,4 +1,4 @@
-"""Offset register encoding of the MPU application note (seed 003), numbers checked by hand."""
+"""Offset register encoding of "Using Hardware Offset Registers for Calibration", by hand."""
 
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.offsets import (

@@ -1,5 +1,5 @@
 """
-Calibration chain of seed 004 for a 3-axis gyro on a rate table that gives a reference rate.
+Calibration chain of the PSI 3-axis teslameter paper, for a gyro on a rate table.
 
 The teslameter calibration (nonlinearity, offset and sensitivity versus the probe
 temperature, offset versus the electronics temperature, angular errors) transposed to a

@@ -3,7 +3,7 @@ MLX90609 channel transfer functions (ADC code <-> mV <-> physical units).
 
 AN2 confirms the rate channel (960 LSB = 2400 mV, 912 LSB = 2300 mV, so
 mV = LSB x 25/12 + 400). The other values come from
-`shared/reference/sensor-facts.md` and are UNCONFIRMED by a datasheet: they
+the fact sheet "MLX90609 and ADIS16130" and are UNCONFIRMED by a datasheet: they
 are fields with those defaults, so a user can override each one.
 """
 

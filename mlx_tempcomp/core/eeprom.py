@@ -2,7 +2,7 @@
 MLX90609 EEPROM look-up table: bit layout, majority voting, VERSION formulas.
 
 Implements sections 3.1-3.4 of Melexis AN2 "MLX90609 Temperature Compensation
-Improvement" (rev 1.3), `shared/seeds/000_2f1a794b4005508d.txt`.
+Improvement" (rev 1.3).
 
 Layout (LSB at the lowest address, one bit of each field per byte):
 

@@ -1,7 +1,9 @@
 """Errors raised by the numpy-only core."""
 
+from ..errors import MlxTempCompError
 
-class TempCompError(Exception):
+
+class TempCompError(MlxTempCompError):
     """Base class of every error the core raises."""
 
 

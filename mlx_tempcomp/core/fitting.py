@@ -385,13 +385,14 @@ def format_order_table(selections) -> str:
 
 def relative_polynomial(model: PolynomialModel, true_temperature_c: float) -> PolynomialModel:
     """
-    Shift each bias polynomial so that it is zero at ``true_temperature_c`` (seed 002).
+    Shift each bias polynomial so that it is zero at ``true_temperature_c``.
 
-    The MPU-6000 note corrects gyro - (p(T) - p(T_true)), T_true being the
-    temperature at which no bias is introduced. That is a polynomial model whose
-    constant term is lowered by p(T_true), so the compensation node runs it as
-    it runs any polynomial. Raise CalibrationError when T_true lies outside the
-    fitted temperature range (p would be extrapolated there).
+    The note "Temperature Correction in MPU6000" corrects
+    gyro - (p(T) - p(T_true)), T_true being the temperature at which no bias
+    is introduced. That is a polynomial model whose constant term is lowered
+    by p(T_true), so the compensation node runs it as it runs any polynomial.
+    Raise CalibrationError when T_true lies outside the fitted temperature
+    range (p would be extrapolated there).
     """
     true_c = float(true_temperature_c)
     if not model.temperature_min_c <= true_c <= model.temperature_max_c:

@@ -1,8 +1,7 @@
 """
 Hardware offset registers of InvenSense MPU parts: bias at rest to register values.
 
-Follows the application note "Using Hardware Offset Registers for Calibration"
-(`shared/seeds/003_dc7f35d98dcd1b68.txt`):
+Follows the application note "Using Hardware Offset Registers for Calibration":
 
 - bias at rest: the mean of each axis; the accelerometer axis that sees
   gravity (the part lies face up or down) has 1 g removed, its sign kept;

@@ -1,9 +1,10 @@
 """
 ADIS16130 SPI protocol: start-up sequence, RATEDATA/TEMPDATA reads, offset-binary codes.
 
-Facts from AN-1042 (`shared/seeds/001_062c684275c79d89.txt`: Table 3 start-up
-sequence, read commands 0x48/0x4A then 3 bytes, Tables 4 and 5 code formats)
-and `shared/reference/sensor-facts.md` section 2 (Linux IIO driver: register
+Facts from Analog Devices AN-1042, "ADIS16130 quick start guide and bias
+optimisation tips" (Japanese edition; Table 3 start-up sequence, read
+commands 0x48/0x4A then 3 bytes, Tables 4 and 5 code formats) and
+the fact sheet "MLX90609 and ADIS16130" section 2 (Linux IIO driver: register
 map, one full-duplex transfer per read). A command byte is b6 = read, b5:0 =
 register; the write of a register is that byte followed by the value byte.
 Reading back the 8-bit set-up registers is UNCONFIRMED (AD773x-like layout),

@@ -2,8 +2,10 @@
 
 from dataclasses import dataclass, fields
 
+from ..errors import MlxTempCompError
 
-class HardwareError(Exception):
+
+class HardwareError(MlxTempCompError):
     """Base class of every error the hardware layer raises."""
 
 

@@ -2,7 +2,7 @@
 MLX90609 SPI protocol: instruction set, answer words, conversions, EEPROM reads.
 
 One frame is an 8-bit instruction followed by a 16-bit answer, MSB first
-(24 clocks). Facts from `shared/reference/sensor-facts.md` (datasheet
+(24 clocks). Facts from the fact sheet "MLX90609 and ADIS16130" (datasheet
 pages 9 and 13); EER is UNCONFIRMED there and follows Colin O'Flynn's library.
 """
 

@@ -7,7 +7,8 @@ frame reads a whole block (burst read) or writes several registers.
 
 Register map and scales: MPU-6000/6050 and MPU-6500 register maps (SPI mode 0
 or 3, at most 1 MHz for configuration registers). The offset registers and
-their formats are those of the application note (seed 003): gyro
+their formats are those of the application note "Using Hardware Offset Registers for
+Calibration": gyro
 XG/YG/ZG_OFFS_USR at 0x13..0x18 on both variants, accelerometer
 XA/YA/ZA_OFFS_USR at 0x06..0x0B (MPU-6000/6050) or 0x77/0x7A/0x7D (MPU-6500;
 the note's 0x0E for ZA_OFFS_USRL is a typo for 0x7E, its own code reads two

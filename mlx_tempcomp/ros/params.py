@@ -30,11 +30,12 @@ from ..core.errors import ConfigError
 from ..core.interpolation import Interpolation
 from ..core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
 from ..core.recalibration import RecalibrationLimits
+from ..errors import MlxTempCompError
 from ..simulation.mlx90609 import Fault
 from ..simulation.physics import Effects
 
 
-class ParameterError(Exception):
+class ParameterError(MlxTempCompError):
     """A parameter value is invalid; the message names the parameter."""
 
 

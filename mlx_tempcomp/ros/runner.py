@@ -22,14 +22,9 @@ from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
-from .params import check_command_line, explain_parse_error, ParameterError, unknown_parameters
-from ..core.errors import TempCompError
-from ..hardware.errors import HardwareError
-from ..sources.bag import BagError
-from ..state_file import StateFileError
+from .params import check_command_line, explain_parse_error, unknown_parameters
+from ..errors import MlxTempCompError
 
-# What a user can get wrong at start: each becomes one fatal log line and exit code 1.
-SETUP_ERRORS = (ParameterError, TempCompError, HardwareError, BagError, StateFileError)
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
@@ -76,7 +71,9 @@ def run(node_factories, args=None, logger_name: str = 'mlx_tempcomp', connect=No
             nodes.append(factory())
         for node in nodes:
             check_command_line(node, args)
-    except SETUP_ERRORS as err:
+    except MlxTempCompError as err:
+        # What a user can get wrong at start (parameters, state file, device, bag, model):
+        # one fatal log line and exit code 1.
         get_logger(logger_name).fatal(str(err))
         for node in nodes:
             node.destroy_node()

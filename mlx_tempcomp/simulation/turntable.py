@@ -1,5 +1,5 @@
 """
-Simulated rate-table calibration of a 3-axis gyro, the data the seed-004 chain is fitted on.
+Simulated rate-table calibration of a 3-axis gyro, the data the calibration chain is fitted on.
 
 The table holds reference-rate plateaus on each axis in turn and on all three at once, at
 several chamber temperatures; then, at zero rate and the reference die temperature, the

@@ -34,6 +34,7 @@ from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterEr
 from rosbags.serde import SerdeError
 from rosbags.typesys import get_typestore, Stores
 
+from .errors import SourceError
 from ..core.eeprom import EEPROM_SIZE
 
 try:  # the sqlite3 back end of rosbags >= 0.10; its errors can surface mid-iteration
@@ -62,7 +63,7 @@ _STORAGE_PLUGINS = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP
 PathLike = Union[str, Path]
 
 
-class BagError(Exception):
+class BagError(SourceError):
     """A bag cannot be read or written, or a record does not fit its message."""
 
 

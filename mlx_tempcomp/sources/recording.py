@@ -46,6 +46,7 @@ import numpy as np
 
 from .bag import (absolute_topic, BagError, ImuRecord, RawBagReader, RawTopics,
                   SupplyVoltageRecord, TemperatureRecord)
+from .errors import SourceError
 from ..core.pairing import zero_order_hold
 
 AXES = ('x', 'y', 'z')
@@ -87,7 +88,7 @@ _NS_PER_S = 1_000_000_000
 PathLike = Union[str, Path]
 
 
-class RecordingError(Exception):
+class RecordingError(SourceError):
     """A recording cannot be read, or holds no usable row; the message names the file."""
 
 

@@ -16,8 +16,9 @@ import math
 import sys
 import time
 
-from .common import (check_output_file, finite_float, non_negative_float, non_negative_int,
-                     positive_float, rate_text, UserError)
+from .common import (add_parameter_file_options, check_output_file, finite_float,
+                     non_negative_float, non_negative_int, positive_float, rate_text, UserError,
+                     write_node_parameters)
 from .progress import add_progress_option, Progress
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
                                    MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
@@ -28,7 +29,7 @@ from ..core.errors import TempCompError
 from ..core.fitting import format_btc_table, table_step_c
 from ..core.noise import allan_deviation, MIN_SAMPLES
 from ..hardware.errors import HardwareError
-from ..model_params import linear_btc_parameters, parameter_file, write_parameter_file
+from ..model_params import linear_btc_parameters
 from ..simulation.adis16130 import Adis16130Truth, self_heating_profile
 from ..sources.adis16130 import (AXES, DEFAULT_SPEED_HZ, SimulatedSensor, SimulationConfig,
                                  spidev_sensor)
@@ -264,13 +265,8 @@ def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> Non
         parameters['rate_noise_rad_s'] = float(result.noise.rate_noise_rad_s)
     header = (f'ADIS16130 bias procedure (AN-1042) by mlx-tempcomp adis-bias, source '
               f'{args.source}: T1 {p1.temperature_c:.4f} C, T2 {p2.temperature_c:.4f} C, '
-              f'T3 {result.t3_c:.4f} C\n'
-              f'Use: compensation_node --ros-args --params-file {args.out}')
-    try:
-        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
-    except OSError as err:
-        msg = f'cannot write {args.out}: {err.strerror}'
-        raise UserError(msg) from None
+              f'T3 {result.t3_c:.4f} C')
+    write_node_parameters(args, parameters, header)
     noise = '' if result.noise is None else \
         f', rate_noise_rad_s {parameters["rate_noise_rad_s"]:.4g}'
     print(f'wrote {args.out} (model linear_btc{noise})')
@@ -329,9 +325,6 @@ def add_parser(commands) -> None:
     parser.add_argument('--time-scale', type=positive_float, metavar='FACTOR',
                         help='simulated: simulated seconds per wall second (default: as fast '
                              'as possible)')
-    parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
-                        help='parameter file to write at the end (replaced atomically)')
-    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
-                        help='node section of the parameter file (default: %(default)s)')
+    add_parameter_file_options(parser, ' at the end')
     add_progress_option(parser)
     parser.set_defaults(handler=adis_bias_command)

@@ -1,29 +1,34 @@
 """
-What the ``mlx-tempcomp`` subcommands share: the user-error type and recording options.
+What the ``mlx-tempcomp`` subcommands share: user errors, options, loading and writing.
 
 User mistakes (a missing or malformed file, data that cannot support what was
 asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
 ``error:`` and exits with code 2, never a traceback. Rates are printed in rad/s,
 deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
-``.3e``. Every subcommand that
-reads a recording prints the same loading line (rows used, rows skipped by
-reason, rows sorted into time order) through `load`. Output paths are
-checked before the work (`check_output_file`, `check_output_folder`), so a
-typo'd folder fails at once, not after a long fit.
+``.3e``. Every subcommand that reads a recording prints the same loading line
+(rows used, rows skipped by reason, rows sorted into time order) through
+`load`. Output paths are checked before the work (`check_output_file`,
+`check_output_folder`), so a typo'd folder fails at once, not after a long
+fit. Parameter files (`write_node_parameters`) and JSON or text results
+(`write_json`, `write_result`) are replaced atomically.
 """
 
 import argparse
+import json
 import math
 import os
 from pathlib import Path
 import sys
 
+from ..errors import MlxTempCompError
+from ..model_params import parameter_file, write_parameter_file
 from ..sources.recording import load_recording, Recording, RecordingError
+from ..state_file import atomic_write
 
 EXIT_USER_ERROR = 2
 
 
-class UserError(Exception):
+class UserError(MlxTempCompError):
     """A mistake in what the user asked for; reported in one line, exit code 2."""
 
 
@@ -79,6 +84,39 @@ def add_recording_options(parser: argparse.ArgumentParser) -> None:
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '
                              'it (default: %(default)s)')
+
+
+def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') -> None:
+    """Add ``--out`` and ``--node-name``: the compensation node's parameter file to write."""
+    parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
+                        help=f'parameter file to write{when} (replaced atomically)')
+    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+                        help='node section of the parameter file (default: %(default)s)')
+
+
+def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
+    """
+    Write ``parameters`` as the file `add_parameter_file_options` names, atomically.
+
+    ``header`` becomes its comment lines, followed by the command that loads
+    the file; a file that cannot be written is a UserError.
+    """
+    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
+    try:
+        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
+    except OSError as err:
+        msg = f'cannot write {args.out}: {err.strerror}'
+        raise UserError(msg) from None
+
+
+def write_result(path, text: str) -> None:
+    """Replace the file at ``path`` with ``text`` atomically (mode 0644); OSError on failure."""
+    atomic_write(path, text, 0o644)
+
+
+def write_json(path, document) -> None:
+    """Write ``document`` as indented JSON with `write_result`."""
+    write_result(path, json.dumps(document, indent=2) + '\n')
 
 
 def loading_summary(recording: Recording) -> str:

@@ -11,12 +11,11 @@ unless --record-effects put time drift and bias steps into the search.
 """
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 from .common import (add_recording_options, check_output_folder, float_type, load,
-                     non_negative_float, non_negative_int, UserError)
+                     non_negative_float, non_negative_int, UserError, write_json, write_result)
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.effects import RECORD_EFFECTS
@@ -131,8 +130,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
     report = _report(args.input, recording, diagnosis)
     try:
         out.mkdir(exist_ok=True)
-        (out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
-        (out / 'report.md').write_text(_markdown(report))
+        write_json(out / 'report.json', report)
+        write_result(out / 'report.md', _markdown(report))
         _plots(out, diagnosis)
         content = parameter_file(args.node_name, effect_parameters(diagnosis.model,
                                                                    diagnosis.axes))

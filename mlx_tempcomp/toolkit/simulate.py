@@ -7,21 +7,21 @@ driver reads them, and the nominal conversion (AN2 method 1) gives rad/s
 and degC, exactly as ``driver_node`` with ``source: simulated`` publishes
 them. That path costs about 0.2 ms per 3-axis sample (10^5 samples in about
 20 s), fast enough for thermal cycles at tens of Hz. ``--turntable`` writes
-the seed-004 rate-table session of `simulate_turntable` (reference rates and
-a second temperature). The truth (device coefficients, effects, profile) is
+the rate-table session of `simulate_turntable` (reference rates and a
+second temperature) that the calibration chain of the PSI 3-axis teslameter
+calibration paper is fitted on. The truth (device coefficients, effects, profile) is
 written to ``<out stem>.truth.json`` beside the output.
 """
 
 import argparse
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from .common import (check_output_file, check_output_folder, non_negative_float,
-                     non_negative_int, positive_float, UserError)
+                     non_negative_int, positive_float, UserError, write_json)
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
@@ -217,7 +217,8 @@ def _turntable_recording(args, out: Path) -> tuple:
                           temperature_2_c=session.temperature_2_c)
     chain = session.truth.chain()
     truth = {
-        'source': 'simulated rate table (mlx_tempcomp.simulation.turntable), seed-004 chain',
+        'source': 'simulated rate table (mlx_tempcomp.simulation.turntable), calibration chain '
+                  'of the PSI 3-axis teslameter calibration paper',
         'axes': list(AXES),
         'protocol': dataclasses.asdict(protocol),
         'turntable_truth': dataclasses.asdict(session.truth),
@@ -298,7 +299,7 @@ def simulate_command(args: argparse.Namespace) -> int:
                           'rate_hz': args.rate_hz,
                           'skipped': dict(recording.skipped)}
     try:
-        truth_path.write_text(json.dumps(truth, indent=2) + '\n')
+        write_json(truth_path, truth)
     except OSError as err:
         msg = f'cannot write {truth_path}: {err.strerror}'
         raise UserError(msg) from None
@@ -380,6 +381,7 @@ def add_parser(commands) -> None:
                               '/imu/supply_voltage); default 5')
     simulate.add_argument('--turntable', action='store_true',
                           help='rate plateaus on each axis at several chamber temperatures '
-                               'with a reference rate and a second temperature (seed 004)')
+                               'with a reference rate and a second temperature, for fit --model '
+                               'chain')
     add_progress_option(simulate)
     simulate.set_defaults(handler=simulate_command)

@@ -1,0 +1,310 @@
+"""
+The ``mlx-tempcomp fit`` command: one compensation model fitted, written as a parameter file.
+
+Each ``--model`` has a function that fits it to the recording, prints what
+it fitted and returns the node parameters with a header; `fit_command`
+refuses options of other models, then writes the file the compensation
+node loads (atomically). docs/toolkit-fit.md describes the models.
+"""
+
+import argparse
+import math
+
+import numpy as np
+
+from .common import (add_parameter_file_options, add_recording_options, check_output_file,
+                     finite_float, load, non_negative_int, positive_float, UserError,
+                     write_node_parameters)
+from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
+from ..core.errors import TempCompError
+from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
+                            format_order_table, relative_polynomial, select_orders, table_step_c)
+from ..core.models import AXIS_NAMES
+from ..model_params import chain_parameters, linear_btc_parameters, polynomial_parameters
+
+DEFAULT_MAX_ORDER = 8
+DEFAULT_BLOCKS = 20
+DEFAULT_FOLDS = 5
+DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order
+BTC_TABLE_ROWS = 6
+# The documents the relative and chain models come from, as their output names them.
+RELATIVE_SOURCE = '"Temperature Correction in MPU6000"'
+CHAIN_SOURCE = 'the PSI 3-axis teslameter calibration paper'
+
+
+def _rate_error(recording) -> tuple:
+    """Return the rate error the bias is fitted to and how it was formed."""
+    if recording.reference_rad_s is None:
+        return recording.gyro_rad_s, 'gyro rate (no reference: assumed at rest)'
+    return recording.gyro_rad_s - recording.reference_rad_s, \
+        'gyro rate minus the reference rate (ref columns)'
+
+
+def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
+    """Choose the orders (or take --order), fit, print the orders; return the model."""
+    readings_c = np.unique(np.round(recording.temperature_c, DISTINCT_DECIMALS))
+    if readings_c.size == 1:
+        msg = (f'{args.input}: the temperature does not vary: every row reads '
+               f'{readings_c[0]:.2f} C; a bias(T) fit needs a recording over a temperature '
+               'range (heat or cool the sensor while recording)')
+        raise UserError(msg)
+    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
+    folds = DEFAULT_FOLDS if args.folds is None else args.folds
+    if args.order is None:
+        max_order = DEFAULT_MAX_ORDER if args.max_order is None else args.max_order
+        selections = select_orders(recording.temperature_c, rate_rad_s, axes=recording.axes,
+                                   candidate_orders=range(max_order + 1), blocks=blocks,
+                                   folds=folds)
+        orders = tuple(selection.order for selection in selections)
+        print(format_order_table(selections))
+    else:
+        orders = (args.order,) * len(recording.axes)
+    model = fit_polynomial(recording.temperature_c, rate_rad_s, orders)
+    how = 'given by --order' if args.order is not None else \
+        f'chosen by {folds}-fold cross-validation over {blocks} blocks'
+    chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
+    print(f'orders ({how}): {chosen}')
+    return model
+
+
+def _print_range(model) -> None:
+    print(f'fitted temperature range: {model.temperature_min_c:.2f} to '
+          f'{model.temperature_max_c:.2f} C (clamped outside)')
+
+
+def _fit_polynomial_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    print(f'model polynomial: bias(T) fitted to the {formed}')
+    model = _fit_polynomial_bias(args, recording, rate_rad_s)
+    _print_range(model)
+    return (polynomial_parameters(model, recording.axes),
+            f'Bias polynomials fitted by mlx-tempcomp fit from {args.input}')
+
+
+def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    if args.true_temperature is None:
+        true_c, how = float(np.mean(recording.temperature_c)), 'mean temperature of the data'
+    else:
+        true_c, how = args.true_temperature, 'given by --true-temperature'
+    print(f'model relative ({RELATIVE_SOURCE}): rate - (p(T) - p(T_true)), p fitted to the '
+          f'{formed}')
+    fitted = _fit_polynomial_bias(args, recording, rate_rad_s)
+    model = relative_polynomial(fitted, true_c)
+    _print_range(model)
+    print(f'T_true = {true_c:.2f} C ({how})')
+    x = (true_c - fitted.reference_temperature_c) / fitted.temperature_scale_c
+    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, c):.3e}'
+                        for axis, c in zip(recording.axes, fitted.bias_coefficients))
+    print(f'p(T_true) taken off the constant terms (rad/s): {removed}')
+    print("written as model 'polynomial' whose bias is zero at T_true; the compensation "
+          'node runs it unchanged')
+    return (polynomial_parameters(model, recording.axes),
+            f'Relative bias correction rate - (p(T) - p({true_c:.2f} C)) of {RELATIVE_SOURCE}, '
+            f'written as polynomials,\nfitted by mlx-tempcomp fit from {args.input}')
+
+
+def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
+    rate_rad_s, formed = _rate_error(recording)
+    model = fit_linear_btc(recording.temperature_c, rate_rad_s, args.t3)
+    how = 'given by --t3' if args.t3 is not None else 'mean temperature of the data'
+    print('model linear_btc (ADIS16130 AN-1042): RBC = RATE + PBC + (TEMP - T3) x BTC, '
+          f'line fitted to the {formed}')
+    print(f'T3 = {model.t3_c:.2f} C ({how})')
+    corrected = model.correct(rate_rad_s, recording.temperature_c).rate_rad_s
+    rms = np.sqrt(np.mean(np.square(corrected), axis=0))
+    print(f'{"axis":<6}{"BTC":>12}{"PBC":>12}{"RMS after":>12}{"bias slope":>14}')
+    print(f'{"":<6}{"rad/s/C":>12}{"rad/s":>12}{"rad/s":>12}{"deg/s/C":>14}')
+    for i, axis in enumerate(recording.axes):
+        btc = model.btc_rad_s_per_c[i]
+        print(f'{axis:<6}{btc:>12.3e}{model.pbc_rad_s[i]:>12.3e}{rms[i]:>12.3e}'
+              f'{math.degrees(-btc):>14.6g}')
+    if args.table_step is None:
+        extent_c = max(abs(float(np.min(recording.temperature_c)) - model.t3_c),
+                       abs(float(np.max(recording.temperature_c)) - model.t3_c))
+        step_c = table_step_c(extent_c, BTC_TABLE_ROWS)
+    else:
+        step_c = args.table_step
+    print('correction factors (TEMP - T3) x BTC, as Table 6 of the note:')
+    print(format_btc_table(model, recording.axes, step_c, BTC_TABLE_ROWS))
+    return (linear_btc_parameters(model, recording.axes),
+            f'ADIS16130 linear BTC/PBC correction fitted by mlx-tempcomp fit from {args.input}')
+
+
+def _check_chain_columns(args: argparse.Namespace, recording) -> None:
+    missing = [f'gyro_{axis}' for axis in AXIS_NAMES if axis not in recording.axes]
+    if recording.reference_rad_s is None:
+        missing += [f'ref_{axis}' for axis in AXIS_NAMES]
+    else:
+        missing += [f'ref_{axis}' for axis in AXIS_NAMES if axis not in recording.axes]
+    if recording.temperature_2_c is None:
+        missing.append('temperature_2')
+    if missing:
+        msg = (f'{args.input}: --model chain needs the columns gyro_x|y|z, ref_x|y|z and '
+               f'temperature_2; missing {", ".join(missing)}')
+        raise UserError(msg)
+
+
+def _chain_plateaus(args: argparse.Namespace, recording) -> np.ndarray:
+    """Give each row's plateau number (-1 off the plateaus); refuse a record without one."""
+    plateau_id = find_plateaus(recording.reference_rad_s, recording.temperature_c,
+                               recording.temperature_2_c)
+    if not (plateau_id >= 0).any():
+        msg = (f'{args.input}: no plateau: the reference rate and temperatures never hold '
+               'steady for 10 samples')
+        raise UserError(msg)
+    return plateau_id
+
+
+def _chain_full_scale(args: argparse.Namespace, recording) -> tuple:
+    """Give the full scale in rad/s and where it came from."""
+    if args.full_scale_dps is not None:
+        return math.radians(args.full_scale_dps), 'given by --full-scale-dps'
+    full_scale_rad_s = float(np.max(np.abs(recording.reference_rad_s)))
+    if full_scale_rad_s == 0.0:
+        msg = f'{args.input}: the reference rate is zero throughout; the chain needs rates'
+        raise UserError(msg)
+    return full_scale_rad_s, 'largest reference rate'
+
+
+def _chain_temperature(value, column: np.ndarray, on_plateau: np.ndarray, option: str) -> tuple:
+    """Give a reference temperature (the option's, else the plateaus' mean) and its origin."""
+    if value is not None:
+        return value, f'given by {option}'
+    return float(np.mean(column[on_plateau])), 'mean over the plateaus'
+
+
+def _print_chain(recording, plateau_id: np.ndarray, settings: ChainSettings, hows: dict,
+                 result) -> None:
+    """Print the plateaus, the settings asked, the fitted stages and their errors."""
+    chain = result.chain
+    print(f'model chain (calibration chain of {CHAIN_SOURCE}): nonlinearity, offset(T), '
+          'sensitivity K(rate) C(rate), offset(T2), misalignment')
+    print(f'plateaus found: {int(plateau_id.max(initial=-1)) + 1} '
+          f'({np.count_nonzero(plateau_id >= 0)} of {len(recording)} rows)')
+    print(f'full scale: {math.degrees(settings.full_scale_rad_s):.6g} deg/s '
+          f'({hows["full_scale"]}); nonlinearity order {settings.nonlinearity_order}')
+    print(f'reference temperatures asked: T {settings.reference_temperature_c:.2f} C '
+          f'({hows["temperature"]}), T2 {settings.reference_temperature_2_c:.2f} C '
+          f'({hows["temperature_2"]})')
+    print(f'reference temperatures of the chain (mean of the nonlinearity plateaus): '
+          f'T {chain.reference_temperature_c:.2f} C, T2 {chain.reference_temperature_2_c:.2f} C')
+    print(f'{"axis":<6}{"offset":>12}{"dOffset/dT":>14}{"offset_2":>12}{"dOffset_2/dT2":>15}'
+          f'{"misalignment row":>34}')
+    print(f'{"":<6}{"rad/s":>12}{"rad/s/C":>14}{"rad/s":>12}{"rad/s/C":>15}')
+    for i, axis in enumerate(AXIS_NAMES):
+        row = ' '.join(f'{v:+.6f}' for v in chain.misalignment[i])
+        print(f'{axis:<6}{chain.offset_rad_s[i]:>12.4e}'
+              f'{chain.offset_gradient_rad_s_per_c[i]:>14.4e}{chain.offset_2_rad_s[i]:>12.4e}'
+              f'{chain.offset_2_gradient_rad_s_per_c[i]:>15.4e}  {row}')
+    print(f'error (output - reference) after each stage on the trimmed calibration plateaus '
+          f'({result.stage_errors[0].samples} samples per axis):')
+    print(format_stage_table(result.stage_errors))
+
+
+def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
+    _check_chain_columns(args, recording)
+    plateau_id = _chain_plateaus(args, recording)
+    on_plateau = plateau_id >= 0
+    full_scale_rad_s, how_full_scale = _chain_full_scale(args, recording)
+    temperature_c, how_t = _chain_temperature(args.reference_temperature,
+                                              recording.temperature_c, on_plateau,
+                                              '--reference-temperature')
+    temperature_2_c, how_t2 = _chain_temperature(args.reference_temperature_2,
+                                                 recording.temperature_2_c, on_plateau,
+                                                 '--reference-temperature-2')
+    settings = ChainSettings(
+        full_scale_rad_s=full_scale_rad_s, reference_temperature_c=temperature_c,
+        reference_temperature_2_c=temperature_2_c,
+        nonlinearity_order=DEFAULT_CHAIN_ORDER if args.order is None else args.order)
+    result = fit_chain(recording.reference_rad_s, recording.gyro_rad_s,
+                       recording.temperature_c, recording.temperature_2_c, plateau_id, settings)
+    _print_chain(recording, plateau_id, settings,
+                 {'full_scale': how_full_scale, 'temperature': how_t, 'temperature_2': how_t2},
+                 result)
+    return (chain_parameters(ChainModel(result.chain)),
+            f'Calibration chain of {CHAIN_SOURCE},\nfitted by mlx-tempcomp fit from {args.input}\n'
+            'The node needs the second temperature (temperature_2) for the offset_2 stage')
+
+
+_FIT_MODELS = {
+    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks', 'folds')),
+    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'folds',
+                                       'true_temperature')),
+    'linear_btc': (_fit_linear_btc_model, ('t3', 'table_step')),
+    'chain': (_fit_chain_model, ('order', 'full_scale_dps', 'reference_temperature',
+                                 'reference_temperature_2')),
+}
+
+# Options of some models only: refused with another instead of silently ignored.
+_FIT_MODEL_OPTIONS = tuple(dict.fromkeys(name for _, names in _FIT_MODELS.values()
+                                         for name in names))
+
+
+def add_parser(commands) -> None:
+    """Add the ``fit`` subcommand."""
+    fit = commands.add_parser(
+        'fit', help='fit a compensation model to a recording and write a parameter file',
+        description='Fit a compensation model to a recording (CSV or rosbag2 bag) and write '
+                    'a ROS 2 parameter file the compensation node loads. polynomial: a bias '
+                    'polynomial per axis, the order chosen by contiguous-block '
+                    'cross-validation with the one-standard-error rule; relative: the same '
+                    f'polynomial made zero at a true temperature ({RELATIVE_SOURCE}); '
+                    'linear_btc: the ADIS16130 line, BTC and PBC at T3; chain: the calibration '
+                    f'chain of {CHAIN_SOURCE} (needs ref_x|y|z and temperature_2). The bias is '
+                    'fitted to gyro minus ref when the recording has a reference, else to '
+                    'gyro (at rest).')
+    add_recording_options(fit)
+    fit.add_argument('--model', choices=tuple(_FIT_MODELS), default='polynomial',
+                     help='model to fit (default: %(default)s)')
+    orders = fit.add_mutually_exclusive_group()
+    orders.add_argument('--order', type=non_negative_int, metavar='N',
+                        help='polynomial, relative: fit this order on every axis instead of '
+                             'choosing it; chain: nonlinearity order (default '
+                             f'{DEFAULT_CHAIN_ORDER})')
+    orders.add_argument('--max-order', type=non_negative_int, metavar='N',
+                        help=f'highest order tried (default: {DEFAULT_MAX_ORDER})')
+    fit.add_argument('--blocks', type=int, metavar='N',
+                     help='contiguous blocks, dealt round-robin to the folds (default: '
+                          f'{DEFAULT_BLOCKS})')
+    fit.add_argument('--folds', type=int, metavar='N',
+                     help=f'cross-validation folds (default: {DEFAULT_FOLDS})')
+    fit.add_argument('--true-temperature', type=finite_float, metavar='C',
+                     help='relative: temperature at which no bias is introduced '
+                          '(default: the mean temperature of the data)')
+    fit.add_argument('--t3', type=finite_float, metavar='C',
+                     help='linear_btc: T3, where PBC holds (default: the mean temperature of '
+                          'the data)')
+    fit.add_argument('--table-step', type=positive_float, metavar='C',
+                     help='linear_btc: temperature step of the printed correction table '
+                          '(default: a 1-2-5 step covering the data in 6 rows each side)')
+    fit.add_argument('--full-scale-dps', type=positive_float, metavar='DPS',
+                     help='chain: full scale in deg/s (default: the largest reference rate)')
+    fit.add_argument('--reference-temperature', type=finite_float, metavar='C',
+                     help='chain: temperature of the nonlinearity fit (default: the mean '
+                          'temperature over the plateaus)')
+    fit.add_argument('--reference-temperature-2', type=finite_float, metavar='C',
+                     help='chain: second temperature of stages 1-3 (default: the mean '
+                          'second temperature over the plateaus)')
+    add_parameter_file_options(fit)
+    fit.set_defaults(handler=fit_command)
+
+
+def fit_command(args: argparse.Namespace) -> int:
+    fit, allowed = _FIT_MODELS[args.model]
+    given = [name for name in _FIT_MODEL_OPTIONS
+             if getattr(args, name) is not None and name not in allowed]
+    if given:
+        options = ', '.join('--' + name.replace('_', '-') for name in given)
+        msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
+        raise UserError(msg)
+    check_output_file(args.out, '--out')
+    recording = load(args)
+    try:
+        parameters, header = fit(args, recording)
+    except TempCompError as err:
+        msg = f'{args.input}: {err}'
+        raise UserError(msg) from None
+    write_node_parameters(args, parameters, header)
+    print(f'wrote {args.out} (model {parameters["model"]})')
+    return 0
