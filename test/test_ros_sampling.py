@@ -9,12 +9,11 @@ of the samples of its interval, stamped at their mean time: no sample is
 dropped, none counted twice.
 """
 
+from mlx_tempcomp.node_parameters import DRIVER_SPECS
 from mlx_tempcomp.ros.devices import simulated_adis
-from mlx_tempcomp.ros.params import DRIVER_SPECS
 from mlx_tempcomp.sources.decimation import Decimator
 import numpy as np
 import pytest
-from rclpy.parameter import Parameter
 from ros_harness import (by_stamp, DRIVER_DIAGNOSTIC, rates, simulated_driver_params,
                          status_values)
 from sensor_msgs.msg import Imu, Temperature
@@ -29,8 +28,7 @@ MESSAGES = 2000            # 2 s of real time
 
 def driver_values(overrides: dict) -> dict:
     """Every driver parameter value: the defaults with ``overrides``."""
-    values = {spec.name: [] if isinstance(spec.default, Parameter.Type) else spec.default
-              for spec in DRIVER_SPECS}
+    values = {spec.name: spec.initial_value for spec in DRIVER_SPECS}
     values.update(overrides)
     return values
 

@@ -22,9 +22,10 @@ from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
-from .params import check_command_line, explain_parse_error, ParameterError, unknown_parameters
+from .params import check_command_line, explain_parse_error, unknown_parameters
 from ..core.errors import TempCompError
 from ..hardware.errors import HardwareError
+from ..node_parameters import ParameterError
 from ..sources.bag import BagError
 from ..state_file import StateFileError
 
