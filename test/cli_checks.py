@@ -1,8 +1,7 @@
 """Checks shared by the tests of the mlx-tempcomp commands."""
 
-from mlx_tempcomp.ros.params import COMPENSATION_SPECS
+from mlx_tempcomp.node_parameters import COMPENSATION_SPECS
 import numpy as np
-from rclpy.parameter import Parameter
 import yaml
 
 
@@ -38,11 +37,8 @@ def node_values(path, node_name='compensation_node'):
     specs = {spec.name: spec for spec in COMPENSATION_SPECS}
     assert set(flat) <= set(specs), f'undeclared: {sorted(set(flat) - set(specs))}'
     for name, value in flat.items():
-        default = specs[name].default
-        if default in (Parameter.Type.DOUBLE, Parameter.Type.DOUBLE_ARRAY) or \
-                isinstance(default, float):
+        if specs[name].value_type in ('double', 'double_array'):
             assert all(isinstance(v, float) for v in np.ravel(value)), name
-    values = {name: [] if isinstance(spec.default, Parameter.Type) else spec.default
-              for name, spec in specs.items()}
+    values = {name: spec.initial_value for name, spec in specs.items()}
     values.update(flat)
     return values

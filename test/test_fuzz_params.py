@@ -6,8 +6,8 @@ procedure) and reads back the way ``mlx-tempcomp evaluate``, the MPU offset refr
 the compensation node do: `node_values` (the node's defaults overridden by the file's
 section, types and ranges checked as rcl would), then `build_model`. Valid models
 round-trip to the same fingerprint; random bytes, random YAML and valid files with a
-value replaced give a `UserError` / `ParameterError` (the one ``error:`` line of the
-CLI, the node's fatal line), or a model whose output is finite for every input a gyro
+value replaced give a `ParameterError` (the one ``error:`` line of the CLI, the
+node's fatal line), or a model whose output is finite for every input a gyro
 can give: rate within +-2000 deg/s, temperature from -40 to 125 C.
 """
 
@@ -20,9 +20,7 @@ from hypothesis import (currently_in_test_context, event, example, given, settin
 from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.model_params import (linear_btc_parameters, parameter_file,
                                        polynomial_parameters, write_parameter_file)
-from mlx_tempcomp.ros.params import build_model, ParameterError
-from mlx_tempcomp.toolkit.common import UserError
-from mlx_tempcomp.toolkit.evaluate import node_values
+from mlx_tempcomp.node_parameters import build_model, node_values, ParameterError
 import numpy as np
 import pytest
 import yaml
@@ -84,7 +82,7 @@ def load_file(path: str):
     try:
         values = node_values(path, NODE)
         model = build_model(values)
-    except (UserError, ParameterError) as err:
+    except ParameterError as err:
         message = str(err)
         assert message and '\n' not in message, message
         count(f'refused: {type(err).__name__}')

@@ -10,7 +10,7 @@ import math
 
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.table import sensor_tables
-from mlx_tempcomp.ros.params import build_model, COMPENSATION_SPECS, transfer_of
+from mlx_tempcomp.node_parameters import build_model, COMPENSATION_SPECS, transfer_of
 from mlx_tempcomp.sources.bag import eeprom_images_from_multiarray
 from mlx_tempcomp.sources.mlx90609 import SimulatedArray, SimulationConfig
 import numpy as np

@@ -19,12 +19,11 @@ import signal
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.node_parameters import DRIVER_SPECS
 from mlx_tempcomp.ros.devices import MAX_BACKLOG_S, simulated_adis
-from mlx_tempcomp.ros.params import DRIVER_SPECS
 from mlx_tempcomp.sources.decimation import Decimator
 import numpy as np
 import pytest
-from rclpy.parameter import Parameter
 from ros_harness import (by_stamp, DRIVER_DIAGNOSTIC, first_line_with, rates,
                          simulated_driver_params, status_values)
 from sensor_msgs.msg import Imu, Temperature
@@ -40,8 +39,7 @@ STALL_S = 2 * MAX_BACKLOG_S
 
 def driver_values(overrides: dict) -> dict:
     """Every driver parameter value: the defaults with ``overrides``."""
-    values = {spec.name: [] if isinstance(spec.default, Parameter.Type) else spec.default
-              for spec in DRIVER_SPECS}
+    values = {spec.name: spec.initial_value for spec in DRIVER_SPECS}
     values.update(overrides)
     return values
 

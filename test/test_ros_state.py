@@ -11,9 +11,8 @@ by sample; a good file still applies its offset.
 
 import math
 
-from mlx_tempcomp.ros.params import build_model
+from mlx_tempcomp.node_parameters import build_model, node_values
 from mlx_tempcomp.state_file import write_state
-from mlx_tempcomp.toolkit.evaluate import node_values
 import numpy as np
 import pytest
 from ros_harness import by_stamp, first_line_with, simulated_driver_params, write_params

@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import _fingerprint, _OffsetModel, AXIS_NAMES, CorrectedRate, one_row
+from .models import AXIS_NAMES, CorrectedRate, model_fingerprint, OffsetModel, one_row
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 
@@ -221,7 +221,7 @@ class CalibrationChain:
 
 
 @dataclass(frozen=True)
-class ChainModel(_OffsetModel):
+class ChainModel(OffsetModel):
     """
     A `CalibrationChain` as a compensation model: 3 axes, needs the second temperature.
 
@@ -242,7 +242,7 @@ class ChainModel(_OffsetModel):
                                                              self.zro_offset_rad_s))
 
     def fingerprint(self) -> str:
-        return _fingerprint(self.name, self.chain.to_parameters())
+        return model_fingerprint(self.name, self.chain.to_parameters())
 
     def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
                 acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:

@@ -47,7 +47,8 @@ from typing import Mapping, Optional
 import numpy as np
 
 from .errors import ConfigError
-from .models import _columns, _fingerprint, _finite_tuple, _OffsetModel, CorrectedRate, one_row
+from .models import (CorrectedRate, finite_tuple, model_fingerprint, OffsetModel, one_row,
+                     rate_temperature_columns)
 
 EFFECT_NAMES = ('temperature_polynomial', 'thermal_lag', 'temperature_rate', 'thermal_gradient',
                 'thermal_gradient_2', 'hysteresis', 'supply_voltage', 'secondary_temperature',
@@ -398,7 +399,7 @@ class AxisTerms:
 
 
 @dataclass(frozen=True)
-class EffectModel(_OffsetModel):
+class EffectModel(OffsetModel):
     """
     Temperature polynomial plus diagnosed effects, per axis; see the module docstring.
 
@@ -454,7 +455,7 @@ class EffectModel(_OffsetModel):
                 raise ConfigError(msg)
         offset = self.zro_offset_rad_s or (0.0,) * len(terms)
         object.__setattr__(self, 'zro_offset_rad_s',
-                           _finite_tuple('zro_offset_rad_s', offset, len(terms)))
+                           finite_tuple('zro_offset_rad_s', offset, len(terms)))
 
     @property
     def axes(self) -> int:
@@ -492,7 +493,7 @@ class EffectModel(_OffsetModel):
         content = {f.name: getattr(self, f.name) for f in fields(self)
                    if f.name not in ('terms', 'zro_offset_rad_s')}
         content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)} for t in self.terms]
-        return _fingerprint(self.name, content)
+        return model_fingerprint(self.name, content)
 
     def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
                 acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
@@ -525,7 +526,7 @@ class EffectModel(_OffsetModel):
     def _inputs(self, rate_rad_s, temperature_c, time_s, temperature_2_c, acceleration_m_s2,
                 supply_voltage_v) -> tuple:
         """Check and convert the inputs: (rate, temperature, time, T2, acceleration, V)."""
-        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         samples = rate.shape[0]
         return (rate, temperature,
                 self._input('time_s', time_s, (samples,), self.needs_time),

@@ -33,7 +33,8 @@ class CorrectedRate:
     temperature_clamped: np.ndarray
 
 
-def _columns(rate_rad_s, temperature_c, axes: int) -> tuple:
+def rate_temperature_columns(rate_rad_s, temperature_c, axes: int) -> tuple:
+    """Give rate and temperature as float (samples, axes) arrays; ConfigError for a shape."""
     rate = np.asarray(rate_rad_s, dtype=np.float64)
     if rate.ndim == 1:
         rate = rate[:, None]
@@ -50,7 +51,8 @@ def _columns(rate_rad_s, temperature_c, axes: int) -> tuple:
     return rate, np.broadcast_to(temperature, rate.shape)
 
 
-def _finite_tuple(name: str, values, length: int) -> tuple:
+def finite_tuple(name: str, values, length: int) -> tuple:
+    """Give ``length`` finite floats of ``values``; ConfigError naming ``name`` otherwise."""
     values = tuple(float(v) for v in values)
     if len(values) != length:
         msg = f'{name} needs {length} values (one per axis), got {len(values)}'
@@ -105,13 +107,14 @@ def one_row(stream, rates_rad_s: list, temperatures_c: list, time_s=None, temper
     return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
 
 
-def _fingerprint(name: str, content: dict) -> str:
+def model_fingerprint(name: str, content: dict) -> str:
+    """Give a short hash of a model's name and parameters (JSON, keys sorted)."""
     text = json.dumps({'model': name, **content}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
-class _OffsetModel(_Streamed):
+class OffsetModel(_Streamed):
     """ZRO offset handling shared by the models whose offset is in rad/s."""
 
     offset_unit = 'rad/s'
@@ -121,7 +124,7 @@ class _OffsetModel(_Streamed):
         return self.zro_offset_rad_s
 
     def with_zro_offset(self, offset):
-        offset = _finite_tuple('zro_offset_rad_s', np.ravel(offset), self.axes)
+        offset = finite_tuple('zro_offset_rad_s', np.ravel(offset), self.axes)
         return replace(self, zro_offset_rad_s=offset)
 
     def learn_zro_offset(self, rate_rad_s, temperature_c, corrected_rad_s) -> np.ndarray:
@@ -140,7 +143,7 @@ class _OffsetModel(_Streamed):
 
 
 @dataclass(frozen=True)
-class PolynomialModel(_OffsetModel):
+class PolynomialModel(OffsetModel):
     """
     Bias polynomial per axis, optional scale factor polynomial, in x = (T - Tref) / scale.
 
@@ -190,20 +193,20 @@ class PolynomialModel(_OffsetModel):
             raise ConfigError(msg)
         offset = self.zro_offset_rad_s or (0.0,) * len(bias)
         object.__setattr__(self, 'zro_offset_rad_s',
-                           _finite_tuple('zro_offset_rad_s', offset, len(bias)))
+                           finite_tuple('zro_offset_rad_s', offset, len(bias)))
 
     @property
     def axes(self) -> int:
         return len(self.bias_coefficients)
 
     def fingerprint(self) -> str:
-        return _fingerprint(self.name, {
+        return model_fingerprint(self.name, {
             'bias': self.bias_coefficients, 'scale': self.scale_coefficients,
             'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
             'range': [self.temperature_min_c, self.temperature_max_c]})
 
     def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
-        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         clamped_t = np.clip(temperature, self.temperature_min_c, self.temperature_max_c)
         x = (clamped_t - self.reference_temperature_c) / self.temperature_scale_c
         out = np.empty(rate.shape)
@@ -218,7 +221,7 @@ class PolynomialModel(_OffsetModel):
 
 
 @dataclass(frozen=True)
-class LinearBtcModel(_OffsetModel):
+class LinearBtcModel(OffsetModel):
     """
     ADIS16130 first-order bias correction: RBC = RATE + PBC + (TEMP - T3) x BTC.
 
@@ -238,26 +241,26 @@ class LinearBtcModel(_OffsetModel):
         if not 1 <= len(pbc) <= 3:
             msg = f'linear_btc needs PBC for 1 to 3 axes, got {len(pbc)}'
             raise ConfigError(msg)
-        object.__setattr__(self, 'pbc_rad_s', _finite_tuple('linear_btc.pbc', pbc, len(pbc)))
+        object.__setattr__(self, 'pbc_rad_s', finite_tuple('linear_btc.pbc', pbc, len(pbc)))
         object.__setattr__(self, 'btc_rad_s_per_c',
-                           _finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
+                           finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
         if not math.isfinite(self.t3_c):
             msg = f'linear_btc.t3_c must be finite, got {self.t3_c}'
             raise ConfigError(msg)
         offset = self.zro_offset_rad_s or (0.0,) * len(pbc)
         object.__setattr__(self, 'zro_offset_rad_s',
-                           _finite_tuple('zro_offset_rad_s', offset, len(pbc)))
+                           finite_tuple('zro_offset_rad_s', offset, len(pbc)))
 
     @property
     def axes(self) -> int:
         return len(self.pbc_rad_s)
 
     def fingerprint(self) -> str:
-        return _fingerprint(self.name, {'pbc': self.pbc_rad_s, 'btc': self.btc_rad_s_per_c,
-                                        't3': self.t3_c})
+        return model_fingerprint(self.name, {'pbc': self.pbc_rad_s,
+                                             'btc': self.btc_rad_s_per_c, 't3': self.t3_c})
 
     def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
-        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         corrected = rate + np.asarray(self.pbc_rad_s) + \
             (temperature - self.t3_c) * np.asarray(self.btc_rad_s_per_c) - \
             np.asarray(self.zro_offset_rad_s)
@@ -295,13 +298,12 @@ class EepromModel(_Streamed):
     def fingerprint(self) -> str:
         tables = [None if t is None else [t.output.value, t.tc, t.zro, t.sf]
                   for t in self.compensation.tables]
-        return _fingerprint(self.name, {'tables': tables,
-                                        'interpolation': self.compensation.interpolation.value,
-                                        'nominal': [self.compensation.nominal.zro,
-                                                    self.compensation.nominal.sf]})
+        return model_fingerprint(self.name, {
+            'tables': tables, 'interpolation': self.compensation.interpolation.value,
+            'nominal': [self.compensation.nominal.zro, self.compensation.nominal.sf]})
 
     def _to_output_units(self, rate_rad_s, temperature_c) -> tuple:
-        rate, temperature = _columns(rate_rad_s, temperature_c, self.axes)
+        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         nominal = self.compensation.nominal
         outar = np.rad2deg(rate) * nominal.sf + nominal.zro
         mv = self.transfer.temperature_mv_from_c(temperature)

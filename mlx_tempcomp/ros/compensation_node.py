@@ -30,8 +30,7 @@ from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
 
 from . import messages
-from .params import (axes_of, build_model, check_choices, COMPENSATION_SPECS, declare,
-                     limits_of, ParameterError, state_file_of, transfer_of)
+from .params import declare
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
 from ..core.conversion import Output
@@ -40,6 +39,8 @@ from ..core.models import AXIS_NAMES
 from ..core.pairing import StampPairer, zero_order_hold
 from ..core.recalibration import check_window
 from ..core.table import sensor_tables
+from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
+                               limits_of, ParameterError, state_file_of, transfer_of)
 from ..sources.bag import BagError, eeprom_images_from_multiarray
 from ..state_file import Field, load_state, reject_state, StateFileError, write_state
 

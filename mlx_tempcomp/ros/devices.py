@@ -25,7 +25,6 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from . import messages
-from .params import axes_of, build_model, effects_of, ParameterError
 from .qos import STATUS_QOS
 from ..core.bias_procedure import BiasProcedure, MIN_WINDOW_SAMPLES, Phase, ProcedureSettings
 from ..core.errors import CalibrationError, TempCompError
@@ -35,6 +34,7 @@ from ..core.offsets import accel_offset_lsb, gyro_offset_lsb, rest_bias
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
 from ..model_params import linear_btc_parameters, parameter_file, write_parameter_file
+from ..node_parameters import axes_of, build_model, effects_of, node_values, ParameterError
 from ..simulation.adis16130 import Adis16130Truth, Fault as AdisFault
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
@@ -42,8 +42,6 @@ from ..simulation.physics import ThermalProfile
 from ..sources import adis16130, mpu6000
 from ..sources.decimation import Decimator
 from ..state_file import Field, load_state, StateFileError, write_state
-from ..toolkit.common import UserError
-from ..toolkit.evaluate import node_values
 
 # Faults both parts can simulate: MISO stuck high or low.
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
@@ -591,7 +589,7 @@ def _offset_refresh(values: dict):
                    'order')
             raise ParameterError(msg)
         model = build_model(model_values)
-    except (ParameterError, UserError) as err:
+    except ParameterError as err:
         msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
         raise ParameterError(msg) from None
     # A register can only add: the scale polynomial does not apply at rest.

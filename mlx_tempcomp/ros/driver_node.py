@@ -29,14 +29,15 @@ from std_msgs.msg import UInt8MultiArray
 
 from . import messages
 from .devices import AdisStream, MpuStream, refuse_fault, TimedStream
-from .params import (axes_of, check_choices, declare, DRIVER_SPECS, effects_of, ParameterError,
-                     transfer_of)
+from .params import declare
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from .runner import run
 from ..core.compensation import NominalConversion
 from ..core.conversion import Output
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
+from ..node_parameters import (axes_of, check_choices, DRIVER_SPECS, effects_of, ParameterError,
+                               transfer_of)
 from ..simulation.mlx90609 import Fault
 from ..sources.bag import (absolute_topic, ImuRecord, RawBagReader, RawTopics,
                            SupplyVoltageRecord, TemperatureRecord)

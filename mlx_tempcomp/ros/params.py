@@ -1,367 +1,48 @@
 """
-Parameter schemas of the nodes, and their translation into core objects.
+The nodes' parameters in rclpy: descriptors, declaration and the command line.
 
-Each parameter is declared with a descriptor (type, description, range,
-read-only for hardware settings); rclpy enforces those. What a descriptor
-cannot say (choices, array lengths, a model that must build) is checked by
-the functions here, which raise `ParameterError` naming the parameter.
+The specs, their checks and the model they build are in `node_parameters`
+(no rclpy). Each parameter is declared with a descriptor made of its spec
+(type, description, range, read-only for hardware settings); rclpy enforces
+those. Raise `ParameterError` naming the parameter.
 """
 
-from dataclasses import dataclass
 import difflib
-import math
-import os
 import re
 import sys
-from typing import Any, Optional
 
-import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
                               ParameterUninitializedException)
 from rclpy.parameter import Parameter
 import yaml
 
-from ..core.chain import CalibrationChain, ChainModel
-from ..core.compensation import table_compensation
-from ..core.conversion import Output, SensorTransfer
-from ..core.effects import AxisTerms, EffectModel
-from ..core.errors import ConfigError
-from ..core.interpolation import Interpolation
-from ..core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
-from ..core.recalibration import RecalibrationLimits
-from ..errors import MlxTempCompError
-from ..simulation.mlx90609 import Fault
-from ..simulation.physics import Effects
+from ..node_parameters import check_choices, KNOWN_NAMES, NoDefault, ParameterError, Spec
 
 
-class ParameterError(MlxTempCompError):
-    """A parameter value is invalid; the message names the parameter."""
-
-
-@dataclass(frozen=True)
-class Spec:
-    """One parameter: name, default (its type), description and constraints."""
-
-    name: str
-    default: Any
-    description: str
-    read_only: bool = False
-    low: Optional[float] = None
-    high: Optional[float] = None
-    choices: tuple = ()
-
-    def descriptor(self) -> ParameterDescriptor:
-        text = self.description
-        if self.choices:
-            text += f" (one of: {', '.join(self.choices)})"
-        descriptor = ParameterDescriptor(description=text, read_only=self.read_only)
-        if self.low is not None:
-            if isinstance(self.default, bool) or not isinstance(self.default, (int, float)):
-                raise TypeError(f'range on non-numeric parameter {self.name}')
-            if isinstance(self.default, int):
-                descriptor.integer_range = [IntegerRange(
-                    from_value=int(self.low), to_value=int(self.high), step=1)]
-            else:
-                descriptor.floating_point_range = [FloatingPointRange(
-                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
-        return descriptor
-
-
-SENSOR_SPECS = (
-    Spec('sensor.full_scale_dps', 0.0, 'full scale in deg/s; 0 = from the EEPROM RANGE field',
-         read_only=True, low=0.0, high=10000.0),
-    Spec('sensor.nominal_zro_mv', 2500.0, 'nominal zero-rate output in mV', read_only=True,
-         low=0.0, high=5000.0),
-    Spec('sensor.output_swing_mv', 2000.0,
-         'full-scale output swing in mV (typical SF = swing / full scale); UNCONFIRMED',
-         read_only=True, low=1.0, high=5000.0),
-    Spec('sensor.temperature_sensor_mv_at_25c', 2500.0,
-         'TEMPOUT at 25 C in mV, typical (only maps degC to TEMPOUT); UNCONFIRMED',
-         read_only=True, low=0.0, high=5000.0),
-    Spec('sensor.temperature_sensor_mv_per_k', 10.0,
-         'TEMPOUT slope in mV/K, typical; UNCONFIRMED', read_only=True, low=0.1, high=100.0),
-    Spec('sensor.temperature_mv_per_lsb', 25.0 / 16.0,
-         'temperature channel mV per ADC LSB; UNCONFIRMED', read_only=True, low=0.01, high=100.0),
-    Spec('sensor.temperature_offset_mv', 300.0,
-         'temperature channel mV at code 0; UNCONFIRMED', read_only=True, low=-5000.0,
-         high=5000.0),
-)
-
-COMMON_SPECS = SENSOR_SPECS + (
-    Spec('axes', ['z'], "Imu axes the gyro measures, e.g. ['z'] or ['x', 'y', 'z'] (quoted)",
-         read_only=True),
-    Spec('rate_noise_rad_s', 0.0058,
-         '1-sigma rate noise of one sample in rad/s; sets the angular velocity covariance '
-         '(0 = unknown)', low=0.0, high=10.0),
-)
-
-DEVICES = ('mlx90609', 'adis16130', 'mpu6000')
-
-DRIVER_SPECS = COMMON_SPECS + (
-    Spec('device', 'mlx90609', 'sensor read by the simulated and spidev sources', read_only=True,
-         choices=DEVICES),
-    Spec('source', 'simulated', 'where raw data comes from', read_only=True,
-         choices=('simulated', 'spidev', 'bag')),
-    Spec('frame_id', 'imu_link', 'frame_id of published messages (REP-145)'),
-    Spec('publish_rate_hz', 100.0, 'publish rate in Hz (simulated time for the simulated '
-         'source); each message is the mean of the device samples of its interval',
-         read_only=True, low=0.1, high=10000.0),
-    Spec('sample_rate_hz', 0.0, 'device sample rate in Hz, at least publish_rate_hz; 0 = the '
-         "part's natural rate (MLX90609 1000, UNCONFIRMED; ADIS16130 5700; MPU-6000 its gyro "
-         'output rate over 1 + SMPLRT_DIV)', read_only=True, low=0.0, high=100000.0),
-    Spec('oversample', 1, 'conversions averaged per device sample', read_only=True,
-         low=1, high=256),
-    Spec('spi.bus', 0, 'spidev bus number', read_only=True, low=0, high=255),
-    Spec('spi.chip_selects', [0], 'spidev chip select per axis, same order as axes',
-         read_only=True),
-    Spec('spi.speed_hz', 0,
-         'SPI clock in Hz; 0 = the device default (MLX90609 500 kHz, its maximum UNCONFIRMED; '
-         'ADIS16130 1 MHz; MPU-6000/6500 1 MHz, the limit for configuration registers)',
-         read_only=True, low=0, high=20000000),
-    Spec('spi.mode', 3, 'SPI mode (0 or 3 work: data latched on the rising edge)',
-         read_only=True, low=0, high=3),
-    Spec('bag.path', '', 'rosbag2 folder (sqlite3 or mcap) to replay', read_only=True),
-    Spec('bag.rate_factor', 1.0,
-         'replay speed: 1 = recorded rate, 2 = twice as fast, 0 = as fast as the consumer '
-         'takes it (paced by bag.pace_topic)',
-         read_only=True, low=0.0, high=1000.0),
-    Spec('bag.pace_topic', 'imu/data',
-         'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
-         read_only=True),
-    Spec('bag.on_end', 'stop', 'at the end of the bag: stop (log a summary, exit 0), loop '
-         '(start over, stamps shifted to keep increasing) or hold (stay up, publish nothing)',
-         read_only=True, choices=('stop', 'loop', 'hold')),
-    Spec('bag.imu_topic', '/imu/data_raw', 'Imu topic in the bag', read_only=True),
-    Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
-         read_only=True),
-    Spec('bag.eeprom_topic', '/imu/eeprom', 'EEPROM topic in the bag', read_only=True),
-    Spec('bag.supply_voltage_topic', '/imu/supply_voltage',
-         'supply-voltage topic in the bag (sensor_msgs/BatteryState), replayed as '
-         'imu/supply_voltage when the bag has it', read_only=True),
-    Spec('bag.temperature_2_topic', '',
-         "second-temperature topic in the bag, replayed as imu/temperature_2_raw ('' = none)",
-         read_only=True),
-    Spec('simulation.seed', 0, 'seed of the simulated chips and their noise', read_only=True,
-         low=0, high=2**31 - 1),
-    Spec('simulation.real_time_factor', 1.0,
-         'simulated seconds per wall second (10 = ten times faster than real time)',
-         read_only=True, low=0.001, high=10000.0),
-    Spec('simulation.lossless', False,
-         'read every sample: a driver that falls behind lets the simulated clock lag wall '
-         'time instead of skipping samples as missed reads (for tests)', read_only=True),
-    Spec('simulation.eeprom_version', 2, 'EEPROM VERSION the simulated factory writes',
-         read_only=True, low=0, high=255),
-    Spec('simulation.start_temperature_c', 25.0, 'chamber temperature at start',
-         read_only=True, low=-60.0, high=125.0),
-    Spec('simulation.cycle_temperatures_c', Parameter.Type.DOUBLE_ARRAY,
-         'chamber temperatures to ramp through in turn (empty: constant)', read_only=True),
-    Spec('simulation.ramp_c_per_min', 2.0, 'chamber ramp rate', read_only=True,
-         low=0.001, high=1000.0),
-    Spec('simulation.hold_s', 0.0, 'soak at each cycle temperature', read_only=True,
-         low=0.0, high=1e6),
-    Spec('simulation.die_time_constant_s', 0.0, 'die follows the chamber with this lag',
-         read_only=True, low=0.0, high=1e5),
-    Spec('simulation.rate_dps', [0.0], 'true rate in deg/s, one value or one per axis',
-         read_only=True),
-    Spec('simulation.supply_v', 5.0,
-         'supply voltage (settable at runtime on the MLX90609: a step from the next sample)',
-         low=0.0, high=10.0),
-    Spec('simulation.supply_monitor_hz', 0.0,
-         'MLX90609: publish the simulated supply on imu/supply_voltage (BatteryState) at this '
-         'rate, on stamps of its own, as a board supply monitor would (0 = none)',
-         read_only=True, low=0.0, high=1000.0),
-    Spec('simulation.thermal_lag_s', 0.0, 'effect: temperature sensor lags the die',
-         read_only=True, low=0.0, high=1e5),
-    Spec('simulation.hysteresis_dps', 0.0, 'effect: ZRO heating/cooling branch difference',
-         read_only=True, low=-100.0, high=100.0),
-    Spec('simulation.zro_supply_dps_per_v', 0.0, 'effect: ZRO shift per volt off 5 V',
-         read_only=True, low=-1000.0, high=1000.0),
-    Spec('simulation.fault', 'none',
-         'SPI fault of the simulated chips (settable at runtime; adis16130 and mpu6000: none, '
-         'silent_high, silent_low)', choices=tuple(f.value for f in Fault)),
-    Spec('simulation.bias_dps', 0.0, 'adis16130: bias at 25 C in deg/s', read_only=True,
-         low=-1000.0, high=1000.0),
-    Spec('simulation.bias_dps_per_c', 0.0,
-         'adis16130: bias temperature slope in deg/s/C (mpu6000: drawn from the seed)',
-         read_only=True, low=-100.0, high=100.0),
-    Spec('adis16130.resolution_bits', 24, 'conversion resolution, 24 or 16 (MODE b1)',
-         read_only=True, low=16, high=24),
-    Spec('adis16130.verify_registers', True,
-         'read the start-up registers back (read-back UNCONFIRMED on real parts)',
-         read_only=True),
-    Spec('adis16130.bias_procedure.average_s', 10.0, 'window of each point (the note: 10 s)',
-         low=0.01, high=3600.0),
-    Spec('adis16130.bias_procedure.self_heat_s', 600.0,
-         'wait between the points while the part warms itself (the note: 600 s)',
-         low=0.0, high=1e5),
-    Spec('adis16130.bias_procedure.settle_s', 2400.0,
-         'wait before the PBC window, the rest record included (the note: 2400 s)',
-         low=0.0, high=1e5),
-    Spec('adis16130.bias_procedure.pbc_s', 150.0,
-         'PBC window (the note: 150 s); 0 = the averaging time the rest record advises',
-         low=0.0, high=1e5),
-    Spec('adis16130.bias_procedure.allan_record_s', 1200.0,
-         'rest record at the end of the settle wait for the Allan deviation (0 = none: no '
-         'noise figures, motion check against rate_noise_rad_s)', low=0.0, high=1e5),
-    Spec('adis16130.bias_procedure.min_temperature_change_c', 0.5,
-         'smallest T2 - T1 a BTC is computed from', low=0.001, high=100.0),
-    Spec('adis16130.bias_procedure.output_file', '',
-         "linear_btc parameter file ('' = ~/.ros/mlx_tempcomp/<node name>_linear_btc.yaml)"),
-    Spec('adis16130.bias_procedure.node_name', 'compensation_node',
-         'node section of the parameter file'),
-    Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000 (or 6050 register map) or MPU-6500',
-         read_only=True, choices=('mpu6000', 'mpu6500')),
-    Spec('mpu6000.gyro_full_scale_dps', 250, 'gyro range: 250, 500, 1000 or 2000 deg/s',
-         read_only=True, low=250, high=2000),
-    Spec('mpu6000.accel_full_scale_g', 2, 'accelerometer range: 2, 4, 8 or 16 g',
-         read_only=True, low=2, high=16),
-    Spec('mpu6000.dlpf_config', 3, 'DLPF_CFG (CONFIG bits 2..0)', read_only=True, low=0,
-         high=6),
-    Spec('mpu6000.sample_rate_divider', 0, 'SMPLRT_DIV', read_only=True, low=0, high=255),
-    Spec('mpu6000.accel_noise_m_s2', 0.049,
-         '1-sigma accelerometer noise of one sample in m/s^2 (datasheet 400 ug/sqrt(Hz) at '
-         '100 Hz: 0.005 g); sets the linear acceleration covariance (0 = unknown)',
-         low=0.0, high=100.0),
-    Spec('mpu6000.offsets_file', '',
-         "offset register state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_offsets.yaml)",
-         read_only=True),
-    Spec('mpu6000.calibration.duration_s', 1.0,
-         'averaging window of imu/calibrate_offsets (sensor time; the note: 200 samples)',
-         low=0.01, high=3600.0),
-    Spec('mpu6000.calibration.noise_multiple', 3.0,
-         'a gyro rate spread above this x rate_noise_rad_s means the board moves',
-         low=0.1, high=1000.0),
-    Spec('mpu6000.offset_model_file', '',
-         'parameter file of a polynomial bias model of gyro x, y, z (mlx-tempcomp fit): '
-         "refresh the gyro offset registers from it as the temperature moves ('' = off)",
-         read_only=True),
-    Spec('mpu6000.offset_model_node', 'compensation_node',
-         'node section of mpu6000.offset_model_file', read_only=True),
-    Spec('mpu6000.offset_refresh_c', 0.5,
-         'rewrite the gyro offset registers when the temperature moved this much since the '
-         'last write', read_only=True, low=0.001, high=100.0),
-)
-
-_EFFECT_DESCRIPTIONS = {
-    'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
-    'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
-    'temperature_min_c': 'effective temperatures below are clamped',
-    'temperature_max_c': 'effective temperatures above are clamped',
-    'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the slope over '
-                                 'this window (s)',
-    'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k',
-    'time_reference_s': 'time drift is zero at this stamp (s)',
-    'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
-    'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2',
-    'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: T_eff = '
-                     'first-order lag of T with time constant |lag|',
-    'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt',
-    'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at most 2)',
-    'gradient_rad_s_per_c': 'axis {axis}: bias + g_k x (T - lag_k(T)), one per time constant',
-    'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power 1, rad/s',
-    'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play operator',
-    'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state',
-    'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since time_reference_s',
-    'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
-    'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, rad/s',
-    'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, z acceleration',
-    'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)',
-    'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)',
-    'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)',
-    'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
-    'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s',
-}
-_CHAIN_DESCRIPTIONS = {
-    'full_scale_rad_s': 'full scale; the polynomials run in x = rate / full scale',
-    'reference_temperature_c': 'Tref of dT = T - Tref',
-    'reference_temperature_2_c': 'T2ref of dT2 = T2 - T2ref',
-    'nonlinearity_rad_s': 'stage 1, axis {axis}: measured -> reference rate P(x), rad/s',
-    'offset_rad_s': 'stage 2: offset b of x, y, z, rad/s',
-    'offset_gradient_rad_s_per_c': 'stage 2: offset gradient g of x, y, z, rad/s/C',
-    'sensitivity_slope_rad_s_per_c': 'stage 3, axis {axis}: K(x), rad/s per degC',
-    'sensitivity_intercept_rad_s': 'stage 3, axis {axis}: C(x), rad/s',
-    'offset_2_rad_s': 'stage 4: offset d of x, y, z, rad/s',
-    'offset_2_gradient_rad_s_per_c': 'stage 4: gradient h of x, y, z, rad/s per degC of T2',
-    'misalignment': 'stage 5: 3 x 3 matrix M row by row, rate = M @ y4',
-}
-
-
-def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bool) -> tuple:
-    """Give a Spec per key of a model's ``to_parameters``; lists become arrays."""
-    specs = []
-    for key, value in parameters.items():
-        name, _, axis = key.partition('.')
-        if isinstance(value, list):
-            default = Parameter.Type.DOUBLE_ARRAY
+def descriptor(spec: Spec) -> ParameterDescriptor:
+    """Give the descriptor of ``spec``: description with its choices, read-only, range."""
+    text = spec.description
+    if spec.choices:
+        text += f" (one of: {', '.join(spec.choices)})"
+    result = ParameterDescriptor(description=text, read_only=spec.read_only)
+    if spec.low is not None:
+        if spec.value_type == 'integer':
+            result.integer_range = [IntegerRange(
+                from_value=int(spec.low), to_value=int(spec.high), step=1)]
+        elif spec.value_type == 'double':
+            result.floating_point_range = [FloatingPointRange(
+                from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
         else:
-            default = Parameter.Type.DOUBLE if required else float(value)
-        specs.append(Spec(prefix + key, default, descriptions[name].format(axis=axis)))
-    return tuple(specs)
+            raise TypeError(f'range on non-numeric parameter {spec.name}')
+    return result
 
 
-# Scalars default to the model's own defaults; unset lists mean an absent effect.
-EFFECT_SPECS = _model_specs(
-    'effects.', EffectModel((AxisTerms(bias=(0.0,)),) * 3).to_parameters(AXIS_NAMES),
-    _EFFECT_DESCRIPTIONS, required=False)
-# A chain has no neutral default: every parameter must be given.
-_ZEROS, _POLYNOMIALS = (0.0, 0.0, 0.0), ((0.0,),) * 3
-CHAIN_SPECS = _model_specs('chain.', CalibrationChain(
-    full_scale_rad_s=1.0, reference_temperature_c=25.0, reference_temperature_2_c=25.0,
-    nonlinearity_rad_s=_POLYNOMIALS, offset_rad_s=_ZEROS, offset_gradient_rad_s_per_c=_ZEROS,
-    sensitivity_slope_rad_s_per_c=_POLYNOMIALS, sensitivity_intercept_rad_s=_POLYNOMIALS,
-    offset_2_rad_s=_ZEROS, offset_2_gradient_rad_s_per_c=_ZEROS,
-    misalignment=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))).to_parameters(),
-    _CHAIN_DESCRIPTIONS, required=True)
-
-COMPENSATION_SPECS = COMMON_SPECS + (
-    Spec('model', 'eeprom', 'compensation model',
-         choices=('eeprom', 'polynomial', 'linear_btc', 'effects', 'chain')),
-    Spec('eeprom.interpolation', 'quadratic', 'interpolation of the factory table',
-         choices=tuple(m.value for m in Interpolation)),
-    Spec('polynomial.reference_temperature_c', 25.0, 'Tref of x = (T - Tref) / scale',
-         low=-100.0, high=200.0),
-    Spec('polynomial.temperature_scale_c', 1.0, 'scale of x = (T - Tref) / scale',
-         low=1e-6, high=1000.0),
-    Spec('polynomial.temperature_min_c', -1000.0, 'temperatures below are clamped',
-         low=-1000.0, high=1000.0),
-    Spec('polynomial.temperature_max_c', 1000.0, 'temperatures above are clamped',
-         low=-1000.0, high=1000.0),
-) + tuple(
-    Spec(f'polynomial.bias.{axis}', Parameter.Type.DOUBLE_ARRAY,
-         f'bias polynomial of axis {axis} in rad/s, lowest order first') for axis in AXIS_NAMES
-) + tuple(
-    Spec(f'polynomial.scale.{axis}', Parameter.Type.DOUBLE_ARRAY,
-         f'relative scale-factor polynomial of axis {axis} (empty: none)') for axis in AXIS_NAMES
-) + (
-    Spec('linear_btc.pbc_rad_s', Parameter.Type.DOUBLE_ARRAY, 'PBC per axis, rad/s'),
-    Spec('linear_btc.btc_rad_s_per_c', Parameter.Type.DOUBLE_ARRAY, 'BTC per axis, rad/s/C'),
-    Spec('linear_btc.t3_c', 25.0, 'T3, the temperature of the PBC measurement',
-         low=-100.0, high=200.0),
-) + EFFECT_SPECS + CHAIN_SPECS + (
-    Spec('recalibration.duration_s', 5.0, 'averaging window (sensor time)', low=0.05,
-         high=3600.0),
-    Spec('recalibration.noise_multiple', 3.0, 'rate spread above this x noise means motion',
-         low=0.1, high=1000.0),
-    Spec('recalibration.max_mean_rate_rad_s', math.radians(2.0),
-         'mean residual rate above this means motion', low=1e-6, high=10.0),
-    Spec('recalibration.max_temperature_change_c', 0.5,
-         'temperature change within the window above this is refused', low=1e-3, high=100.0),
-    Spec('recalibration.state_file', '',
-         "ZRO state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_zro.yaml)", read_only=True),
-    Spec('stale_timeout_s', 1.0, 'no input for this long is reported as stale', low=0.01,
-         high=3600.0),
-    Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
-         'block (1: one message per callback)', read_only=True, low=1, high=100000),
-    Spec('supply_voltage.pairing', 'hold',
-         'how a model with supply terms pairs imu/supply_voltage with the samples: hold = '
-         'the latest voltage stamped at or before each sample (a battery monitor at its own '
-         'rate), stamp = the voltage with the same stamp (a driver or bag that stamps it '
-         'with the sample)', read_only=True, choices=('hold', 'stamp')),
-    Spec('supply_voltage.max_age_s', 5.0,
-         'hold: a voltage further than this from the sample stamp is not used; the sample '
-         'is skipped and counted', low=0.0, high=3600.0),
-)
+def _declared_default(spec: Spec):
+    """Give the value rclpy declares ``spec`` with: the type alone when it has no default."""
+    if isinstance(spec.default, NoDefault):
+        return Parameter.Type[spec.default.value_type.upper()]
+    return spec.default
 
 
 def declare(node, specs) -> dict:
@@ -371,9 +52,10 @@ def declare(node, specs) -> dict:
         given = _as_double(spec, node._parameter_overrides.get(spec.name))
         try:
             if given is None:
-                parameter = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+                parameter = node.declare_parameter(spec.name, _declared_default(spec),
+                                                   descriptor(spec))
             else:
-                parameter = node.declare_parameter(spec.name, given, spec.descriptor(),
+                parameter = node.declare_parameter(spec.name, given, descriptor(spec),
                                                    ignore_override=True)
         except (InvalidParameterTypeException, InvalidParameterValueException) as err:
             msg = f'invalid parameter {spec.name}: {err}'
@@ -391,22 +73,13 @@ def _as_double(spec: Spec, override):
     double; ``override`` is what rclpy holds for the parameter (node._parameter_overrides,
     the only place it keeps them).
     """
-    if override is None:
-        return None
-    doubles = spec.default in (Parameter.Type.DOUBLE, Parameter.Type.DOUBLE_ARRAY) or \
-        isinstance(spec.default, float) or \
-        (isinstance(spec.default, list) and all(isinstance(v, float) for v in spec.default))
-    if not doubles:
+    if override is None or spec.value_type not in ('double', 'double_array'):
         return None
     if override.type_ == Parameter.Type.INTEGER:
         return float(override.value)
     if override.type_ == Parameter.Type.INTEGER_ARRAY:
         return [float(v) for v in override.value]
     return None
-
-
-# Every parameter of the package's nodes: a /** section gives both nodes all of them.
-KNOWN_NAMES = frozenset(spec.name for spec in DRIVER_SPECS + COMPENSATION_SPECS)
 
 
 def unknown_parameters(node) -> list:
@@ -487,180 +160,3 @@ def value_of(parameter):
     except ParameterUninitializedException:
         value = None
     return [] if value is None else value
-
-
-def check_choices(specs, values: dict) -> None:
-    for spec in specs:
-        if spec.choices and spec.name in values and values[spec.name] not in spec.choices:
-            choices = ', '.join(spec.choices)
-            msg = (f'invalid parameter {spec.name}: {values[spec.name]!r} is not one of '
-                   f'{choices}')
-            raise ParameterError(msg)
-
-
-def axes_of(values: dict) -> tuple:
-    axes = tuple(values['axes'])
-    if not 1 <= len(axes) <= 3 or len(set(axes)) != len(axes) or \
-            not set(axes) <= set(AXIS_NAMES):
-        msg = f"invalid parameter axes: {list(axes)}, give 1 to 3 distinct of 'x', 'y', 'z'"
-        raise ParameterError(msg)
-    return axes
-
-
-def transfer_of(values: dict) -> SensorTransfer:
-    return SensorTransfer(
-        nominal_zro_mv=values['sensor.nominal_zro_mv'],
-        output_swing_mv=values['sensor.output_swing_mv'],
-        temperature_sensor_mv_at_25c=values['sensor.temperature_sensor_mv_at_25c'],
-        temperature_sensor_mv_per_k=values['sensor.temperature_sensor_mv_per_k'],
-        temperature_mv_per_lsb=values['sensor.temperature_mv_per_lsb'],
-        temperature_offset_mv=values['sensor.temperature_offset_mv'])
-
-
-def effects_of(values: dict) -> Effects:
-    return Effects(thermal_lag_s=values['simulation.thermal_lag_s'],
-                   hysteresis_dps=values['simulation.hysteresis_dps'],
-                   zro_supply_dps_per_v=values['simulation.zro_supply_dps_per_v'])
-
-
-def limits_of(values: dict) -> RecalibrationLimits:
-    noise = values['rate_noise_rad_s']
-    if noise <= 0.0:
-        msg = 'invalid parameter rate_noise_rad_s: recalibration needs a positive noise figure'
-        raise ParameterError(msg)
-    return RecalibrationLimits(
-        rate_noise_rad_s=noise, noise_multiple=values['recalibration.noise_multiple'],
-        max_mean_rate_rad_s=values['recalibration.max_mean_rate_rad_s'],
-        max_temperature_change_c=values['recalibration.max_temperature_change_c'])
-
-
-def state_file_of(values: dict, node_name: str) -> str:
-    path = values['recalibration.state_file']
-    if not path:
-        path = os.path.join('~', '.ros', 'mlx_tempcomp', f'{node_name}_zro.yaml')
-    return os.path.expanduser(path)
-
-
-def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: float = 0.0):
-    """
-    Build the model named by ``model`` from parameter values.
-
-    ``tables`` are the factory tables from the sensor's EEPROM and
-    ``full_scale_dps`` the full scale they were decoded with (None while the
-    EEPROM has not arrived: the eeprom model is then None). A model whose
-    output over what a gyro gives is not finite or not plausible is refused
-    (`_check_output`).
-    """
-    model = _build_model(values, tables, full_scale_dps)
-    if model is not None:
-        _check_output(model, values['model'], axes_of(values))
-    return model
-
-
-# A model is probed before it runs: rates of -1, 0 and 1 rad/s (any gyro's range), die
-# temperatures -40 to 125 C rising 0.05 C/s (every extra input given). Coefficients that
-# overflow there, or put the compensated rate beyond ten times +-2000 deg/s (the widest range
-# of the parts the driver reads), are a typo or a unit mix-up, never a gyro.
-_PROBE_RATE, _PROBE_TEMPERATURE = (a.reshape(-1) for a in np.meshgrid(
-    [-1.0, 0.0, 1.0], np.arange(-40.0, 125.5, 0.5)))
-_PROBE_TIME_S = 10.0 * np.arange(_PROBE_RATE.size)
-MAX_COMPENSATED_RATE_RAD_S = 10.0 * math.radians(2000.0)
-
-
-def _check_output(model, name: str, axes: tuple) -> None:
-    samples = _PROBE_RATE.size
-    with np.errstate(all='ignore'):
-        corrected = model.stream().correct_block(
-            np.repeat(_PROBE_RATE[:, None], model.axes, axis=1), _PROBE_TEMPERATURE,
-            getattr(model, 'time_reference_s', 0.0) + _PROBE_TIME_S, _PROBE_TEMPERATURE,
-            np.tile([0.0, 0.0, 9.81], (samples, 1)), np.full(samples, 5.0)).rate_rad_s
-    beyond = ~(np.abs(corrected) <= MAX_COMPENSATED_RATE_RAD_S)   # NaN included
-    if beyond.any():
-        row, axis = np.argwhere(beyond)[0]
-        msg = (f'invalid {name} model parameters: axis {axes[axis]} gives '
-               f'{corrected[row, axis]:.4g} rad/s at {_PROBE_TEMPERATURE[row]:g} C and a raw '
-               f'rate of {_PROBE_RATE[row]:g} rad/s, beyond +-{MAX_COMPENSATED_RATE_RAD_S:.4g} '
-               'rad/s; check the coefficients and their units')
-        raise ParameterError(msg)
-
-
-def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
-    axes = axes_of(values)
-    name = values['model']
-    try:
-        if name == 'polynomial':
-            bias = []
-            for axis in axes:
-                coefficients = values[f'polynomial.bias.{axis}']
-                if not coefficients:
-                    msg = (f'invalid parameter polynomial.bias.{axis}: the polynomial model '
-                           f'needs coefficients for every axis in {list(axes)}')
-                    raise ParameterError(msg)
-                bias.append(coefficients)
-            scale = [values[f'polynomial.scale.{axis}'] for axis in axes]
-            if any(scale) and not all(scale):
-                msg = ('invalid parameter polynomial.scale: give a scale polynomial for every '
-                       'axis or for none')
-                raise ParameterError(msg)
-            return PolynomialModel(
-                bias_coefficients=tuple(bias),
-                reference_temperature_c=values['polynomial.reference_temperature_c'],
-                temperature_scale_c=values['polynomial.temperature_scale_c'],
-                scale_coefficients=tuple(scale) if all(scale) else (),
-                temperature_min_c=values['polynomial.temperature_min_c'],
-                temperature_max_c=values['polynomial.temperature_max_c'])
-        if name == 'linear_btc':
-            pbc, btc = values['linear_btc.pbc_rad_s'], values['linear_btc.btc_rad_s_per_c']
-            for key, array in (('linear_btc.pbc_rad_s', pbc), ('linear_btc.btc_rad_s_per_c', btc)):
-                if len(array) != len(axes):
-                    msg = (f'invalid parameter {key}: needs {len(axes)} values (one per axis '
-                           f'in {list(axes)}), got {len(array)}')
-                    raise ParameterError(msg)
-            return LinearBtcModel(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
-                                  t3_c=values['linear_btc.t3_c'])
-        if name == 'effects':
-            return _effect_model(values, axes)
-        if name == 'chain':
-            return _chain_model(values, axes)
-        interpolation = Interpolation.parse(values['eeprom.interpolation'])
-        if tables is None:
-            return None
-        if len(tables) != len(axes):
-            msg = (f'the sensor sent {len(tables)} EEPROM tables but axes has {len(axes)} '
-                   'entries')
-            raise ParameterError(msg)
-        transfer = transfer_of(values)
-        compensation = table_compensation(tables, full_scale_dps, Output.DIGITAL,
-                                          interpolation, transfer)
-        return EepromModel(compensation=compensation, transfer=transfer)
-    except ConfigError as err:
-        msg = f'invalid {name} model parameters: {err}'
-        raise ParameterError(msg) from None
-
-
-def _model_parameters(values: dict, prefix: str, specs) -> dict:
-    """Give a model's parameters without ``prefix``; unset ones are left out."""
-    return {spec.name[len(prefix):]: values[spec.name] for spec in specs
-            if values[spec.name] != []}
-
-
-def _effect_model(values: dict, axes: tuple) -> EffectModel:
-    for axis in axes:
-        if not values[f'effects.bias.{axis}']:
-            msg = (f'invalid parameter effects.bias.{axis}: the effects model needs a bias '
-                   f'polynomial for every axis in {list(axes)}')
-            raise ParameterError(msg)
-    return EffectModel.from_parameters(_model_parameters(values, 'effects.', EFFECT_SPECS), axes)
-
-
-def _chain_model(values: dict, axes: tuple) -> ChainModel:
-    if axes != AXIS_NAMES:
-        msg = f"invalid parameter axes: the chain model needs ['x', 'y', 'z'], got {list(axes)}"
-        raise ParameterError(msg)
-    missing = [spec.name for spec in CHAIN_SPECS if values[spec.name] == []]
-    if missing:
-        msg = (f'invalid parameter {missing[0]}: unset; the chain model needs every chain.* '
-               f'parameter ({len(missing)} unset)')
-        raise ParameterError(msg)
-    return ChainModel(CalibrationChain.from_parameters(
-        _model_parameters(values, 'chain.', CHAIN_SPECS)))

@@ -3,7 +3,8 @@ The ``mlx-tempcomp evaluate`` command: a parameter file's model run over a recor
 
 The model is built as ``compensation_node`` builds it: the node's parameter
 defaults (`COMPENSATION_SPECS`), overridden by the node's section of the
-parameter file (types and ranges checked as rclpy would), then `build_model`.
+parameter file (types and ranges checked as rcl would: `node_values`), then
+`build_model`, all from `node_parameters`.
 It runs over the whole recording in one batch, so stateful effects start at
 the first sample as they do when the recording is replayed into the node; the
 ZRO state file of the node is not applied. The error is the corrected rate
@@ -20,8 +21,6 @@ from pathlib import Path
 import sys
 
 import numpy as np
-from rclpy.parameter import Parameter
-import yaml
 
 from .common import (add_recording_options, check_output_file, float_type, load,
                      positive_float, UserError)
@@ -29,11 +28,9 @@ from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
 from ..core.table import sensor_tables
-from ..ros.params import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
-                          ParameterError, transfer_of)
+from ..node_parameters import axes_of, build_model, node_values, ParameterError, transfer_of
 from ..sources.bag import BagError, RawBagReader, RawTopics
 
-_WILDCARDS = ('/**', '**')
 _INPUTS = (('needs_time', 'time_s', 'time'),
            ('needs_temperature_2', 'temperature_2_c', 'a temperature_2 column'),
            ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'),
@@ -41,93 +38,6 @@ _INPUTS = (('needs_time', 'time_s', 'time'),
 
 
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')
-
-
-def _flatten(tree: dict, prefix: str = '') -> dict:
-    flat = {}
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            flat.update(_flatten(value, name + '.'))
-        else:
-            flat[name] = value
-    return flat
-
-
-def _read_overrides(path: str, node_name: str) -> dict:
-    """Give the flat parameters of ``node_name`` in a ROS 2 parameter file (wildcards first)."""
-    try:
-        with open(path, encoding='utf-8') as stream:
-            document = yaml.safe_load(stream)
-    except OSError as err:
-        msg = f'cannot read parameter file {path}: {err.strerror}'
-        raise UserError(msg) from None
-    except (yaml.YAMLError, ValueError, RecursionError) as err:
-        # ValueError: not UTF-8, or a value YAML's constructors refuse (2026-13-45, !!int a).
-        mark = getattr(err, 'problem_mark', None)
-        where = f' (line {mark.line + 1})' if mark is not None else ''
-        problem = getattr(err, 'problem', None) or str(err).split('\n')[0] or type(err).__name__
-        msg = f'parameter file {path} is not YAML{where}: {problem}'
-        raise UserError(msg) from None
-    if not isinstance(document, dict):
-        msg = f'parameter file {path} is not a mapping of node sections'
-        raise UserError(msg)
-    names = [key for key in _WILDCARDS if key in document] + \
-        [key for key in (node_name, '/' + node_name.lstrip('/')) if key in document]
-    if not names:
-        sections = ', '.join(repr(str(key)) for key in document) or 'none'
-        msg = f'parameter file {path} has no section for node {node_name!r} (sections: ' \
-              f'{sections}); see --node-name'
-        raise UserError(msg)
-    overrides = {}
-    for name in names:
-        section = document[name]
-        parameters = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not isinstance(parameters, dict):
-            msg = f'parameter file {path}: section {name!r} has no ros__parameters mapping'
-            raise UserError(msg)
-        overrides.update(_flatten(parameters))
-    return overrides
-
-
-def _expected_type(spec) -> Parameter.Type:
-    if isinstance(spec.default, Parameter.Type):
-        return spec.default
-    return Parameter.Type.from_parameter_value(spec.default)
-
-
-def node_values(path: str, node_name: str) -> dict:
-    """Give every compensation-node parameter value; UserError where the node would refuse."""
-    overrides = _read_overrides(path, node_name)
-    values = {}
-    for spec in COMPENSATION_SPECS:
-        default = [] if isinstance(spec.default, Parameter.Type) else spec.default
-        if spec.name not in overrides:
-            values[spec.name] = default
-            continue
-        value = overrides[spec.name]
-        expected = _expected_type(spec)
-        try:
-            given = Parameter.Type.from_parameter_value(value)
-        except TypeError:
-            given = None
-        if value == [] and expected.name.endswith('_ARRAY'):
-            given = expected
-        if given is not expected:
-            kind = 'a mixed or unsupported value' if given is None else given.name.lower()
-            msg = (f'{path}: invalid parameter {spec.name}: expected '
-                   f'{expected.name.lower()}, got {kind} ({value!r})')
-            raise UserError(msg)
-        if spec.low is not None and not spec.low <= value <= spec.high:
-            msg = (f'{path}: invalid parameter {spec.name}: {value!r} is outside '
-                   f'{spec.low:g} to {spec.high:g}')
-            raise UserError(msg)
-        values[spec.name] = value
-    try:
-        check_choices(COMPENSATION_SPECS, values)
-    except ParameterError as err:
-        raise UserError(f'{path}: {err}') from None
-    return values
 
 
 def _eeprom_images(args: argparse.Namespace) -> tuple:
@@ -236,7 +146,10 @@ def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, a
 def evaluate_command(args: argparse.Namespace) -> int:
     if args.out_csv is not None:
         check_output_file(args.out_csv, '--out-csv')
-    values = node_values(args.params, args.node_name)
+    try:
+        values = node_values(args.params, args.node_name)
+    except ParameterError as err:
+        raise UserError(str(err)) from None
     try:
         axes = axes_of(values)
     except ParameterError as err:

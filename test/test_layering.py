@@ -1,0 +1,228 @@
+"""
+The package's layers: which may import which, and what runs without ROS.
+
+`ALLOWED` is the import graph of docs/architecture.md ("Layers and import
+direction"): every module of the package is read (ast, imports inside
+functions included) and each import of another layer must be in its row. Only
+``ros/`` imports rclpy or a message package; no module imports a private name
+(``_name``) of another. Then, in a fresh interpreter whose import system refuses
+rclpy and every ROS message package, every module outside ``ros/`` imports,
+``mlx-tempcomp --help`` and the help of every subcommand print, and ``evaluate``
+runs a parameter file's model (the command that used to pull in rclpy); the
+optional heavy imports (matplotlib, allantools, scipy) stay unloaded.
+"""
+
+import ast
+import json
+from pathlib import Path
+import re
+import subprocess
+import sys
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / 'mlx_tempcomp'
+ARCHITECTURE = PACKAGE.parent / 'docs' / 'architecture.md'
+
+# Layer (a subpackage or a top-level module) -> the other layers it may import.
+ALLOWED = {
+    'errors': set(),
+    'core': set(),
+    'hardware': {'core'},
+    'simulation': {'core', 'hardware'},
+    'sources': {'core', 'hardware', 'simulation'},
+    'state_file': set(),
+    'model_params': {'core', 'state_file'},
+    'node_parameters': {'core', 'simulation'},
+    'sweep': {'core', 'hardware', 'simulation'},
+    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
+                'node_parameters'},
+    'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
+            'node_parameters'},
+    'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
+            'node_parameters', 'toolkit'},
+}
+# The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
+EVERYWHERE = {'errors'}
+# Third-party packages core may import: it is numpy-only (allantools inside a function).
+CORE_THIRD_PARTY = {'numpy', 'allantools'}
+# rclpy, its C layers and the message packages: what a machine without ROS lacks.
+ROS_PACKAGE = re.compile(r'(rclpy|rcl_\w+|rmw\w*|rosidl\w*|rpyutils|ament_index_python'
+                         r'|builtin_interfaces|\w+_msgs|\w+_srvs|\w+_interfaces)$')
+# Imported only where a command needs them, never by --help.
+OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy')
+
+
+def _modules() -> dict:
+    """Give {dotted module name: path} of every module of the package."""
+    modules = {}
+    for path in sorted(PACKAGE.rglob('*.py')):
+        parts = ('mlx_tempcomp',) + path.relative_to(PACKAGE).with_suffix('').parts
+        if parts[-1] == '__init__':
+            parts = parts[:-1]
+        modules['.'.join(parts)] = path
+    return modules
+
+
+def _layer(module: str) -> str:
+    """Give the layer of a module: its name after ``mlx_tempcomp.`` ('' for the package)."""
+    parts = module.split('.')
+    return parts[1] if len(parts) > 1 else ''
+
+
+def _imports(module: str, path: Path):
+    """Yield (line, imported module, names) of every import in ``path``, made absolute."""
+    package = module.split('.') if path.name == '__init__.py' else module.split('.')[:-1]
+    for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, ()
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            target = '.'.join(base + ([node.module] if node.module else []))
+            yield node.lineno, target, tuple(alias.name for alias in node.names)
+
+
+def _package_imports():
+    """Yield (module, line, imported module, names) of every import of the package."""
+    for module, path in _modules().items():
+        for line, target, names in _imports(module, path):
+            yield module, line, target, names
+
+
+def test_every_module_is_in_a_layer():
+    unplaced = [m for m in _modules() if _layer(m) and _layer(m) not in ALLOWED]
+    assert not unplaced, (f'{unplaced}: add their layer to ALLOWED here and to '
+                          f'{ARCHITECTURE.name}')
+
+
+def test_every_layer_imports_only_the_layers_below_it():
+    wrong = []
+    for module, line, target, _ in _package_imports():
+        if not target.startswith('mlx_tempcomp.') or not _layer(module):
+            continue
+        # ``from ..sources import adis16130``: the layer is in the module part.
+        layer, imported = _layer(module), _layer(target)
+        if imported != layer and imported not in ALLOWED.get(layer, set()) | EVERYWHERE:
+            wrong.append(f'{module}:{line} imports {target} ({layer} -> {imported})')
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_only_ros_imports_ros_packages_and_core_only_numpy():
+    wrong = []
+    for module, line, target, _ in _package_imports():
+        top = target.split('.')[0]
+        layer = _layer(module)
+        if ROS_PACKAGE.match(top) and layer != 'ros':
+            wrong.append(f'{module}:{line} imports {target}: only ros/ may')
+        if layer == 'core' and top not in ('mlx_tempcomp', *sys.stdlib_module_names,
+                                           *CORE_THIRD_PARTY):
+            wrong.append(f'{module}:{line} imports {target}: core is numpy-only')
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_no_module_imports_a_private_name_of_another():
+    wrong = [f'{module}:{line} imports {name} from {target}'
+             for module, line, target, names in _package_imports()
+             if target.startswith('mlx_tempcomp') for name in names
+             if name.startswith('_') and not name.startswith('__')]
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_the_architecture_document_shows_the_same_graph():
+    text = ARCHITECTURE.read_text(encoding='utf-8')
+    section = text.split('## Layers and import direction', 1)[1].split('\n## ', 1)[0]
+    documented = {}
+    for row in re.findall(r'^\|\s*`(\w+)`\s*\|(.*)\|\s*$', section, flags=re.MULTILINE):
+        layer, cells = row
+        documented[layer] = set(re.findall(r'`(\w+)`', cells.split('|')[-1]))
+    assert documented == ALLOWED
+
+
+# Run by a fresh interpreter: argv[1] is JSON {modules, folder}; prints a JSON report.
+_WITHOUT_ROS = r"""
+import contextlib, importlib, io, json, re, sys
+
+class RefuseRos:
+    # Refuse rclpy and the message packages, as on a machine without ROS.
+    def find_spec(self, name, path=None, target=None):
+        if re.match(PATTERN, name.split('.')[0]):
+            raise ModuleNotFoundError(f'{name} refused: this process runs without ROS')
+        return None
+
+sys.meta_path.insert(0, RefuseRos())
+job = json.loads(sys.argv[1])
+for module in job['modules']:
+    importlib.import_module(module)
+from mlx_tempcomp.cli import build_parser, main
+report = {'loaded': sorted(name for name in sys.modules
+                           if name.split('.')[0] in job['optional']), 'help': {}}
+commands = [action for action in build_parser()._actions if action.choices and
+            action.dest == 'command'][0].choices
+for argv in [['--help']] + [[command, '--help'] for command in commands]:
+    out, code = io.StringIO(), None
+    with contextlib.redirect_stdout(out):
+        try:
+            main(argv)
+        except SystemExit as end:
+            code = end.code
+    report['help'][' '.join(argv)] = [code, out.getvalue()]
+out = io.StringIO()
+with contextlib.redirect_stdout(out):
+    code = main(['evaluate', job['folder'] + '/rest.csv', '--params',
+                 job['folder'] + '/params.yaml', '--json'])
+report['evaluate'] = [code, json.loads(out.getvalue())]
+report['ros_loaded'] = sorted(name for name in sys.modules
+                              if re.match(PATTERN, name.split('.')[0]))
+print(json.dumps(report))
+"""
+
+PARAMS = """compensation_node:
+  ros__parameters:
+    model: polynomial
+    axes: ['z']
+    polynomial:
+      bias:
+        z: [0.01, 0.002]
+"""
+
+
+@pytest.fixture(scope='module')
+def without_ros(tmp_path_factory):
+    """Import the package outside ros/ and run the CLI with ROS refused; give the report."""
+    folder = tmp_path_factory.mktemp('without_ros')
+    # At rest, temperature 20 to 30 C: the model's bias is exactly what the gyro reads.
+    rows = ['time,temperature,gyro_z'] + [
+        f'{0.1 * k!r},{20.0 + k!r},{0.01 + 0.002 * (20.0 + k - 25.0)!r}' for k in range(11)]
+    (folder / 'rest.csv').write_text('\n'.join(rows) + '\n', encoding='utf-8')
+    (folder / 'params.yaml').write_text(PARAMS, encoding='utf-8')
+    modules = [m for m in _modules() if _layer(m) != 'ros']
+    job = json.dumps({'modules': modules, 'folder': str(folder), 'optional': OPTIONAL_HEAVY})
+    script = _WITHOUT_ROS.replace('PATTERN', repr(ROS_PACKAGE.pattern))
+    done = subprocess.run([sys.executable, '-c', script, job], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+def test_every_module_outside_ros_imports_without_ros(without_ros):
+    assert without_ros['ros_loaded'] == []
+
+
+def test_help_of_every_subcommand_prints_without_ros(without_ros):
+    helps = without_ros['help']
+    assert {'--help', 'evaluate --help', 'fit --help', 'diagnose --help'} <= set(helps)
+    for argv, (code, text) in helps.items():
+        assert code == 0 and text.startswith('usage: mlx-tempcomp'), (argv, code, text)
+
+
+def test_evaluate_runs_a_parameter_file_without_ros(without_ros):
+    code, report = without_ros['evaluate']
+    assert code == 0
+    assert report['model'] == 'polynomial' and report['rows'] == 11
+    assert report['per_sample']['z']['samples'] == 11
+    assert abs(report['per_sample']['z']['peak']) < 1e-15
+
+
+def test_optional_heavy_imports_stay_out(without_ros):
+    assert without_ros['loaded'] == []

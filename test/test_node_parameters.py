@@ -1,0 +1,46 @@
+"""
+The rclpy-free parameter schema against rclpy: the same type names and the same descriptors.
+
+`node_parameters` checks a parameter file's values without a node (``evaluate``, the MPU
+offset refresh); the nodes declare the same specs through rclpy. Both must agree on every
+value a YAML file can give.
+"""
+
+from hypothesis import given, strategies as st
+from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, NoDefault,
+                                          type_of)
+from mlx_tempcomp.ros.params import descriptor
+import pytest
+from rclpy.parameter import Parameter
+
+scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=5),
+                    st.binary(max_size=2), st.dates())
+yaml_values = st.one_of(scalars, st.lists(scalars, max_size=4),
+                        st.lists(st.sampled_from([True, 1, 1.0, 'a', b'b']), max_size=4))
+
+
+def rclpy_type(value):
+    try:
+        return Parameter.Type.from_parameter_value(value).name.lower()
+    except TypeError:
+        return None
+
+
+@given(yaml_values)
+def test_type_of_names_the_type_rclpy_gives(value):
+    assert type_of(value) == rclpy_type(value)
+
+
+@pytest.mark.parametrize('spec', COMPENSATION_SPECS + DRIVER_SPECS, ids=lambda spec: spec.name)
+def test_each_spec_has_an_rcl_type_and_its_descriptor(spec):
+    declared = Parameter.Type[spec.value_type.upper()] if isinstance(spec.default, NoDefault) \
+        else Parameter.Type.from_parameter_value(spec.default)
+    assert declared.name.lower() == spec.value_type
+    result = descriptor(spec)
+    assert result.read_only == spec.read_only
+    assert result.description.startswith(spec.description)
+    ranges = list(result.integer_range) + list(result.floating_point_range)
+    if spec.low is None:
+        assert ranges == []
+    else:
+        assert [(r.from_value, r.to_value) for r in ranges] == [(spec.low, spec.high)]
