@@ -150,6 +150,10 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.pace_topic', 'imu/data',
          'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
          read_only=True),
+    Spec('bag.pace_timeout_s', 1.0,
+         'at rate factor 0: after this long without progress on bag.pace_topic the replay '
+         'goes on anyway (a replay nobody consumes still ends)',
+         read_only=True, low=0.001, high=3600.0),
     Spec('bag.on_end', 'stop', 'at the end of the bag: stop (log a summary, exit 0), loop '
          '(start over, stamps shifted to keep increasing) or hold (stay up, publish nothing)',
          read_only=True, choices=('stop', 'loop', 'hold')),

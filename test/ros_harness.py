@@ -487,9 +487,11 @@ def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
                    extra_args=['--params-file', model_file], label='compensation')
     probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
                      'the compensation node publishing imu/data', launcher)
-    # hold: the driver stays up after the replay, so finish_model_replay hears 'finished'.
+    # hold: the driver stays up after the replay, so finish_model_replay hears 'finished'; a
+    # long pace time-out: a node stalled by a loaded machine is waited for, not overrun.
     return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
-                            'bag.on_end': 'hold', **(driver_params or {})}, label='driver')
+                            'bag.on_end': 'hold', 'bag.pace_timeout_s': 60.0,
+                            **(driver_params or {})}, label='driver')
 
 
 def finish_model_replay(launcher, probe, stamps_ns, messages_in_bag: int,
@@ -499,8 +501,9 @@ def finish_model_replay(launcher, probe, stamps_ns, messages_in_bag: int,
                                lambda s: status_values(s).get('state') == 'finished',
                                timeout, 'the replay to finish', launcher)
     assert status_values(status)['published'] == str(messages_in_bag)
+    assert status_values(status)['pace_timeouts'] == '0'
     samples = len(stamps_ns)
-    probe.spin_until(lambda: probe.count('imu/data') >= samples, 10.0,
+    probe.spin_until(lambda: probe.count('imu/data') >= samples, 30.0,
                      f'{samples} compensated samples', launcher)
     probe.drain()
     received = by_stamp(probe.received['imu/data'])

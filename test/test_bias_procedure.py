@@ -268,7 +268,10 @@ def test_cli_ctrl_c_writes_nothing(tmp_path):
         [sys.executable, '-m', 'mlx_tempcomp.cli', 'adis-bias', '--source', 'simulated',
          '--time-scale', '1', '--rate-hz', '50', '--out', str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, 'PYTHONUNBUFFERED': '1'})
+        env={**os.environ, 'PYTHONUNBUFFERED': '1'},
+        # As from a terminal: a suite started in the background of a script inherits SIGINT
+        # ignored, and Python then installs no KeyboardInterrupt for it.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # Interrupted in the first window, after the first phase was announced.
         while not process.stdout.readline().startswith('phase point_1'):

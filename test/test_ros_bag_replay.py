@@ -90,7 +90,8 @@ def test_replayed_bag_compensates_like_the_live_run(launcher, probe, tmp_path, s
     # hold: the driver stays up after the replay, so its 'finished' status keeps coming (the
     # end of a replay is tested on its own below).
     driver = launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.on_end': 'hold',
-                              'bag.rate_factor': rate_factor}, label='replay_driver')
+                              'bag.rate_factor': rate_factor, 'bag.pace_timeout_s': 60.0},
+                             label='replay_driver')
     status = probe.wait_status(DRIVER_DIAGNOSTIC,
                                lambda s: status_values(s).get('state') == 'finished',
                                TIMEOUT_S, 'the replay to finish', launcher)

@@ -52,9 +52,8 @@ ACK_TIMEOUT = Duration(seconds=1.0)
 # reader takes longer than the EEPROM's 1 s; past it the driver exits regardless).
 LAST_STATUS_ACK_TIMEOUT = Duration(seconds=5.0)
 # A bag replayed at rate factor 0 stays this many samples ahead of its consumer; without
-# progress for PACE_TIMEOUT_S it goes on anyway (nobody may be consuming).
+# progress for bag.pace_timeout_s it goes on anyway (nobody may be consuming).
 PACE_WINDOW = 100
-PACE_TIMEOUT_S = 1.0
 MATCH_GRACE_S = 2.0
 # bag.on_end stop: the last messages are on their way before the process exits.
 STOP_LINGER_S = 0.2
@@ -389,6 +388,7 @@ class BagStream:
         self.in_flight = collections.deque()
         self.last_progress = time.monotonic()
         self.pace_timeouts = 0
+        self.pace_timeout_s = values['bag.pace_timeout_s']
         if self.rate_factor == 0.0:
             node.create_subscription(Imu, values['bag.pace_topic'], self.on_consumed,
                                      SENSOR_INPUT_QOS)
@@ -467,7 +467,7 @@ class BagStream:
         """bag.on_end stop: exit once the consumer caught up (rate factor 0) and a linger."""
         now = time.monotonic()
         if now - self.finished_wall < STOP_LINGER_S or (
-                self.in_flight and now - self.last_progress < PACE_TIMEOUT_S):
+                self.in_flight and now - self.last_progress < self.pace_timeout_s):
             return
         self.timer.cancel()
         # The last status says 'finished'; it is reliable: wait until its readers have it.
@@ -487,7 +487,7 @@ class BagStream:
         """Tell whether the replay must wait for its consumer before the next sample."""
         if len(self.in_flight) < PACE_WINDOW:
             return False
-        if time.monotonic() - self.last_progress < PACE_TIMEOUT_S:
+        if time.monotonic() - self.last_progress < self.pace_timeout_s:
             return True
         self.pace_timeouts += 1
         self.in_flight.clear()
