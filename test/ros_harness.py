@@ -78,6 +78,15 @@ COMPENSATION_DIAGNOSTIC = 'compensation_node: compensation'
 RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.BEST_EFFORT,
                         durability=DurabilityPolicy.VOLATILE)
+# A replay that checks content needs every sample: a lost input changes the node's history
+# state, so every later output. Best effort drops messages on a starved machine; these
+# streams are made reliable, with a deep history, by the nodes' standard qos_overrides.
+RELIABLE_RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.VOLATILE)
+REPLAY_INPUTS = ('imu/data_raw', 'imu/temperature_raw', 'imu/temperature_raw/x',
+                 'imu/temperature_raw/y', 'imu/temperature_raw/z', 'imu/temperature_2_raw',
+                 'imu/supply_voltage')
 
 
 def executable(name: str) -> str:
@@ -476,14 +485,22 @@ def first_line_with(text: str, needle: str) -> str:
     return ''
 
 
+def reliable(topics, entity: str) -> dict:
+    """Give the qos_overrides parameters that make ``entity`` of ``topics`` lose nothing."""
+    return {f'qos_overrides./{topic}.{entity}.{policy}': value for topic in topics
+            for policy, value in (('reliability', 'reliable'), ('depth', 5000))}
+
+
 def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
                        driver_params: dict = None, timeout: float = 60.0, **params):
     """Start compensation_node on ``model_file``, then the bag driver at rate factor 0."""
-    probe.subscribe(Imu, 'imu/data')
+    probe.subscribe(Imu, 'imu/data', RELIABLE_RECORD_QOS)
     probe.subscribe_diagnostics()
     # A state file of its own: a learned ZRO offset from elsewhere would shift every sample.
     launcher.start('compensation_node', 'compensation_node',
-                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'),
+                    **reliable(REPLAY_INPUTS, 'subscription'),
+                    **reliable(['imu/data'], 'publisher'), **params},
                    extra_args=['--params-file', model_file], label='compensation')
     probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
                      'the compensation node publishing imu/data', launcher)
@@ -491,6 +508,7 @@ def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
     # long pace time-out: a node stalled by a loaded machine is waited for, not overrun.
     return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,
                             'bag.on_end': 'hold', 'bag.pace_timeout_s': 60.0,
+                            **reliable(REPLAY_INPUTS, 'publisher'),
                             **(driver_params or {})}, label='driver')
 
 

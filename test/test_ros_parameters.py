@@ -4,7 +4,8 @@ from pathlib import Path
 
 from mlx_tempcomp.ros import messages
 import pytest
-from ros_harness import by_stamp, first_line_with, simulated_driver_params
+from rclpy.qos import ReliabilityPolicy
+from ros_harness import by_stamp, first_line_with, reliable, simulated_driver_params
 
 pytestmark = pytest.mark.ros
 
@@ -37,6 +38,12 @@ INVALID = {
                               'linear_btc.pbc_rad_s': [0.0],
                               'linear_btc.btc_rad_s_per_c': [0.0, 0.0]},
                              'invalid parameter linear_btc.pbc_rad_s: needs 2 values'),
+    'qos_override_misspelt': ('compensation_node',
+                              {'qos_overrides./imu/data_raw.subscription.reliability': 'relible'},
+                              'invalid qos_overrides for imu/data_raw: Unexpected QoS override '
+                              'for policy `reliability`: `relible` (history: keep_last or '
+                              'keep_all; depth: an integer; reliability: reliable or '
+                              'best_effort)'),
     'stale_timeout_negative': ('compensation_node', {'stale_timeout_s': -1.0},
                                'invalid parameter stale_timeout_s: Invalid parameter value '
                                '(-1.0) for parameter. Reason: Parameter stale_timeout_s out of '
@@ -153,6 +160,33 @@ def test_an_integer_is_taken_where_a_double_is_meant(launcher, probe, tmp_path):
                                         ['stale_timeout_s', 'polynomial.bias.z'])
     assert compensation == {'stale_timeout_s': 2.0, 'polynomial.bias.z': [0.0, 1.0]}
     assert isinstance(compensation['stale_timeout_s'], float)
+
+
+def test_qos_overrides_make_the_streams_reliable(launcher, probe, tmp_path):
+    # The standard qos_overrides parameters: best effort by default (REP-2003), reliable
+    # and deep where a replay must lose nothing.
+    launcher.driver(simulated_driver_params(**reliable(['imu/data_raw'], 'publisher')))
+    launcher.compensation({**reliable(['imu/data_raw'], 'subscription'),
+                           'recalibration.state_file': str(tmp_path / 'zro.yaml')})
+
+    def endpoint(kind, topic):
+        found = getattr(probe.node, f'get_{kind}_info_by_topic')(topic)
+        return found[0].qos_profile if found else None
+    probe.spin_until(lambda: endpoint('publishers', '/imu/data_raw') and
+                     endpoint('subscriptions', '/imu/data_raw') and
+                     endpoint('publishers', '/imu/temperature_raw'), TIMEOUT_S,
+                     'the raw streams', launcher)
+    # (The graph reports reliability, not history or depth: those are read back below.)
+    for kind in ('publishers', 'subscriptions'):
+        assert endpoint(kind, '/imu/data_raw').reliability == ReliabilityPolicy.RELIABLE, kind
+    # Not overridden: the sensor-data profile.
+    qos = endpoint('publishers', '/imu/temperature_raw')
+    assert qos.reliability == ReliabilityPolicy.BEST_EFFORT
+    assert probe.get_parameters('driver_node', [
+        'qos_overrides./imu/data_raw.publisher.reliability',
+        'qos_overrides./imu/data_raw.publisher.depth']) == {
+            'qos_overrides./imu/data_raw.publisher.reliability': 'reliable',
+            'qos_overrides./imu/data_raw.publisher.depth': 5000}
 
 
 LINEAR_BTC = {'model': 'linear_btc', 'linear_btc.pbc_rad_s': [0.01],

@@ -31,7 +31,7 @@ from std_srvs.srv import Trigger
 
 from . import messages
 from .params import declare
-from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
+from .qos import EEPROM_QOS, stream_publisher, stream_subscription
 from .runner import run
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
@@ -139,22 +139,21 @@ class CompensationNode(Node):
         self.dropped_before = 0   # by pairers replaced on a model change
         # Pairer stream -> subscription: what on_input takes waiting messages from.
         self.input_subscriptions = {}
-        self.imu_publisher = self.create_publisher(Imu, 'imu/data', SENSOR_QOS)
-        self.temperature_publisher = self.create_publisher(Temperature, 'imu/temperature',
-                                                           SENSOR_QOS)
+        self.imu_publisher = stream_publisher(self, Imu, 'imu/data')
+        self.temperature_publisher = stream_publisher(self, Temperature,
+                                                      'imu/temperature')
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
         if not local_input:
-            self.input_subscriptions['imu'] = self.create_subscription(
-                Imu, 'imu/data_raw', self.on_imu, SENSOR_INPUT_QOS)
+            self.input_subscriptions['imu'] = stream_subscription(
+                self, Imu, 'imu/data_raw', self.on_imu)
             topics = [f'imu/temperature_raw/{axis}' for axis in self.axes] if per_axis else \
                 ['imu/temperature_raw']
             for stream, topic in zip(self.temperature_streams, topics):
-                self.input_subscriptions[stream] = self.create_subscription(
-                    Temperature, topic, lambda msg, s=stream: self.on_temperature(s, msg),
-                    SENSOR_INPUT_QOS)
+                self.input_subscriptions[stream] = stream_subscription(
+                    self, Temperature, topic, lambda msg, s=stream: self.on_temperature(s, msg))
         # Its own group: while the service awaits its window, the default group (stream,
         # timers) keeps running in the same single thread. Reentrant, so a second request
         # is taken (and refused) while the first awaits: a mutually exclusive group would
@@ -278,8 +277,8 @@ class CompensationNode(Node):
                 _, kind, topic, _ = _AUXILIARY[stream]
                 callback = self.on_supply_voltage if self.held(stream) else \
                     (lambda msg, s=stream: self.on_temperature(s, msg))
-                self.input_subscriptions[stream] = self.create_subscription(
-                    kind, topic, callback, SENSOR_INPUT_QOS)
+                self.input_subscriptions[stream] = stream_subscription(
+                    self, kind, topic, callback)
         streams = ('imu',) + self.temperature_streams + tuple(
             s for s in self.auxiliary if not self.held(s))
         if streams != self.pairer.streams:

@@ -30,7 +30,7 @@ from std_msgs.msg import UInt8MultiArray
 from . import messages
 from .devices import AdisStream, MpuStream, refuse_fault, TimedStream
 from .params import declare
-from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
+from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, stream_publisher
 from .runner import run
 from ..core.compensation import NominalConversion
 from ..core.conversion import Output
@@ -77,13 +77,13 @@ class DriverNode(Node):
         self.frame_id = self.values['frame_id']
         self.covariance = messages.rate_covariance(self.indices,
                                                    self.values['rate_noise_rad_s'])
-        self.imu_publisher = self.create_publisher(Imu, 'imu/data_raw', SENSOR_QOS)
-        self.temperature_publisher = self.create_publisher(
-            Temperature, 'imu/temperature_raw', SENSOR_QOS)
+        self.imu_publisher = stream_publisher(self, Imu, 'imu/data_raw')
+        self.temperature_publisher = stream_publisher(self, Temperature,
+                                                      'imu/temperature_raw')
         # One temperature per chip, and the EEPROM, are MLX90609 things (a bag may hold them).
         mlx = self.device == 'mlx90609' or self.values['source'] == 'bag'
         self.axis_temperature_publishers = [
-            self.create_publisher(Temperature, f'imu/temperature_raw/{axis}', SENSOR_QOS)
+            stream_publisher(self, Temperature, f'imu/temperature_raw/{axis}')
             for axis in self.axes] if len(self.axes) > 1 and mlx else []
         self.eeprom_publisher = self.create_publisher(UInt8MultiArray, 'imu/eeprom',
                                                       EEPROM_QOS) if mlx else None
@@ -230,8 +230,8 @@ class SensorStream(TimedStream):
         self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ,
                             self.simulated and values['simulation.lossless'])
         monitor_hz = values['simulation.supply_monitor_hz']
-        self.supply_publisher = node.create_publisher(
-            BatteryState, 'imu/supply_voltage', SENSOR_QOS) if monitor_hz else None
+        self.supply_publisher = stream_publisher(
+            node, BatteryState, 'imu/supply_voltage') if monitor_hz else None
         self.supply_period_s = 1.0 / monitor_hz if monitor_hz else None
         self.supply_readings = 0
         node.get_logger().info(
@@ -361,11 +361,11 @@ class BagStream:
                 msg = (f'invalid parameter bag.temperature_2_topic: no topic '
                        f'{absolute_topic(temperature_2_topic)} in {path}')
                 raise ParameterError(msg)
-            self.publishers[temperature_2_topic.strip('/')] = (node.create_publisher(
-                Temperature, 'imu/temperature_2_raw', SENSOR_QOS), 'temperature_2')
+            self.publishers[temperature_2_topic.strip('/')] = (stream_publisher(
+                node, Temperature, 'imu/temperature_2_raw'), 'temperature_2')
         self.temperature_topic = temperature_topic.strip('/')
-        self.supply_publisher = node.create_publisher(
-            BatteryState, 'imu/supply_voltage', SENSOR_QOS) if self.reader.has_supply_voltage \
+        self.supply_publisher = stream_publisher(
+            node, BatteryState, 'imu/supply_voltage') if self.reader.has_supply_voltage \
             else None
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
