@@ -6,12 +6,15 @@ offset refresh); the nodes declare the same specs through rclpy. Both must agree
 value a YAML file can give.
 """
 
+from pathlib import Path
+
 from hypothesis import given, strategies as st
 from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, NoDefault,
                                           type_of)
 from mlx_tempcomp.ros.params import descriptor
 import pytest
 from rclpy.parameter import Parameter
+import yaml
 
 scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=5),
                     st.binary(max_size=2), st.dates())
@@ -44,3 +47,28 @@ def test_each_spec_has_an_rcl_type_and_its_descriptor(spec):
         assert ranges == []
     else:
         assert [(r.from_value, r.to_value) for r in ranges] == [(spec.low, spec.high)]
+
+
+def test_the_shipped_config_lists_every_parameter():
+    """config/mlx_tempcomp.yaml says it lists every parameter: hold it to that."""
+    config = Path(__file__).resolve().parents[1] / 'config' / 'mlx_tempcomp.yaml'
+    text = config.read_text()
+    listed = set(flat_names(yaml.safe_load(text)['/**']['ros__parameters']))
+    specs = {spec.name: spec for spec in DRIVER_SPECS + COMPENSATION_SPECS}
+    assert sorted(listed - specs.keys()) == []
+    # Coefficients a fit writes (effects, chain) and arrays with no default are given in
+    # comments; every other parameter is a key with its default.
+    commented = {name for name, spec in specs.items() if name.startswith(('effects.', 'chain.'))
+                 or isinstance(spec.default, NoDefault) or spec.default == []}
+    assert sorted(specs.keys() - listed - commented) == []
+    for name in commented - listed:
+        key = name.removesuffix('.x').removesuffix('.y').removesuffix('.z').split('.')[-1]
+        assert key in text.replace('#', ''), name
+
+
+def flat_names(tree: dict, prefix: str = ''):
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            yield from flat_names(value, f'{prefix}{key}.')
+        else:
+            yield f'{prefix}{key}'
