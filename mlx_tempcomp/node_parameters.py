@@ -393,6 +393,20 @@ COMPENSATION_SPECS = COMMON_SPECS + (
 KNOWN_NAMES = frozenset(spec.name for spec in DRIVER_SPECS + COMPENSATION_SPECS)
 
 
+def widen_integers(spec: Spec, value):
+    """
+    Give an integer (or list of integers) meant for a double parameter as float(s).
+
+    YAML reads ``stale_timeout_s: 2`` as an integer; the nodes take it as 2.0, and so does
+    every reader of their files.
+    """
+    if spec.value_type == 'double' and type_of(value) == 'integer':
+        return float(value)
+    if spec.value_type == 'double_array' and type_of(value) == 'integer_array':
+        return [float(v) for v in value]
+    return value
+
+
 def check_value(spec: Spec, value) -> None:
     """Raise `ParameterError` unless ``value`` has the type and range rcl takes for ``spec``."""
     given = type_of(value)
@@ -473,7 +487,7 @@ def node_values(path: str, node_name: str) -> dict:
         if spec.name not in overrides:
             values[spec.name] = spec.initial_value
             continue
-        value = overrides[spec.name]
+        value = widen_integers(spec, overrides[spec.name])
         try:
             check_value(spec, value)
         except ParameterError as err:

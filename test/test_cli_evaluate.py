@@ -181,7 +181,7 @@ def test_eeprom_model_from_bag_or_image_files(tmp_path, capsys):
     ('compensation_node:\n  ros__parameters:\n    model: polynomial\n    axes: [x]\n',
      'invalid parameter polynomial.bias.x'),
     ('compensation_node:\n  ros__parameters:\n    model: linear_btc\n    linear_btc:\n'
-     '      t3_c: 25\n', 'invalid parameter linear_btc.t3_c: expected double, got integer'),
+     '      t3_c: warm\n', 'invalid parameter linear_btc.t3_c: expected double, got string'),
     ('compensation_node:\n  ros__parameters:\n    polynomial:\n'
      '      temperature_scale_c: 0.0\n', 'polynomial.temperature_scale_c: 0.0 is outside'),
     ('- 1\n- 2\n', 'is not a mapping of node sections'),

@@ -9,7 +9,8 @@ value a YAML file can give.
 from pathlib import Path
 
 from hypothesis import given, strategies as st
-from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, NoDefault,
+from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, node_values,
+                                          NoDefault, ParameterError,
                                           type_of)
 from mlx_tempcomp.ros.params import descriptor
 import pytest
@@ -72,3 +73,19 @@ def flat_names(tree: dict, prefix: str = ''):
             yield from flat_names(value, f'{prefix}{key}.')
         else:
             yield f'{prefix}{key}'
+
+
+def test_a_file_s_integer_for_a_double_is_read_as_the_nodes_take_it(tmp_path):
+    """The toolkit reads ``2`` where a double is meant as 2.0, as the nodes do."""
+    path = tmp_path / 'ints.yaml'
+    path.write_text('compensation_node:\n  ros__parameters:\n    stale_timeout_s: 2\n'
+                    '    model: polynomial\n    polynomial:\n      bias:\n        z: [0, 1]\n')
+    values = node_values(str(path), 'compensation_node')
+    assert values['stale_timeout_s'] == 2.0 and isinstance(values['stale_timeout_s'], float)
+    assert values['polynomial.bias.z'] == [0.0, 1.0]
+    assert all(isinstance(v, float) for v in values['polynomial.bias.z'])
+    # An integer where an integer is meant stays one; a string is still refused.
+    path.write_text('compensation_node:\n  ros__parameters:\n    stale_timeout_s: two\n')
+    with pytest.raises(ParameterError, match='invalid parameter stale_timeout_s: expected '
+                                             "double, got string \\('two'\\)"):
+        node_values(str(path), 'compensation_node')
