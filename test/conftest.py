@@ -1,15 +1,40 @@
 """Session-wide test set-up: private DDS traffic and hardware-only tests."""
 
+import fcntl
 import glob
 import os
+import tempfile
 
 from hypothesis import HealthCheck, settings
 import pytest
 
+
+def _claim_domain_id() -> int:
+    """
+    Give a ROS domain no other test session on this machine holds, and hold it.
+
+    A lock file per domain, held (flock) until this process exits: two sessions at once
+    (CI beside a developer's run) never share a domain, whatever their pids.
+    """
+    for offset in range(101):
+        domain_id = (os.getpid() + offset) % 101 + 1
+        lock = open(os.path.join(tempfile.gettempdir(),
+                                 f'mlx_tempcomp_test_domain_{domain_id}.lock'), 'w')
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.close()
+            continue
+        _DOMAIN_LOCKS.append(lock)   # kept open: the lock lasts as long as the session
+        return domain_id
+    raise RuntimeError('every ROS domain 1-101 is held by another test session')
+
+
+_DOMAIN_LOCKS = []
 # Set at import time, before any test initializes rclpy. Every subprocess a test starts
 # inherits os.environ, so nodes it launches join the same private, localhost-only domain
 # and never see (or disturb) a robot or another test session on the network.
-os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
+os.environ['ROS_DOMAIN_ID'] = str(_claim_domain_id())
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
 
