@@ -12,7 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
-from mlx_tempcomp.ros.devices import offsets_state
+from mlx_tempcomp.ros.mpu6000_stream import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
