@@ -13,7 +13,9 @@ Follows the application note "Using Hardware Offset Registers for Calibration":
   factory value kept: new = factory - (bias & ~1).
 
 Values are Python ints; rounding is half away from zero, so a bias and its
-negative give registers of opposite sign.
+negative give registers of opposite sign. `recalibrated_offsets` corrects
+offsets already in place by what a rest window still sees; `OffsetRefresh`
+makes the gyro registers follow a bias model as the temperature moves.
 """
 
 from dataclasses import dataclass
