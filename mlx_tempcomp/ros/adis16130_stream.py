@@ -17,9 +17,8 @@ from std_srvs.srv import Trigger
 
 from . import messages
 from .qos import STATUS_QOS
-from .service_window import await_window
-from .timed_stream import (chip_select, DeviceStream, speed_hz, STALL_TIMEOUT_S, StreamPorts,
-                           thermal_profile)
+from .service_window import await_window, STALL_TIMEOUT_S
+from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
 from ..core.errors import CalibrationError, TempCompError
 from ..core.noise import allan_deviation

@@ -18,9 +18,8 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from std_srvs.srv import Trigger
 
 from . import messages
-from .service_window import await_window, SampleWindow
-from .timed_stream import (chip_select, DeviceStream, speed_hz, STALL_TIMEOUT_S, StreamPorts,
-                           thermal_profile)
+from .service_window import await_window, SampleWindow, STALL_TIMEOUT_S
+from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
 from ..core.models import AXIS_NAMES
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
@@ -172,6 +171,7 @@ class MpuStream(DeviceStream):
             self._start_refresh()
         ports.node.create_service(Trigger, 'imu/calibrate_offsets', self.calibrate_offsets,
                                   callback_group=ReentrantCallbackGroup())
+        # The gyro's natural rate: 8 kHz with DLPF_CFG 0 or 7, else 1 kHz, over 1 + SMPLRT_DIV.
         gyro_rate_hz = 8000.0 if options['dlpf_config'] in (0, 7) else 1000.0
         super().__init__(ports, source, hardware_id, values['source'] == 'simulated',
                          gyro_rate_hz / (1 + options['sample_rate_divider']))

@@ -14,6 +14,8 @@ from rclpy.task import Future
 
 # How often a service checks its stream for a stall (wall time).
 POLL_S = 0.1
+# A device's service window that gets no sample for this long (wall time) gives up.
+STALL_TIMEOUT_S = 5.0
 
 
 class SampleWindow:

@@ -38,8 +38,6 @@ MISSED_WINDOW_S = 1.0
 MISSED_LOG_THROTTLE_S = 5.0
 # Shortest timer period of a driver: each tick costs the executor a wake-up.
 MIN_TICK_S = 0.001
-# A service window that gets no sample for this long (wall time) gives up.
-STALL_TIMEOUT_S = 5.0
 
 
 @dataclass(frozen=True)
