@@ -9,7 +9,8 @@ import sys
 from cli_checks import assert_user_error, node_values
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.bias_procedure import (averaging_time_s, BiasPoint, BiasProcedure,
-                                              btc_rad_s_per_c, Phase, ProcedureSettings)
+                                              btc_rad_s_per_c, MIN_WINDOW_SAMPLES, Phase,
+                                              ProcedureSettings, short_window)
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import format_btc_table
 from mlx_tempcomp.core.models import LinearBtcModel
@@ -117,6 +118,17 @@ def synthetic(procedure, start_s, stop_s, rate_hz, rate, temperature, rng, noise
     """Feed rate(t) + white noise and temperature(t) from start_s up to stop_s."""
     for t in np.arange(start_s, stop_s, 1.0 / rate_hz):
         procedure.add(t, rate(t) + noise_rad_s * rng.standard_normal(), temperature(t))
+
+
+def test_short_window_names_the_first_window_too_short():
+    assert short_window(100.0, 10.0, None, 60.0) is None
+    assert short_window(100.0, 0.05, 0.05, 0.5) == (
+        'average_s', 0.05, f'gives fewer than {MIN_WINDOW_SAMPLES} samples')
+    assert short_window(100.0, 10.0, 0.05, 0.5)[:2] == ('pbc_s', 0.05)
+    name, seconds, why = short_window(100.0, 10.0, 150.0, 0.5)
+    assert (name, seconds) == ('allan_record_s', 0.5)
+    assert why.endswith('samples an Allan deviation needs (0 skips it)')
+    assert short_window(100.0, 10.0, 150.0, 0.0) is None     # no rest record
 
 
 def test_phases_and_points_on_a_known_stream():

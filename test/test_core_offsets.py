@@ -1,9 +1,13 @@
 """Offset register encoding of "Using Hardware Offset Registers for Calibration", by hand."""
 
+import math
+
 from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.core.offsets import (
     accel_offset_lsb, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb,
-    merge_preserving_bit0, rest_bias, STANDARD_GRAVITY_M_S2, twos_complement)
+    merge_preserving_bit0, OffsetRefresh, recalibrated_offsets, rest_bias, RestBias,
+    STANDARD_GRAVITY_M_S2, twos_complement)
 import numpy as np
 import pytest
 
@@ -114,3 +118,28 @@ def test_rest_bias_checks_shapes_and_values():
     accel[3, 1] = np.inf
     with pytest.raises(CalibrationError, match='1 non-finite'):
         rest_bias(gyro, accel)
+
+
+def test_recalibration_adds_its_correction_to_the_offsets_in_place():
+    # The window saw the offsets in place: its bias is a residual on top of them.
+    bias = RestBias(gyro_rad_s=(math.radians(2 * GYRO_OFFSET_DPS_PER_LSB), 0.0, 0.0),
+                    acceleration_m_s2=(0.08 * G, 0.0, 0.0), gravity_axis=2, gravity_sign=1,
+                    samples=10)
+    gyro, accel = recalibrated_offsets((10, -20, 0), (165, 0, -3), bias)
+    assert gyro == (8, -20, 0)
+    # The register holds 165 as 164 and -3 as -4 (bit 0 dropped): the correction adds to that.
+    assert accel == (164 + 164, 0, -4)
+
+
+def test_offset_refresh_adds_the_model_change_since_its_base():
+    lsb_rad_s = math.radians(GYRO_OFFSET_DPS_PER_LSB)
+    model = PolynomialModel(bias_coefficients=((0.3, lsb_rad_s), (0.0, -2 * lsb_rad_s),
+                                               (0.1, 0.0)))
+    refresh = OffsetRefresh(model, step_c=0.5)
+    assert refresh.due(25.0)                          # nothing written yet
+    # Without a base the registers cancel the whole bias.
+    assert refresh.registers(25.0) == gyro_offset_lsb(refresh.bias_rad_s(25.0))
+    refresh.base_lsb, refresh.base_temperature_c = (5, 0, -7), 25.0
+    assert refresh.registers(35.0) == (5 - 10, 0 + 20, -7)
+    refresh.temperature_c = 35.0
+    assert not refresh.due(35.4) and refresh.due(35.5) and refresh.due(34.5)

@@ -2,7 +2,8 @@ import math
 
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
 from mlx_tempcomp.core.pairing import StampPairer, zero_order_hold
-from mlx_tempcomp.core.recalibration import check_window, RecalibrationLimits
+from mlx_tempcomp.core.recalibration import (check_window, moving_axis, rate_spread_rad_s,
+                                             RecalibrationLimits)
 import numpy as np
 import pytest
 
@@ -36,6 +37,16 @@ def test_motion_and_drift_are_refused_with_the_reason():
         check_window(*window(drift_c=2.0), LIMITS)
     with pytest.raises(CalibrationError, match='only 5 valid samples'):
         check_window(*window(samples=5), LIMITS)
+
+
+def test_spread_and_the_axis_that_moved():
+    rate = np.array([[0.0, 1.0], [0.0, 3.0]])
+    np.testing.assert_allclose(rate_spread_rad_s(rate), [0.0, 1.0])
+    np.testing.assert_allclose(rate_spread_rad_s(rate, ddof=1), [0.0, math.sqrt(2.0)])
+    # One sample has no sample standard deviation: no spread, not NaN.
+    np.testing.assert_array_equal(rate_spread_rad_s(rate[:1], ddof=1), [0.0, 0.0])
+    assert moving_axis([0.5, 0.1, 0.7], rate_noise_rad_s=0.1, noise_multiple=3.0) == 2
+    assert moving_axis([0.25, 0.1], rate_noise_rad_s=0.1, noise_multiple=3.0) is None
 
 
 def test_non_finite_samples_are_skipped():

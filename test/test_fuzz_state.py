@@ -23,7 +23,7 @@ from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.models import EepromModel, PolynomialModel
 from mlx_tempcomp.core.table import factory_table
 from mlx_tempcomp.ros.compensation_node import saved_offset_model, zro_state_fields
-from mlx_tempcomp.ros.devices import MPU_OFFSETS_FIELDS
+from mlx_tempcomp.ros.mpu6000_stream import MPU_OFFSETS_FIELDS
 from mlx_tempcomp.state_file import load_state, StateFileError, write_state
 import numpy as np
 import pytest

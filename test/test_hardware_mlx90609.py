@@ -13,8 +13,9 @@ from mlx_tempcomp.hardware.errors import (
     EocTimeoutError, HardwareError, ProtocolError, RefusalError, SilentBusError)
 from mlx_tempcomp.hardware.mlx90609 import (
     ADCC, ADCR, ANSWER_ADEN, ANSWER_CHAN, ANSWER_EOC, Channel, Mlx90609, Reading, STATR)
+from mlx_tempcomp.simulation.clock import SimClock
 from mlx_tempcomp.simulation.mlx90609 import (
-    factory_eeprom, Fault, SimClock, simulated_device, SimulatedMlx90609)
+    factory_eeprom, Fault, simulated_device, SimulatedMlx90609)
 from mlx_tempcomp.simulation.physics import GyroPhysics, GyroTruth, Noise, Scenario
 import numpy as np
 import pytest

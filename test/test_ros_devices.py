@@ -12,7 +12,9 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
-from mlx_tempcomp.ros.devices import offsets_state
+from mlx_tempcomp.node_parameters import DEVICES
+from mlx_tempcomp.ros.driver_node import STREAMS
+from mlx_tempcomp.ros.mpu6000_stream import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
@@ -52,6 +54,11 @@ def start_recorded_pipeline(launcher, probe, driver: dict, compensation: dict,
     probe.subscribe(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
     probe.subscribe_diagnostics()
     return start_pipeline(launcher, probe, driver, compensation, axes, TIMEOUT_S)
+
+
+def test_every_device_has_a_stream():
+    # A device the parameter accepts but the driver cannot stream would fail only at start.
+    assert sorted(STREAMS) == sorted(DEVICES)
 
 
 def test_mlx90609_by_name_streams_with_its_eeprom(launcher, probe):

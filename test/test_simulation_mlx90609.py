@@ -4,7 +4,8 @@ import math
 import time
 
 from mlx_tempcomp.hardware.mlx90609 import Mlx90609, Reading
-from mlx_tempcomp.simulation.mlx90609 import SimClock, simulated_device
+from mlx_tempcomp.simulation.clock import SimClock
+from mlx_tempcomp.simulation.mlx90609 import simulated_device
 from mlx_tempcomp.simulation.physics import (
     Effects, GRAVITY_M_S2, GyroPhysics, GyroTruth, Noise, Scenario, ThermalProfile)
 import numpy as np

@@ -28,6 +28,7 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 from .models import LinearBtcModel
+from .noise import MIN_SAMPLES
 
 # The note's timings (AN-1042 steps 3 to 8).
 NOTE_AVERAGE_S = 10.0
@@ -123,6 +124,25 @@ def adev_at_rad_s(figures, tau_s: float) -> tuple:
     if tau_s > taus[-1]:
         return float(adev[-1]), False
     return float(np.exp(np.interp(math.log(tau_s), np.log(taus), np.log(adev)))), True
+
+
+def short_window(rate_hz: float, average_s: float, pbc_s: Optional[float],
+                 allan_record_s: float) -> Optional[tuple]:
+    """
+    Give (setting, seconds, why) for the first window too short at ``rate_hz``, or None.
+
+    The averaging windows (``average_s``, ``pbc_s``; None: advised later) need
+    MIN_WINDOW_SAMPLES samples; the rest record (``allan_record_s``, 0 skips it)
+    the MIN_SAMPLES of an Allan deviation. The caller names the setting its way.
+    """
+    for name, seconds in (('average_s', average_s), ('pbc_s', pbc_s)):
+        if seconds is not None and seconds * rate_hz < MIN_WINDOW_SAMPLES:
+            return name, seconds, f'gives fewer than {MIN_WINDOW_SAMPLES} samples'
+    if 0.0 < allan_record_s * rate_hz < MIN_SAMPLES:
+        return ('allan_record_s', allan_record_s,
+                f'gives fewer than the {MIN_SAMPLES} samples an Allan deviation needs '
+                '(0 skips it)')
+    return None
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,9 @@ Follows the application note "Using Hardware Offset Registers for Calibration":
   factory value kept: new = factory - (bias & ~1).
 
 Values are Python ints; rounding is half away from zero, so a bias and its
-negative give registers of opposite sign.
+negative give registers of opposite sign. `recalibrated_offsets` corrects
+offsets already in place by what a rest window still sees; `OffsetRefresh`
+makes the gyro registers follow a bias model as the temperature moves.
 """
 
 from dataclasses import dataclass
@@ -162,3 +164,55 @@ def rest_bias(gyro_rad_s, acceleration_m_s2, gravity_m_s2: float = STANDARD_GRAV
     return RestBias(gyro_rad_s=tuple(float(v) for v in gyro.mean(axis=0)),
                     acceleration_m_s2=tuple(float(v) for v in bias_accel),
                     gravity_axis=axis, gravity_sign=sign, samples=len(gyro))
+
+
+def recalibrated_offsets(gyro_lsb: Sequence[int], accel_bias_lsb: Sequence[int],
+                         bias: RestBias) -> Tuple[Tuple[int, ...], Tuple[int, ...]]:
+    """
+    Give the gyro offsets and accelerometer bias (LSB) that cancel a bias seen through offsets.
+
+    ``bias`` was measured with ``gyro_lsb`` and ``accel_bias_lsb`` in place, so it
+    is what they left: the new values are the old ones plus its correction. The
+    accelerometer register holds the bias with bit 0 dropped (`merge_preserving_bit0`):
+    the correction adds to what applies.
+    """
+    gyro = tuple(old + new for old, new in zip(gyro_lsb, gyro_offset_lsb(bias.gyro_rad_s)))
+    accel = tuple((old & ~1) + new for old, new in zip(
+        accel_bias_lsb, accel_offset_lsb(bias.acceleration_m_s2)))
+    return gyro, accel
+
+
+class OffsetRefresh:
+    """
+    Gyro offset registers that follow a bias model as the temperature moves.
+
+    registers(T) = base + gyro_offset_lsb(bias(T) - bias(T_base)), where
+    ``base`` are the registers that cancel the whole bias at ``T_base`` (the
+    saved or just calibrated offsets): the model adds only the change since
+    then, so a calibration and the model never count the same bias twice.
+    Without a base (no saved offsets) the registers cancel the model's whole
+    bias(T). ``model`` is a bias model of x, y and z whose ``correct`` at zero
+    rate gives minus the bias.
+    """
+
+    def __init__(self, model, step_c: float):
+        self.model = model
+        self.step_c = step_c
+        self.base_lsb = (0, 0, 0)
+        self.base_temperature_c = None
+        self.temperature_c = None       # of the last write; None: write at the next sample
+
+    def bias_rad_s(self, temperature_c: float) -> np.ndarray:
+        return -self.model.correct(np.zeros((1, 3)), [temperature_c]).rate_rad_s[0]
+
+    def due(self, temperature_c: float) -> bool:
+        """Tell whether the temperature moved ``step_c`` since the last write (or none yet)."""
+        return self.temperature_c is None or \
+            abs(temperature_c - self.temperature_c) >= self.step_c
+
+    def registers(self, temperature_c: float) -> tuple:
+        """Give the gyro registers for ``temperature_c``; `CalibrationError` if out of range."""
+        change = self.bias_rad_s(temperature_c)
+        if self.base_temperature_c is not None:
+            change = change - self.bias_rad_s(self.base_temperature_c)
+        return tuple(base + lsb for base, lsb in zip(self.base_lsb, gyro_offset_lsb(change)))

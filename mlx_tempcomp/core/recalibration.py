@@ -7,6 +7,7 @@ its mean is the residual the recalibration would remove.
 
 from dataclasses import dataclass
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -44,6 +45,31 @@ class WindowStatistics:
     temperature_change_c: float
 
 
+def rate_spread_rad_s(rate_rad_s, ddof: int = 0) -> np.ndarray:
+    """
+    Give the standard deviation of each axis of a window of rates (samples, axes).
+
+    ``ddof`` 1 gives the sample standard deviation; a window of ``ddof`` samples
+    or fewer has no spread (zeros).
+    """
+    rate = np.asarray(rate_rad_s, dtype=np.float64)
+    if len(rate) <= ddof:
+        return np.zeros(rate.shape[1])
+    return rate.std(axis=0, ddof=ddof)
+
+
+def moving_axis(spread_rad_s, rate_noise_rad_s: float, noise_multiple: float
+                ) -> Optional[int]:
+    """
+    Give the axis that moved, or None when the window is at rest.
+
+    Motion shows as a rate spread above ``noise_multiple`` x the 1-sigma noise of
+    one sample; of the axes above it, the one that spreads most is named.
+    """
+    worst = int(np.argmax(spread_rad_s))
+    return worst if spread_rad_s[worst] > noise_multiple * rate_noise_rad_s else None
+
+
 def check_window(corrected_rate_rad_s, temperature_c,
                  limits: RecalibrationLimits) -> WindowStatistics:
     """
@@ -64,12 +90,11 @@ def check_window(corrected_rate_rad_s, temperature_c,
     rate = rate[finite]
     temperature = temperature[:len(finite)][finite]
     stats = WindowStatistics(samples=len(rate), mean_rate_rad_s=rate.mean(axis=0),
-                             spread_rad_s=rate.std(axis=0),
+                             spread_rad_s=rate_spread_rad_s(rate),
                              temperature_c=float(temperature.mean()),
                              temperature_change_c=float(np.ptp(temperature)))
-    spread_limit = limits.noise_multiple * limits.rate_noise_rad_s
-    worst = int(np.argmax(stats.spread_rad_s))
-    if stats.spread_rad_s[worst] > spread_limit:
+    worst = moving_axis(stats.spread_rad_s, limits.rate_noise_rad_s, limits.noise_multiple)
+    if worst is not None:
         msg = (f'sensor moved: rate spread {stats.spread_rad_s[worst]:.4g} rad/s on axis '
                f'{worst} > {limits.noise_multiple:g} x noise {limits.rate_noise_rad_s:.4g}')
         raise CalibrationError(msg)

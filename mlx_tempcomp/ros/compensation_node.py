@@ -24,7 +24,6 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.task import Future
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
@@ -33,6 +32,7 @@ from . import messages
 from .params import declare
 from .qos import EEPROM_QOS, stream_publisher, stream_subscription
 from .runner import run
+from .service_window import await_window, SampleWindow
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
 from ..core.models import AXIS_NAMES
@@ -67,28 +67,6 @@ WAIT_WARN_S = 5.0
 WAIT_WARN_PERIOD_S = 30.0
 # Held supply voltages kept: the slow input is seconds apart, a block spans less.
 _HELD_SUPPLY = 64
-
-
-class _Window:
-    """Samples collected for one recalibration; its future resolves when it is full."""
-
-    def __init__(self, duration_ns: int, fingerprint: str):
-        self.duration_ns = duration_ns
-        self.fingerprint = fingerprint
-        self.start_ns = None
-        self.raw, self.temperature, self.corrected = [], [], []
-        self.future = Future()
-
-    def add(self, stamp_ns: int, raw, temperature, corrected) -> None:
-        if self.future.done():
-            return
-        if self.start_ns is None:
-            self.start_ns = stamp_ns
-        self.raw.append(raw)
-        self.temperature.append(temperature)
-        self.corrected.append(corrected)
-        if stamp_ns - self.start_ns >= self.duration_ns:
-            self.future.set_result('')
 
 
 class CompensationNode(Node):
@@ -496,34 +474,31 @@ class CompensationNode(Node):
             response.message = f'refused: {err}'
             return response
         duration_s = self.values['recalibration.duration_s']
-        window = _Window(int(duration_s * 1e9), model.fingerprint())
+        window = SampleWindow(int(duration_s * 1e9))
+        fingerprint = model.fingerprint()
         started = time.monotonic()
         stale_s = self.values['stale_timeout_s']
 
-        def check_stale():
-            if time.monotonic() - max(self.last_input or started, started) > stale_s and \
-                    not window.future.done():
-                window.future.set_result(f'refused: no input for {stale_s:g} s, the stream '
-                                         'is stale')
+        def stale() -> str:
+            if time.monotonic() - max(self.last_input or started, started) > stale_s:
+                return f'refused: no input for {stale_s:g} s, the stream is stale'
+            return ''
 
         self.window = window
-        stale_timer = self.create_timer(_POLL_S, check_stale)
         try:
-            refusal = await window.future
-            response.message = refusal or self._finish_window(window, model, limits,
-                                                              duration_s)
+            refusal = await await_window(self, window.future, stale, _POLL_S)
+            response.message = refusal or self._finish_window(window, model, fingerprint,
+                                                              limits, duration_s)
         finally:
             self.window = None
-            self.destroy_timer(stale_timer)
         response.success = messages.trigger_succeeded(response.message)
         messages.log_trigger(self.get_logger(), response, 'ZRO recalibration')
         return response
 
-    def _finish_window(self, window: _Window, model, limits, duration_s: float) -> str:
-        raw = np.array(window.raw)
-        temperature = np.array(window.temperature)
-        corrected = np.array(window.corrected)
-        if self.model is not model or model.fingerprint() != window.fingerprint:
+    def _finish_window(self, window: SampleWindow, model, fingerprint: str, limits,
+                       duration_s: float) -> str:
+        raw, temperature, corrected = window.columns()
+        if self.model is not model or model.fingerprint() != fingerprint:
             return 'refused: the model changed during the window'
         try:
             stats = check_window(corrected, temperature.mean(axis=1), limits)

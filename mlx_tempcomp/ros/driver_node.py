@@ -1,9 +1,10 @@
 """
 Driver node: raw rate and temperature from a simulated or SPI gyro, or a bag.
 
-``device`` picks the part: ``mlx90609`` (default), ``adis16130`` or
-``mpu6000`` (the last two in `mlx_tempcomp.ros.devices`: no EEPROM topic, one
-temperature; the MPU adds linear acceleration).
+``device`` picks the part from `STREAMS`: ``mlx90609`` (default,
+`mlx_tempcomp.ros.mlx90609_stream`), ``adis16130`` or ``mpu6000``
+(`adis16130_stream`, `mpu6000_stream`: no EEPROM topic, one temperature; the
+MPU adds linear acceleration); ``source`` ``bag`` replays a bag instead.
 
 Publishes (REP-145): ``imu/data_raw`` (sensor_msgs/Imu, nominal conversion,
 rad/s), ``imu/temperature_raw`` (sensor_msgs/Temperature, degC; with several
@@ -17,7 +18,6 @@ MLX90609's supply monitor (``simulation.supply_monitor_hz``).
 """
 
 import collections
-import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -28,22 +28,19 @@ from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 
 from . import messages
-from .devices import AdisStream, MpuStream, refuse_fault, TimedStream
+from .adis16130_stream import AdisStream
+from .mlx90609_stream import Mlx90609Stream
+from .mpu6000_stream import MpuStream
 from .params import declare
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, stream_publisher
 from .runner import run
-from ..core.compensation import NominalConversion
-from ..core.conversion import Output
-from ..core.table import sensor_tables
-from ..hardware.errors import HardwareError
-from ..node_parameters import (axes_of, check_choices, DRIVER_SPECS, effects_of, ParameterError,
-                               transfer_of)
-from ..simulation.mlx90609 import Fault
+from .timed_stream import refuse_fault, StreamPorts, TimedStream
+from ..node_parameters import axes_of, check_choices, DRIVER_SPECS, ParameterError, transfer_of
 from ..sources.bag import (absolute_topic, ImuRecord, RawBagReader, RawTopics,
                            SupplyVoltageRecord, TemperatureRecord)
-from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 
-EEPROM_READ_ATTEMPTS = 3
+# The stream of each ``device``: a new sensor adds its row.
+STREAMS = {'mlx90609': Mlx90609Stream, 'adis16130': AdisStream, 'mpu6000': MpuStream}
 # Most bag messages published by one timer tick: a replay catching up after a stall sends
 # short bursts, so the executor (and subscriber queues) keep up.
 MAX_SAMPLES_PER_TICK = 20
@@ -57,11 +54,6 @@ PACE_WINDOW = 100
 MATCH_GRACE_S = 2.0
 # bag.on_end stop: the last messages are on their way before the process exits.
 STOP_LINGER_S = 0.2
-MLX90609_SPEED_HZ = 500_000
-# A reading is a rate and a temperature conversion of more than 115 us each (DS p.14), so
-# one chip gives at most about 4 kHz; the natural rate the driver samples at is a choice
-# well inside that (UNCONFIRMED: the datasheet names none).
-MLX90609_SAMPLE_RATE_HZ = 1000.0
 
 
 class DriverNode(Node):
@@ -73,7 +65,8 @@ class DriverNode(Node):
         self.device = self.values['device']
         self.axes = axes_of(self.values)
         self.indices = messages.axis_indices(self.axes)
-        self.transfer = transfer_of(self.values)
+        # Every device refuses bad sensor.* values at start, though only the MLX90609 uses them.
+        transfer_of(self.values)
         self.frame_id = self.values['frame_id']
         self.covariance = messages.rate_covariance(self.indices,
                                                    self.values['rate_noise_rad_s'])
@@ -100,12 +93,10 @@ class DriverNode(Node):
             raise ParameterError(msg)
         if self.values['source'] == 'bag':
             self.stream = BagStream(self)
-        elif self.device == 'adis16130':
-            self.stream = AdisStream(self)
-        elif self.device == 'mpu6000':
-            self.stream = MpuStream(self)
         else:
-            self.stream = SensorStream(self)
+            self.stream = STREAMS[self.device](StreamPorts(
+                node=self, values=self.values, axes=self.axes, publish_raw=self.publish_raw,
+                hand_off=self.hand_off, eeprom_publisher=self.eeprom_publisher))
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
@@ -185,136 +176,6 @@ class DriverNode(Node):
             self.get_logger().info(f'{self.get_name()} {self.stream.summary()}')
         self.stream.close()
         return super().destroy_node()
-
-
-class SensorStream(TimedStream):
-    """An MLX90609 array, simulated or on spidev, read on a timer."""
-
-    def __init__(self, node: DriverNode):
-        self.node = node
-        values = node.values
-        if values['source'] == 'simulated':
-            config = SimulationConfig(
-                seed=values['simulation.seed'],
-                eeprom_version=values['simulation.eeprom_version'],
-                start_temperature_c=values['simulation.start_temperature_c'],
-                cycle_temperatures_c=tuple(values['simulation.cycle_temperatures_c']),
-                ramp_c_per_min=values['simulation.ramp_c_per_min'],
-                hold_s=values['simulation.hold_s'],
-                die_time_constant_s=values['simulation.die_time_constant_s'],
-                rate_dps=tuple(values['simulation.rate_dps']),
-                supply_v=values['simulation.supply_v'],
-                effects=effects_of(values))
-            self.array = SimulatedArray(config, len(node.axes))
-            self.array.fault = Fault(values['simulation.fault'])
-            real_time_factor = values['simulation.real_time_factor']
-            self.hardware_id = f'simulated MLX90609 x{len(node.axes)} (seed {config.seed})'
-        else:
-            chip_selects = values['spi.chip_selects']
-            if len(chip_selects) != len(node.axes):
-                msg = (f'invalid parameter spi.chip_selects: {len(chip_selects)} chip selects '
-                       f'for {len(node.axes)} axes')
-                raise ParameterError(msg)
-            self.array = spidev_array(values['spi.bus'], chip_selects,
-                                      values['spi.speed_hz'] or MLX90609_SPEED_HZ,
-                                      values['spi.mode'])
-            real_time_factor = None
-            self.hardware_id = f'MLX90609 on /dev/spidev{values["spi.bus"]}.{chip_selects}'
-        self.tables = sensor_tables(self._read_eeproms(), Output.DIGITAL, node.transfer,
-                                    values['sensor.full_scale_dps'])
-        self.nominal = NominalConversion.for_range(self.tables.full_scale_dps, Output.DIGITAL,
-                                                   len(node.axes), node.transfer)
-        node.eeprom_publisher.publish(messages.eeprom_message(self.images))
-        self.oversample = values['oversample']
-        self.simulated = real_time_factor is not None
-        self.start_schedule(node, real_time_factor, MLX90609_SAMPLE_RATE_HZ,
-                            self.simulated and values['simulation.lossless'])
-        monitor_hz = values['simulation.supply_monitor_hz']
-        self.supply_publisher = stream_publisher(
-            node, BatteryState, 'imu/supply_voltage') if monitor_hz else None
-        self.supply_period_s = 1.0 / monitor_hz if monitor_hz else None
-        self.supply_readings = 0
-        node.get_logger().info(
-            f'{self.hardware_id}: EEPROM VERSION {[f.version for f in self.tables.fields]}, '
-            f'full scale {self.tables.full_scale_dps:g} deg/s, {self.rates}')
-
-    def _read_eeproms(self) -> tuple:
-        attempt = 1
-        while True:
-            try:
-                self.images = self.array.read_eeproms()
-                return self.images
-            except HardwareError as err:
-                if attempt == EEPROM_READ_ATTEMPTS:
-                    msg = f'cannot read the EEPROM after {attempt} attempts: {err}'
-                    raise HardwareError(msg) from None
-                self.node.get_logger().warn(f'EEPROM read failed ({err}), retrying')
-                attempt += 1
-
-    def advance_to(self, time_s: float) -> None:
-        self.array.advance_to(time_s)
-
-    def tick(self) -> None:
-        super().tick()
-        if self.supply_publisher is not None:
-            self._monitor_supply()
-
-    def _monitor_supply(self) -> None:
-        """Publish the supply readings due by now, on instants of their own (not the samples')."""
-        while True:
-            time_s = (self.supply_readings + 1.0 / 3.0) * self.supply_period_s
-            if time_s > self.array.clock.now_s:
-                return
-            stamp = messages.ns_to_stamp(self.start_ns + int(round(time_s * 1e9)))
-            # Over DDS even in bringup: the compensation node subscribes to its auxiliary
-            # inputs, as it would to a real monitor.
-            self.supply_publisher.publish(messages.supply_voltage_message(
-                stamp, self.node.frame_id, self.array.supply_v))
-            self.supply_readings += 1
-
-    def read(self):
-        return self.array.read(self.oversample)
-
-    def publish(self, stamp_ns: int, sample) -> None:
-        # AN2 method 1 per axis, in plain floats (this runs once per sample).
-        nominal = self.nominal
-        rates_rad_s = [math.radians((code - nominal.zro) / nominal.sf)
-                       for code in sample.rate_code]
-        transfer = self.node.transfer
-        temperatures_c = [float(transfer.temperature_output_to_c(code, Output.DIGITAL))
-                          for code in sample.temperature_code]
-        self.node.publish_raw(stamp_ns, rates_rad_s, temperatures_c)
-
-    def check_fault(self, value: str) -> None:
-        """Raise `ParameterError` unless the simulated chips can take a fault."""
-        if not self.simulated:
-            refuse_fault()
-
-    def set_fault(self, value: str) -> None:
-        self.array.fault = Fault(value)
-
-    def status(self) -> tuple:
-        counters = self.array.counters
-        values = {'state': 'failing' if self.consecutive_failures else 'streaming',
-                  **self.sampling_status(), **counters,
-                  'eeprom_version': [f.version for f in self.tables.fields],
-                  'eeprom_outvoted_bits': self.tables.outvoted_bits,
-                  'full_scale_dps': self.tables.full_scale_dps,
-                  'last_error': self.last_error}
-        missed = self.missing_reads()
-        if self.consecutive_failures:
-            return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
-        if missed:
-            return DiagnosticStatus.WARN, missed, values
-        if self.tables.outvoted_bits:
-            return DiagnosticStatus.WARN, (f'{self.tables.outvoted_bits} EEPROM bits '
-                                           'out-voted: worn EEPROM or bad SPI read'), values
-        if counters['saturated']:
-            return DiagnosticStatus.WARN, f'{counters["saturated"]} saturated samples', values
-        return DiagnosticStatus.OK, 'streaming', values
-
-    def close(self) -> None:
-        self.array.close()
 
 
 class BagStream:

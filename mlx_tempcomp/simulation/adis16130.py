@@ -16,7 +16,7 @@ import enum
 import math
 from typing import Optional
 
-from .mlx90609 import SimClock
+from .clock import SimClock
 from .physics import Effects, GyroPhysics, GyroTruth, Noise, Scenario, ThermalProfile
 from ..hardware import adis16130 as protocol
 

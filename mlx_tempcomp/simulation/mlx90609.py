@@ -10,42 +10,16 @@ at any time to exercise the driver.
 
 from dataclasses import dataclass
 import enum
-import time
 from typing import Optional
 
 import numpy as np
 
+from .clock import SimClock
 from .physics import GyroPhysics, GyroTruth
 from ..core.conversion import ADC_MAX_CODE, Output
 from ..core.eeprom import EEPROM_SIZE, EepromFields, encode_eeprom
 from ..core.table import ee_from_sf, ee_from_zro, TRIPLET_TEMPERATURES_C
 from ..hardware import mlx90609 as protocol
-
-
-class SimClock:
-    """
-    Simulated time, optionally paced against the wall clock.
-
-    ``real_time_factor`` None runs as fast as possible; 1.0 is real time;
-    10.0 runs ten times faster than real time.
-    """
-
-    def __init__(self, real_time_factor: Optional[float] = None):
-        if real_time_factor is not None and real_time_factor <= 0.0:
-            msg = f'real_time_factor must be positive, got {real_time_factor}'
-            raise ValueError(msg)
-        self.real_time_factor = real_time_factor
-        self.now_s = 0.0
-        self._wall_start = time.monotonic()
-
-    def advance(self, seconds: float) -> None:
-        if seconds <= 0.0:
-            return
-        self.now_s += seconds
-        if self.real_time_factor is not None:
-            lag = self._wall_start + self.now_s / self.real_time_factor - time.monotonic()
-            if lag > 0.0:
-                time.sleep(lag)
 
 
 class Fault(str, enum.Enum):

@@ -16,7 +16,7 @@ from typing import Optional
 
 import numpy as np
 
-from .mlx90609 import SimClock
+from .clock import SimClock
 from .physics import ThermalProfile
 from ..core.offsets import ACCEL_OFFSET_LSB_PER_G, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB
 from ..hardware import mpu6000 as protocol

@@ -16,7 +16,7 @@ from ..hardware.adis16130 import Adis16130
 from ..hardware.errors import HardwareError
 from ..hardware.transport import SpidevTransport
 from ..simulation.adis16130 import Adis16130Truth, Fault, simulated_device, UPDATE_RATE_HZ
-from ..simulation.mlx90609 import SimClock
+from ..simulation.clock import SimClock
 from ..simulation.physics import Scenario, ThermalProfile
 
 AXES = ('z',)

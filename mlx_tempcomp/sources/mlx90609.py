@@ -13,7 +13,8 @@ import numpy as np
 from ..hardware.errors import HardwareError
 from ..hardware.mlx90609 import ErrorCounters, Mlx90609
 from ..hardware.transport import SpidevTransport
-from ..simulation.mlx90609 import FactoryMeasurement, Fault, SimClock, simulated_device
+from ..simulation.clock import SimClock
+from ..simulation.mlx90609 import FactoryMeasurement, Fault, simulated_device
 from ..simulation.physics import Effects, GyroTruth, Noise, Scenario, ThermalProfile
 
 

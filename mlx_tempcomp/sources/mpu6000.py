@@ -17,7 +17,7 @@ from ..core.offsets import accel_offset_lsb, gyro_offset_lsb, rest_bias, RestBia
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import Mpu6000, variant_named
 from ..hardware.transport import SpidevTransport
-from ..simulation.mlx90609 import SimClock
+from ..simulation.clock import SimClock
 from ..simulation.mpu6000 import MpuTruth, SimulatedMpu6000
 
 AXES = ('x', 'y', 'z')

@@ -21,13 +21,12 @@ from .common import (add_parameter_file_options, check_output_file, finite_float
                      write_node_parameters)
 from .progress import add_progress_option, Progress
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
-                                   MIN_TEMPERATURE_CHANGE_C, MIN_WINDOW_SAMPLES,
-                                   NOTE_AVERAGE_S, NOTE_PBC_S,
+                                   MIN_TEMPERATURE_CHANGE_C, NOTE_AVERAGE_S, NOTE_PBC_S,
                                    NOTE_SELF_HEAT_S, NOTE_SETTLE_S, Phase, ProcedureSettings,
-                                   RECORD_FRACTION)
+                                   RECORD_FRACTION, short_window)
 from ..core.errors import TempCompError
 from ..core.fitting import format_btc_table, table_step_c
-from ..core.noise import allan_deviation, MIN_SAMPLES
+from ..core.noise import allan_deviation
 from ..hardware.errors import HardwareError
 from ..model_params import linear_btc_parameters
 from ..simulation.adis16130 import Adis16130Truth, self_heating_profile
@@ -64,15 +63,11 @@ def _check_options(args: argparse.Namespace) -> None:
         msg = f'{", ".join(given)} {"does" if len(given) == 1 else "do"} not apply to ' \
               f'--source {args.source}'
         raise UserError(msg)
-    windows = [('--average-s', args.average_s), ('--pbc-s', args.pbc_s or NOTE_PBC_S)]
-    for option, seconds in windows:
-        if seconds * args.rate_hz < MIN_WINDOW_SAMPLES:
-            msg = (f'{option} {seconds:g} at --rate-hz {args.rate_hz:g} gives fewer than '
-                   f'{MIN_WINDOW_SAMPLES} samples')
-            raise UserError(msg)
-    if 0.0 < args.allan_record_s * args.rate_hz < MIN_SAMPLES:
-        msg = (f'--allan-record-s {args.allan_record_s:g} at --rate-hz {args.rate_hz:g} gives '
-               f'fewer than the {MIN_SAMPLES} samples an Allan deviation needs (0 skips it)')
+    short = short_window(args.rate_hz, args.average_s, args.pbc_s or NOTE_PBC_S,
+                         args.allan_record_s)
+    if short is not None:
+        name, seconds, why = short
+        msg = f'--{name.replace("_", "-")} {seconds:g} at --rate-hz {args.rate_hz:g} {why}'
         raise UserError(msg)
 
 

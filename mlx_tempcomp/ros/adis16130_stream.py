@@ -1,0 +1,234 @@
+"""
+The ADIS16130 driver stream and its ``imu/run_bias_procedure`` service.
+
+One axis, no EEPROM, one temperature; the service runs AN-1042's bias
+procedure (`mlx_tempcomp.core.bias_procedure`) on the stream and writes the
+``linear_btc`` parameter file of the compensation node.
+"""
+
+import math
+import os
+import time
+
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.task import Future
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from . import messages
+from .qos import STATUS_QOS
+from .service_window import await_window, STALL_TIMEOUT_S
+from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
+from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
+from ..core.errors import CalibrationError, TempCompError
+from ..core.noise import allan_deviation
+from ..model_params import linear_btc_parameters, parameter_file, write_parameter_file
+from ..node_parameters import effects_of, ParameterError
+from ..simulation.adis16130 import Adis16130Truth, Fault
+from ..sources import adis16130
+
+# RATE and TEMP refresh at 5.7 kHz (AN-1042): the natural sample rate.
+ADIS16130_SAMPLE_RATE_HZ = 5700.0
+# The bias procedure publishes its progress (and checks for a stall) this often.
+PROGRESS_PERIOD_S = 1.0
+
+
+def simulated_adis(values: dict) -> adis16130.SimulatedSensor:
+    """Return the simulated ADIS16130 the driver reads for these parameter values, started."""
+    rate_dps = values['simulation.rate_dps']
+    if len(rate_dps) != 1:
+        msg = (f'invalid parameter simulation.rate_dps: the adis16130 measures one '
+               f'axis, give one value, got {len(rate_dps)}')
+        raise ParameterError(msg)
+    truth = Adis16130Truth(bias_dps=values['simulation.bias_dps'],
+                           bias_dps_per_c=values['simulation.bias_dps_per_c'],
+                           effects=effects_of(values))
+    config = adis16130.SimulationConfig(
+        seed=values['simulation.seed'], resolution_bits=values['adis16130.resolution_bits'],
+        truth=truth, thermal=thermal_profile(values, values['simulation.die_time_constant_s']),
+        rate_dps=rate_dps[0], supply_v=values['simulation.supply_v'],
+        sclk_hz=float(speed_hz(values, adis16130.DEFAULT_SPEED_HZ)))
+    return adis16130.SimulatedSensor(config)
+
+
+class AdisStream(DeviceStream):
+    """An ADIS16130 (one axis); offers the AN-1042 bias procedure as a service."""
+
+    def __init__(self, ports: StreamPorts):
+        values = ports.values
+        if len(ports.axes) != 1:
+            msg = (f'invalid parameter axes: the adis16130 measures one axis, got '
+                   f'{list(ports.axes)}')
+            raise ParameterError(msg)
+        bits = values['adis16130.resolution_bits']
+        if bits not in (16, 24):
+            msg = f'invalid parameter adis16130.resolution_bits: 24 or 16, got {bits}'
+            raise ParameterError(msg)
+        self.oversample = values['oversample']
+        if values['source'] == 'simulated':
+            source = simulated_adis(values)
+            hardware_id = f'simulated ADIS16130 (seed {values["simulation.seed"]})'
+        else:
+            cs = chip_select(values, 'adis16130')
+            source = adis16130.spidev_sensor(
+                values['spi.bus'], cs, speed_hz(values, adis16130.DEFAULT_SPEED_HZ),
+                values['spi.mode'], bits, values['adis16130.verify_registers'])
+            hardware_id = f'ADIS16130 on /dev/spidev{values["spi.bus"]}.{cs}'
+        self.bits = bits
+        self.procedure = None
+        self.status_publisher = ports.node.create_publisher(
+            String, 'imu/bias_procedure/status', STATUS_QOS)
+        ports.node.create_service(Trigger, 'imu/run_bias_procedure', self.run_bias_procedure,
+                                  callback_group=ReentrantCallbackGroup())
+        super().__init__(ports, source, f'{hardware_id}, {bits}-bit',
+                         values['source'] == 'simulated', ADIS16130_SAMPLE_RATE_HZ)
+
+    def read(self):
+        return self.source.read(self.oversample)
+
+    def publish(self, stamp_ns: int, sample) -> None:
+        rate_rad_s = float(sample.rate_rad_s[0])
+        temperature_c = float(sample.temperature_c[0])
+        self.ports.publish_raw(stamp_ns, [rate_rad_s], [temperature_c])
+        if self.procedure is not None:
+            self.procedure.add(stamp_ns / 1e9, rate_rad_s, temperature_c)
+
+    def set_fault(self, value: str) -> None:
+        self.source.fault = Fault(value)
+
+    def extra_status(self) -> dict:
+        running = self.procedure
+        return {'resolution_bits': self.bits,
+                'bias_procedure': 'idle' if running is None else running.procedure.phase.value}
+
+    async def run_bias_procedure(self, request, response):
+        """
+        Run AN-1042's bias procedure on the stream; write the linear_btc parameter file.
+
+        A coroutine: the stream keeps flowing (and feeding it) while it waits.
+        """
+        response.success = False
+        if self.procedure is not None:
+            response.message = 'refused: a bias procedure is already running'
+            return response
+        try:
+            running = _RunningProcedure(self, self.values)
+        except (ParameterError, TempCompError) as err:
+            response.message = f'refused: {err}'
+            return response
+        self.procedure = running
+        running.announce()
+        try:
+            error = await await_window(self.ports.node, running.future, running.report,
+                                       PROGRESS_PERIOD_S)
+        finally:
+            self.procedure = None
+        response.message = f'refused: {error}' if error else running.finish()
+        response.success = messages.trigger_succeeded(response.message)
+        self.status_publisher.publish(String(
+            data=('done: ' if response.success else 'failed: ') + response.message))
+        messages.log_trigger(self.logger, response, 'bias procedure')
+        return response
+
+
+def _noise_figures(time_s, rate_rad_s):
+    return allan_deviation(time_s, rate_rad_s.reshape(-1, 1), ('rate',))[0]
+
+
+class _RunningProcedure:
+    """One bias procedure: the state machine, its future and where it writes."""
+
+    def __init__(self, stream: AdisStream, values: dict):
+        self.stream = stream
+        prefix = 'adis16130.bias_procedure.'
+        rate_hz = values['publish_rate_hz']
+        allan_s = values[prefix + 'allan_record_s']
+        pbc_s = values[prefix + 'pbc_s'] or None
+        short = short_window(rate_hz, values[prefix + 'average_s'], pbc_s, allan_s)
+        if short is not None:
+            name, seconds, why = short
+            msg = f'invalid parameter {prefix}{name}: {seconds:g} s at rate_hz {rate_hz:g} {why}'
+            raise ParameterError(msg)
+        if pbc_s is None and allan_s == 0.0:
+            msg = (f'invalid parameter {prefix}pbc_s: 0 (advised by the rest record) needs '
+                   f'{prefix}allan_record_s > 0')
+            raise ParameterError(msg)
+        settings = ProcedureSettings(
+            average_s=values[prefix + 'average_s'], self_heat_s=values[prefix + 'self_heat_s'],
+            settle_s=values[prefix + 'settle_s'], pbc_s=pbc_s, allan_record_s=allan_s,
+            min_temperature_change_c=values[prefix + 'min_temperature_change_c'],
+            rate_noise_rad_s=values['rate_noise_rad_s'] or None)
+        self.procedure = BiasProcedure(settings, _noise_figures if allan_s > 0.0 else None)
+        path = values[prefix + 'output_file'] or os.path.join(
+            '~', '.ros', 'mlx_tempcomp', f'{stream.ports.node.get_name()}_linear_btc.yaml')
+        self.path = os.path.expanduser(path)
+        self.node_name = values[prefix + 'node_name']
+        self.phase = self.procedure.phase
+        self.future = Future()
+
+    def add(self, time_s: float, rate_rad_s: float, temperature_c: float) -> None:
+        if self.future.done():
+            return
+        try:
+            phase = self.procedure.add(time_s, rate_rad_s, temperature_c)
+        except CalibrationError as err:
+            self.future.set_result(str(err))
+            return
+        if phase is not self.phase:
+            closed, self.phase = self.phase, phase
+            self.publish(f'{closed.value} closed{self._closed_text(closed)}')
+            if phase is Phase.DONE:
+                self.future.set_result('')
+            else:
+                self.announce()
+
+    def _closed_text(self, phase: Phase) -> str:
+        p = self.procedure
+        if phase is Phase.POINT_1:
+            return f': T1 {p.point_1.temperature_c:.4f} C, B1 {p.point_1.bias_rad_s:.6g} rad/s'
+        if phase is Phase.POINT_2:
+            return (f': T2 {p.point_2.temperature_c:.4f} C, B2 {p.point_2.bias_rad_s:.6g} '
+                    f'rad/s, BTC {p.btc_rad_s_per_c:.6g} rad/s/C')
+        if phase is Phase.REST_RECORD:
+            return f': rate_noise_rad_s {p.noise.rate_noise_rad_s:.4g}'
+        return ''
+
+    def announce(self) -> None:
+        phase = self.procedure.phase
+        self.publish(f'phase {phase.value}: {self.procedure.phase_duration_s(phase):g} s')
+
+    def report(self) -> str:
+        """Publish the progress, or say why the procedure gives up: the stream stalled."""
+        stalled_s = time.monotonic() - self.stream.last_sample
+        if stalled_s > STALL_TIMEOUT_S:
+            return (f'no sample for {stalled_s:.1f} s: the stream stalled '
+                    f'({self.stream.last_error or "no error"})')
+        phase = self.procedure.phase
+        self.publish(f'phase {phase.value}: {100.0 * self.procedure.progress:.0f} % of '
+                     f'{self.procedure.phase_duration_s(phase):g} s')
+        return ''
+
+    def publish(self, text: str) -> None:
+        self.stream.status_publisher.publish(String(data=text))
+
+    def finish(self) -> str:
+        result = self.procedure.result
+        axes = self.stream.axes
+        parameters = linear_btc_parameters(result.model, axes)
+        if result.noise is not None:
+            parameters['rate_noise_rad_s'] = float(result.noise.rate_noise_rad_s)
+        p1, p2 = result.point_1, result.point_2
+        summary = (f'T1 {p1.temperature_c:.4f} C, B1 {p1.bias_rad_s:.6g} rad/s, '
+                   f'T2 {p2.temperature_c:.4f} C, B2 {p2.bias_rad_s:.6g} rad/s, '
+                   f'BTC {result.btc_rad_s_per_c:.6g} rad/s/C '
+                   f'({math.degrees(result.btc_rad_s_per_c):+.5f} deg/s/C), '
+                   f'PBC {result.pbc_rad_s:.6g} rad/s, T3 {result.t3_c:.4f} C')
+        header = (f'ADIS16130 bias procedure (AN-1042) by {self.stream.ports.node.get_name()} '
+                  f'({self.stream.hardware_id}): {summary}\n'
+                  f'Use: compensation_node --ros-args --params-file {self.path}')
+        try:
+            os.makedirs(os.path.dirname(self.path) or '.', exist_ok=True)
+            write_parameter_file(self.path, parameter_file(self.node_name, parameters), header)
+        except OSError as err:
+            return f'applied but not saved: {summary}; cannot write {self.path}: {err.strerror}'
+        return f'{summary}; wrote {self.path}'

@@ -1,0 +1,352 @@
+"""
+The MPU-6000/6500 driver stream and its ``imu/calibrate_offsets`` service.
+
+Gyro, accelerometer and one temperature, no EEPROM. The stream writes the
+offset registers saved in its state file at start, offers
+``imu/calibrate_offsets`` and, given a bias model, refreshes the gyro offset
+registers as the temperature moves (`mlx_tempcomp.core.offsets.OffsetRefresh`).
+"""
+
+import dataclasses
+from datetime import datetime, timezone
+import math
+import os
+import time
+
+import numpy as np
+from rclpy.callback_groups import ReentrantCallbackGroup
+from std_srvs.srv import Trigger
+
+from . import messages
+from .service_window import await_window, SampleWindow, STALL_TIMEOUT_S
+from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
+from ..core.errors import CalibrationError
+from ..core.models import AXIS_NAMES
+from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
+from ..core.recalibration import moving_axis, rate_spread_rad_s
+from ..hardware.errors import HardwareError
+from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
+from ..node_parameters import axes_of, build_model, node_values, ParameterError
+from ..simulation.mlx90609 import Fault
+from ..simulation.mpu6000 import MpuTruth
+from ..sources import mpu6000
+from ..state_file import Field, load_state, StateFileError, write_state
+
+_STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
+_INT16 = {'low': INT16_MIN, 'high': INT16_MAX}
+
+# What imu/calibrate_offsets saves, checked at start: registers are int16.
+MPU_OFFSETS_FIELDS = (
+    Field('variant', 'text'),
+    Field('gyro_offset_lsb', 'integer', length=3, **_INT16),
+    Field('accel_bias_lsb', 'integer', length=3, **_INT16),
+    Field('accel_registers', 'integer', length=3, **_INT16),
+    Field('residual_gyro_rad_s', 'number', length=3),
+    Field('residual_acceleration_m_s2', 'number', length=3),
+    Field('gravity_axis', 'text', choices=('+x', '-x', '+y', '-y', '+z', '-z')),
+    Field('temperature_c', 'number', low=-273.15, high=1000.0),
+    Field('samples', 'integer', low=1),
+    Field('time', 'text'))
+_MPU_OFFSETS = 'saved offsets'
+
+
+def offsets_state(variant: str, gyro_lsb, accel_lsb, registers, bias, temperature_c: float
+                  ) -> dict:
+    """Give what imu/calibrate_offsets saves (`MPU_OFFSETS_FIELDS`) for offsets it wrote."""
+    return {'variant': variant, 'gyro_offset_lsb': [int(v) for v in gyro_lsb],
+            'accel_bias_lsb': [int(v) for v in accel_lsb],
+            'accel_registers': [int(v) for v in registers],
+            'residual_gyro_rad_s': [float(v) for v in bias.gyro_rad_s],
+            'residual_acceleration_m_s2': [float(v) for v in bias.acceleration_m_s2],
+            'gravity_axis': f'{"+" if bias.gravity_sign > 0 else "-"}{"xyz"[bias.gravity_axis]}',
+            'temperature_c': float(temperature_c), 'samples': int(bias.samples),
+            'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
+
+
+def _offset_refresh(values: dict):
+    """Give the `_OffsetRefresh` of ``mpu6000.offset_model_file``; None when it is ''."""
+    path = values['mpu6000.offset_model_file']
+    if not path:
+        return None
+    path = os.path.expanduser(path)
+    try:
+        model_values = node_values(path, values['mpu6000.offset_model_node'])
+        if model_values['model'] != 'polynomial':
+            msg = (f'model {model_values["model"]!r}: the offset registers take a polynomial '
+                   'bias (mlx-tempcomp fit --model polynomial or relative)')
+            raise ParameterError(msg)
+        if axes_of(model_values) != AXIS_NAMES:
+            msg = (f'axes {model_values["axes"]}: the model must cover gyro x, y and z in that '
+                   'order')
+            raise ParameterError(msg)
+        model = build_model(model_values)
+    except ParameterError as err:
+        msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
+        raise ParameterError(msg) from None
+    # A register can only add: the scale polynomial does not apply at rest.
+    return _OffsetRefresh(dataclasses.replace(model, scale_coefficients=()), path,
+                          values['mpu6000.offset_refresh_c'])
+
+
+class _OffsetRefresh(OffsetRefresh):
+    """The core refresh, with its file and the counters of its register writes."""
+
+    def __init__(self, model, path: str, step_c: float):
+        super().__init__(model, step_c)
+        self.path = path
+        self.writes = 0
+        self.failures = 0
+        self.last_error = ''
+
+    def status(self) -> dict:
+        return {'offset_model_file': self.path, 'offset_refresh_writes': self.writes,
+                'offset_refresh_failures': self.failures,
+                'offset_refresh_temperature_c': 'none' if self.temperature_c is None
+                else self.temperature_c,
+                'offset_refresh_base_temperature_c': 'none (whole model bias)'
+                if self.base_temperature_c is None else self.base_temperature_c,
+                'offset_refresh_error': self.last_error}
+
+
+class MpuStream(DeviceStream):
+    """
+    An MPU-6000/6500: gyro, accelerometer and temperature; hardware offset registers.
+
+    The offsets live in the part only until power-off, so the ones saved by
+    ``imu/calibrate_offsets`` are written again at every start. With
+    ``mpu6000.offset_model_file`` the gyro registers then follow the model's
+    bias as the temperature moves (`_OffsetRefresh`).
+    """
+
+    def __init__(self, ports: StreamPorts):
+        values = ports.values
+        if values['oversample'] != 1:
+            msg = (f'invalid parameter oversample: the mpu6000 averages in its DLPF, not in '
+                   f'the driver; give 1, got {values["oversample"]}')
+            raise ParameterError(msg)
+        self.refresh = _offset_refresh(values)
+        options = {'gyro_full_scale_dps': values['mpu6000.gyro_full_scale_dps'],
+                   'accel_full_scale_g': values['mpu6000.accel_full_scale_g'],
+                   'dlpf_config': values['mpu6000.dlpf_config'],
+                   'sample_rate_divider': values['mpu6000.sample_rate_divider']}
+        for name, allowed in (('gyro_full_scale_dps', GYRO_LSB_PER_DPS),
+                              ('accel_full_scale_g', ACCEL_LSB_PER_G)):
+            if options[name] not in allowed:
+                msg = (f'invalid parameter mpu6000.{name}: one of '
+                       f'{", ".join(str(v) for v in sorted(allowed))}, got {options[name]}')
+                raise ParameterError(msg)
+        variant = values['mpu6000.variant']
+        if values['source'] == 'simulated':
+            if values['simulation.die_time_constant_s'] != 0.0:
+                msg = ('invalid parameter simulation.die_time_constant_s: the simulated mpu6000 '
+                       'follows its thermal profile directly, give 0')
+                raise ParameterError(msg)
+            source = mpu6000.SimulatedMpuSource(
+                MpuTruth.random(np.random.default_rng(values['simulation.seed']),
+                                rate_dps=self._true_rate_dps(values, ports.axes),
+                                thermal=thermal_profile(values, 0.0)),
+                variant, values['simulation.seed'], **options)
+            hardware_id = f'simulated {variant.upper()} (seed {values["simulation.seed"]})'
+        else:
+            cs = chip_select(values, 'mpu6000')
+            source = mpu6000.spidev_mpu(values['spi.bus'], cs, speed_hz(values, 1_000_000),
+                                        values['spi.mode'], variant, **options)
+            hardware_id = f'{variant.upper()} on /dev/spidev{values["spi.bus"]}.{cs}'
+        source.start()
+        self.variant = variant
+        self.acceleration_covariance = messages.acceleration_covariance(
+            values['mpu6000.accel_noise_m_s2'])
+        self.offsets_path = os.path.expanduser(values['mpu6000.offsets_file'] or os.path.join(
+            '~', '.ros', 'mlx_tempcomp', f'{ports.node.get_name()}_offsets.yaml'))
+        self.gyro_lsb = (0, 0, 0)
+        self.accel_bias_lsb = (0, 0, 0)
+        self.accel_registers = tuple(source.device.factory_accel_lsb)
+        self.offsets_origin = 'none'
+        self.window = None
+        self.source = source
+        self.logger = ports.node.get_logger()
+        self.indices = messages.axis_indices(ports.axes)
+        self._write_saved_offsets()
+        if self.refresh is not None:
+            self._start_refresh()
+        ports.node.create_service(Trigger, 'imu/calibrate_offsets', self.calibrate_offsets,
+                                  callback_group=ReentrantCallbackGroup())
+        # The gyro's natural rate: 8 kHz with DLPF_CFG 0 or 7, else 1 kHz, over 1 + SMPLRT_DIV.
+        gyro_rate_hz = 8000.0 if options['dlpf_config'] in (0, 7) else 1000.0
+        super().__init__(ports, source, hardware_id, values['source'] == 'simulated',
+                         gyro_rate_hz / (1 + options['sample_rate_divider']))
+
+    @staticmethod
+    def _true_rate_dps(values: dict, axes) -> tuple:
+        rate_dps = values['simulation.rate_dps']
+        if len(rate_dps) not in (1, len(axes)):
+            msg = (f'invalid parameter simulation.rate_dps: one value or one per axis '
+                   f'({len(axes)}), got {len(rate_dps)}')
+            raise ParameterError(msg)
+        true_dps = [0.0, 0.0, 0.0]
+        for position, axis in enumerate(axes):
+            true_dps['xyz'.index(axis)] = rate_dps[position if len(rate_dps) > 1 else 0]
+        return tuple(true_dps)
+
+    def _write_saved_offsets(self) -> None:
+        logger = self.logger
+        if not os.path.lexists(self.offsets_path):
+            logger.info(f'no saved offsets in {self.offsets_path}: offset registers at their '
+                        'power-on values')
+        state = load_state(self.offsets_path, MPU_OFFSETS_FIELDS, logger, _MPU_OFFSETS)
+        if state is None:
+            return
+        if state['variant'] != self.variant:
+            logger.warn(f'{_MPU_OFFSETS} in {self.offsets_path} were measured on a '
+                        f'{state["variant"]!r}, this is a {self.variant}: not written')
+            return
+        gyro, accel = state['gyro_offset_lsb'], state['accel_bias_lsb']
+        try:
+            registers = self.source.write_offsets(gyro, accel)
+        except HardwareError as err:
+            logger.error(f'writing the {_MPU_OFFSETS} from {self.offsets_path} failed: {err}; '
+                         'starting without offsets')
+            return
+        self._offsets_now(gyro, accel, registers, 'saved file')
+        if self.refresh is not None:
+            self.refresh.base_lsb = tuple(gyro)
+            self.refresh.base_temperature_c = state['temperature_c']
+        logger.info(f'wrote the saved offsets from {self.offsets_path}: gyro {gyro} LSB, '
+                    f'accel registers {list(registers)} (bias {accel} LSB at 16 g, '
+                    f'calibrated {state["time"]})')
+
+    def _offsets_now(self, gyro, accel, registers, origin: str) -> None:
+        self.gyro_lsb, self.accel_bias_lsb = tuple(gyro), tuple(accel)
+        self.accel_registers, self.offsets_origin = tuple(registers), origin
+
+    def _start_refresh(self) -> None:
+        refresh = self.refresh
+        base = 'the whole model bias (no saved offsets)' \
+            if refresh.base_temperature_c is None else \
+            f'the change since {refresh.base_temperature_c:.2f} C (saved offsets)'
+        self.logger.info(
+            f'gyro offset refresh from {refresh.path}: {base}, rewritten every '
+            f'{refresh.step_c:g} C')
+        try:
+            temperature_c = float(self.source.read().temperature_c)
+        except HardwareError as err:
+            # Counted; the first sample of the stream tries again.
+            refresh.failures += 1
+            refresh.last_error = str(err)
+            self.logger.warn(f'gyro offset refresh at start failed: {err}')
+            return
+        self._refresh_offsets(temperature_c)
+
+    def _refresh_offsets(self, temperature_c: float) -> None:
+        refresh = self.refresh
+        try:
+            registers = refresh.registers(temperature_c)
+            self.source.device.write_gyro_offsets(registers)
+        except (CalibrationError, HardwareError) as err:
+            # Retried at the next sample; the registers in place stay as they were.
+            refresh.failures += 1
+            refresh.last_error = str(err)
+            self.logger.warn(f'gyro offset refresh at {temperature_c:.2f} C failed: {err}',
+                             throttle_duration_sec=5.0)
+            return
+        refresh.writes += 1
+        refresh.temperature_c = temperature_c
+        self.gyro_lsb = registers
+
+    def read(self):
+        return self.source.read()
+
+    def publish(self, stamp_ns: int, sample) -> None:
+        gyro = sample.gyro_rad_s
+        self.ports.publish_raw(stamp_ns, [float(gyro[i]) for i in self.indices],
+                               [float(sample.temperature_c)], sample.acceleration_m_s2,
+                               self.acceleration_covariance)
+        if self.window is not None:
+            self.window.add(stamp_ns, sample.gyro_rad_s, sample.acceleration_m_s2,
+                            sample.temperature_c)
+        # Registers stay put while a calibration window averages over them.
+        elif self.refresh is not None and self.refresh.due(sample.temperature_c):
+            self._refresh_offsets(float(sample.temperature_c))
+
+    def set_fault(self, value: str) -> None:
+        self.source.simulated.stuck_miso = _STUCK_MISO[Fault(value)]
+
+    def extra_status(self) -> dict:
+        refresh = {} if self.refresh is None else self.refresh.status()
+        return {'variant': self.variant, 'offsets': self.offsets_origin,
+                'gyro_offset_lsb': list(self.gyro_lsb),
+                'accel_offset_registers': list(self.accel_registers),
+                'offsets_file': self.offsets_path, **refresh}
+
+    async def calibrate_offsets(self, request, response):
+        """
+        Average the stream at rest, write offsets that cancel the bias, save them.
+
+        A coroutine: the stream keeps flowing while the window fills. The
+        window sees the offsets already in place, so its mean is the residual
+        bias and the new registers are the old ones plus its correction.
+        """
+        response.success = False
+        values = self.values
+        noise_rad_s = values['rate_noise_rad_s']
+        if self.window is not None:
+            response.message = 'refused: an offset calibration is already running'
+        elif noise_rad_s <= 0.0:
+            response.message = ('refused: the motion check needs a positive rate_noise_rad_s '
+                                '(the 1-sigma gyro noise of one sample)')
+        if response.message:
+            return response
+        window = SampleWindow(int(values['mpu6000.calibration.duration_s'] * 1e9))
+
+        def stalled() -> str:
+            stalled_s = time.monotonic() - self.last_sample
+            if stalled_s > STALL_TIMEOUT_S:
+                return (f'refused: no sample for {stalled_s:.1f} s, the stream stalled '
+                        f'({self.last_error or "no error"})')
+            return ''
+
+        self.window = window
+        try:
+            refusal = await await_window(self.ports.node, window.future, stalled)
+        finally:
+            self.window = None
+        response.message = refusal or self._finish(window, noise_rad_s,
+                                                   values['mpu6000.calibration.noise_multiple'])
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.logger, response, 'offset calibration')
+        return response
+
+    def _finish(self, window: SampleWindow, noise_rad_s: float, multiple: float) -> str:
+        gyro, acceleration, temperature = window.columns()
+        spread = rate_spread_rad_s(gyro, ddof=1)
+        worst = moving_axis(spread, noise_rad_s, multiple)
+        if worst is not None:
+            return (f'refused: the board moves: the {"xyz"[worst]} gyro rate spread '
+                    f'(standard deviation) {spread[worst]:.4g} rad/s is above '
+                    f'{multiple:g} x rate_noise_rad_s {noise_rad_s:.4g}; keep it still, face '
+                    'up or down, and call again')
+        try:
+            bias = rest_bias(gyro, acceleration)
+            gyro_lsb, accel_lsb = recalibrated_offsets(self.gyro_lsb, self.accel_bias_lsb, bias)
+            registers = self.source.write_offsets(gyro_lsb, accel_lsb)
+        except CalibrationError as err:
+            return f'refused: {err}'
+        except HardwareError as err:
+            return f'refused: writing the offset registers failed: {err}'
+        self._offsets_now(gyro_lsb, accel_lsb, registers, 'calibrated')
+        temperature_c = float(np.mean(temperature))
+        if self.refresh is not None:
+            # The new registers cancel the whole bias at the window's temperature.
+            self.refresh.base_lsb, self.refresh.base_temperature_c = gyro_lsb, temperature_c
+            self.refresh.temperature_c = temperature_c
+        state = offsets_state(self.variant, gyro_lsb, accel_lsb, registers, bias, temperature_c)
+        residual = ', '.join(f'{math.degrees(v):+.4f}' for v in bias.gyro_rad_s)
+        text = (f'gyro offsets {list(gyro_lsb)} LSB, accel offset registers {list(registers)} '
+                f'(bias {list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '
+                f'from {bias.samples} samples at {temperature_c:.2f} C (gyro bias before '
+                f'{residual} deg/s)')
+        try:
+            write_state(self.offsets_path, state)
+        except StateFileError as err:
+            return f'applied but not saved: {text}; {err}'
+        return f'{text}; saved to {self.offsets_path}'

@@ -1,0 +1,305 @@
+"""
+Driver streams: a part sampled at its own rate on a timer, published as means at a lower one.
+
+`TimedStream` is the schedule every part shares (`mlx_tempcomp.ros.mlx90609_stream`,
+`adis16130_stream`, `mpu6000_stream`); `DeviceStream` adds what the one-part
+SPI devices share: a source of `mlx_tempcomp.sources.protocol`, MISO faults
+and the diagnostics. A stream gets `StreamPorts` from the driver node: what it
+may use of it, no more.
+"""
+
+import collections
+from dataclasses import dataclass
+import gc
+import math
+import time
+from typing import Callable, Optional
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
+
+from ..hardware.errors import HardwareError
+from ..node_parameters import ParameterError
+from ..simulation.mlx90609 import Fault
+from ..simulation.physics import ThermalProfile
+from ..sources.decimation import Decimator
+from ..sources.protocol import SampleSource
+
+# Faults both parts can simulate: MISO stuck high or low.
+DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)
+
+# A sampling driver that falls this far behind (wall time) skips the older samples (missed
+# reads); a lossless simulated one lets its clock fall behind instead.
+MAX_BACKLOG_S = 0.25
+# Missed reads above this share of the reads due over the last MISSED_WINDOW_S are a WARN
+# (log, throttled, and diagnostics) while they happen.
+MISSED_WARN_SHARE = 0.001
+MISSED_WINDOW_S = 1.0
+MISSED_LOG_THROTTLE_S = 5.0
+# Shortest timer period of a driver: each tick costs the executor a wake-up.
+MIN_TICK_S = 0.001
+
+
+@dataclass(frozen=True)
+class StreamPorts:
+    """What a driver stream gets from its node: it reaches no further."""
+
+    node: Node                  # creates the stream's timers, services and publishers
+    values: dict                # the parameter values, kept current by the node
+    axes: tuple
+    publish_raw: Callable       # DriverNode.publish_raw
+    hand_off: Callable          # DriverNode.hand_off, at the end of every tick
+    eeprom_publisher: Optional[object]      # imu/eeprom, where the device has one
+
+
+def thermal_profile(values: dict, time_constant_s: float) -> ThermalProfile:
+    return ThermalProfile.cycle(tuple(values['simulation.cycle_temperatures_c']),
+                                values['simulation.ramp_c_per_min'],
+                                values['simulation.start_temperature_c'], time_constant_s,
+                                values['simulation.hold_s'])
+
+
+def chip_select(values: dict, device: str) -> int:
+    chip_selects = values['spi.chip_selects']
+    if len(chip_selects) != 1:
+        msg = (f'invalid parameter spi.chip_selects: the {device} is one part on one chip '
+               f'select, got {len(chip_selects)}')
+        raise ParameterError(msg)
+    return chip_selects[0]
+
+
+def speed_hz(values: dict, default_hz: int) -> int:
+    return values['spi.speed_hz'] or default_hz
+
+
+def refuse_fault() -> None:
+    """Refuse ``simulation.fault`` on a source that is not simulated."""
+    raise ParameterError('simulation.fault applies only to the simulated source')
+
+
+def _missed_share(missed: int, due: int, when: str) -> str:
+    if not due or missed <= MISSED_WARN_SHARE * due:
+        return ''
+    return (f'{missed} of {due} device reads missed {when} ({100.0 * missed / due:.2g} %): '
+            'the driver cannot keep up')
+
+
+class TimedStream:
+    """
+    A part sampled at its own rate and published at a lower one, each message the mean.
+
+    Subclasses call ``__init__`` with the `StreamPorts`, give `read`, `publish` and
+    `advance_to` (simulated time) and call `start_schedule` with the part's
+    natural sample rate once the part is ready.
+    Device sample k is due at k / ``sample_rate_hz`` after the start (simulated
+    sources: in simulated time, paced at ``real_time_factor``; real ones: wall
+    time); every timer tick reads the samples now due and publishes each publish
+    interval that is complete, with the mean of its samples, stamped at their
+    mean time (`mlx_tempcomp.sources.decimation`). A failed or saturated read is
+    skipped and counted; samples more than MAX_BACKLOG_S behind are skipped and
+    counted as missed reads, unless the source is ``lossless`` (simulated only):
+    then the schedule slides instead, so every sample is read and the simulated
+    clock falls behind wall time.
+    """
+
+    def __init__(self, ports: StreamPorts):
+        self.ports = ports
+        self.values = ports.values
+        self.axes = ports.axes
+        self.logger = ports.node.get_logger()
+
+    def start_schedule(self, real_time_factor, natural_rate_hz: float,
+                       lossless: bool = False) -> None:
+        values = self.values
+        publish_rate_hz = values['publish_rate_hz']
+        sample_rate_hz = values['sample_rate_hz'] or natural_rate_hz
+        if sample_rate_hz < publish_rate_hz:
+            msg = (f'invalid parameter sample_rate_hz: {sample_rate_hz:g} Hz is below '
+                   f'publish_rate_hz ({publish_rate_hz:g} Hz); every message averages the '
+                   'samples of its interval, so sample at least as fast')
+            raise ParameterError(msg)
+        self.decimator = Decimator(sample_rate_hz, publish_rate_hz)
+        self.next_index = 0
+        self.samples_read = 0
+        self.missed_reads = 0
+        self.reads_due = 0
+        self.reported = (0, 0)      # (reads due, missed) at the last status
+        # (wall time, reads due, reads missed) of the ticks of the last MISSED_WINDOW_S, and
+        # their sums.
+        self.recent_ticks = collections.deque()
+        self.recent_due = self.recent_missed = 0
+        self.messages = 0
+        self.samples_per_message = 0
+        self.failed_reads = 0
+        self.saturated = 0
+        self.consecutive_failures = 0
+        self.last_error = ''
+        self.last_sample = time.monotonic()
+        self.real_time_factor = real_time_factor
+        self.lossless = lossless
+        self.start_ns = self.ports.node.get_clock().now().nanoseconds
+        self.start_wall = time.monotonic()
+        tick = 1.0 / publish_rate_hz / (real_time_factor or 1.0)
+        self.timer = self.ports.node.create_timer(max(tick, MIN_TICK_S), self.tick)
+        # What start-up allocated (rclpy, numpy, the part and its tables: about 90,000
+        # objects) lives as long as the process: out of the collector's sight, a full
+        # collection takes well under 1 ms instead of about 60 ms of CPU, which on a busy
+        # machine stretched past MAX_BACKLOG_S and cost device reads.
+        gc.freeze()
+
+    @property
+    def rates(self) -> str:
+        return (f'sampling at {self.decimator.sample_rate_hz:g} Hz, publishing at '
+                f'{self.decimator.publish_rate_hz:g} Hz'
+                + (', lossless (the simulated clock may fall behind wall time)'
+                   if self.lossless else ''))
+
+    def tick(self) -> None:
+        rate_hz = self.decimator.sample_rate_hz
+        factor = self.real_time_factor or 1.0
+        now = time.monotonic()
+        due = int(math.floor((now - self.start_wall) * factor * rate_hz + 1e-9)) + 1
+        reads_due = due - self.next_index                     # samples 0 .. due - 1
+        behind = reads_due - max(1, int(MAX_BACKLOG_S * factor * rate_hz))
+        missed = 0
+        if behind > 0:
+            if self.lossless:
+                self.start_wall += behind / rate_hz / factor
+                due -= behind
+                reads_due -= behind
+            else:
+                missed = behind
+                self.missed_reads += missed
+                self.next_index += missed
+        self._count_missed(now, reads_due, missed)
+        for index in range(self.next_index, due):
+            if self.real_time_factor is not None:
+                self.advance_to(index / rate_hz)
+            sample = self._read_one()
+            if sample is not None:
+                self.samples_read += 1
+                self._publish(self.decimator.add(index, sample))
+        self.next_index = due
+        self._publish(self.decimator.close_before(due))
+        self.ports.hand_off()
+
+    def _count_missed(self, now: float, reads_due: int, missed: int) -> None:
+        self.reads_due += reads_due
+        recent = self.recent_ticks
+        recent.append((now, reads_due, missed))
+        self.recent_due += reads_due
+        self.recent_missed += missed
+        while recent[0][0] < now - MISSED_WINDOW_S:
+            _, old_due, old_missed = recent.popleft()
+            self.recent_due -= old_due
+            self.recent_missed -= old_missed
+        if missed:
+            warning = _missed_share(self.recent_missed, self.recent_due,
+                                    f'in the last {MISSED_WINDOW_S:g} s')
+            if warning:
+                self.logger.warn(warning, throttle_duration_sec=MISSED_LOG_THROTTLE_S)
+
+    def missing_reads(self) -> str:
+        """Say how many reads were missed since the last call if too many, else ''."""
+        due, missed = self.reported
+        self.reported = (self.reads_due, self.missed_reads)
+        return _missed_share(self.missed_reads - missed, self.reads_due - due,
+                             'since the last status')
+
+    def _read_one(self):
+        try:
+            sample = self.read()
+        except HardwareError as err:
+            self.failed_reads += 1
+            self.consecutive_failures += 1
+            self.last_error = str(err)
+            self.logger.warn(f'read failed: {err}', throttle_duration_sec=5.0)
+            return None
+        self.consecutive_failures = 0
+        if sample.saturated:
+            self.saturated += 1
+            return None
+        self.last_sample = time.monotonic()
+        return sample
+
+    def _publish(self, interval) -> None:
+        if interval is None:
+            return
+        self.messages += 1
+        self.samples_per_message = interval.samples
+        self.publish(self.start_ns + int(round(interval.time_s * 1e9)), interval.mean)
+
+    def sampling_status(self) -> dict:
+        """Counters of the sampling, for diagnostics."""
+        return {'sample_rate_hz': self.decimator.sample_rate_hz,
+                'publish_rate_hz': self.decimator.publish_rate_hz,
+                'samples_read': self.samples_read, 'messages': self.messages,
+                'samples_per_message': self.samples_per_message,
+                'missed_reads': self.missed_reads, 'failed_reads': self.failed_reads}
+
+    def summary(self) -> str:
+        """One line on the sampling so far, logged when the driver stops."""
+        return (f'sampling: {self.samples_read} samples read, {self.missed_reads} missed, '
+                f'{self.failed_reads} failed, {self.saturated} saturated; {self.messages} '
+                'messages published')
+
+    def advance_to(self, time_s: float) -> None:
+        raise NotImplementedError
+
+    def read(self):
+        raise NotImplementedError
+
+    def publish(self, stamp_ns: int, sample) -> None:
+        raise NotImplementedError
+
+
+class DeviceStream(TimedStream):
+    """One ADIS16130 or MPU-6000 part, simulated (a `SimulatedSource`) or on spidev."""
+
+    def __init__(self, ports: StreamPorts, source: SampleSource, hardware_id: str,
+                 simulated: bool, natural_rate_hz: float):
+        super().__init__(ports)
+        self.source = source
+        self.hardware_id = hardware_id
+        self.simulated = simulated
+        # Start-up took simulated time (resets, settling): the schedule starts after it.
+        self.source_start_s = source.clock.now_s if simulated else 0.0
+        self.start_schedule(self.values['simulation.real_time_factor'] if simulated
+                            else None, natural_rate_hz,
+                            simulated and self.values['simulation.lossless'])
+        self.logger.info(f'{hardware_id}: {self.rates}')
+
+    def advance_to(self, time_s: float) -> None:
+        self.source.advance_to(self.source_start_s + time_s)
+
+    def check_fault(self, value: str) -> None:
+        """Raise `ParameterError` unless ``simulation.fault`` = ``value`` can be switched on."""
+        if not self.simulated:
+            refuse_fault()
+        if Fault(value) not in DEVICE_FAULTS:
+            choices = ', '.join(f.value for f in DEVICE_FAULTS)
+            msg = (f'invalid parameter simulation.fault: the simulated '
+                   f'{self.values["device"]} knows {choices}, not {value!r}')
+            raise ParameterError(msg)
+
+    def set_fault(self, value: str) -> None:
+        raise NotImplementedError
+
+    def extra_status(self) -> dict:
+        return {}
+
+    def status(self) -> tuple:
+        values = {'state': 'failing' if self.consecutive_failures else 'streaming',
+                  'device': self.values['device'], **self.sampling_status(),
+                  **self.source.counters, **self.extra_status(), 'last_error': self.last_error}
+        missed = self.missing_reads()
+        if self.consecutive_failures:
+            return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
+        if missed:
+            return DiagnosticStatus.WARN, missed, values
+        if self.saturated:
+            return DiagnosticStatus.WARN, f'{self.saturated} saturated samples', values
+        return DiagnosticStatus.OK, 'streaming', values
+
+    def close(self) -> None:
+        self.source.close()
