@@ -19,7 +19,7 @@ from sensor_msgs.msg import Imu
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 SAMPLES = 500                     # 5 s of sensor time
 
 

@@ -31,7 +31,7 @@ import yaml
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 SEED = 4
 MPU_AXES = ['x', 'y', 'z']
 

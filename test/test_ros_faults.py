@@ -13,7 +13,7 @@ from ros_harness import (COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, simulated_d
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 20.0
+TIMEOUT_S = 60.0
 # The counter each fault raises, and what the driver's error message says about it.
 FAULTS = {
     'refuse': ('refusals', 'refused'),

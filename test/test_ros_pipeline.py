@@ -25,7 +25,7 @@ NOISE_RAD_S = 0.0058              # rate_noise_rad_s default (config/mlx_tempcom
 # so the nominal conversion is far off and the factory table has work to do.
 SEED = 9
 SAMPLES = 1000                    # 10 s of sensor time, 2 s of wall time at 5 x
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 COMPENSATION_NAMES = [spec.name for spec in COMPENSATION_SPECS]
 
 

@@ -26,7 +26,7 @@ from std_srvs.srv import Trigger
 pytestmark = pytest.mark.ros
 
 SERVICE = 'imu/recalibrate_zro'
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 WINDOW_S = 2.0                    # recalibration.duration_s: 200 samples at 100 Hz
 SEED = 9
 SUPPLY_SHIFT = {'simulation.supply_v': 5.2, 'simulation.zro_supply_dps_per_v': 5.0}

@@ -31,7 +31,7 @@ from sensor_msgs.msg import Imu, Temperature
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 SAMPLE_RATE_HZ = 5700.0
 PUBLISH_RATE_HZ = 1000.0
 MESSAGES = 2000            # 2 s of simulated time

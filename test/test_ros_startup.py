@@ -7,7 +7,7 @@ from ros_harness import first_line_with, start_in_namespace
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 SUPPLY_MODEL = effect_parameters(EffectModel(
     (AxisTerms(bias=(0.01, 2e-3), supply_voltage=(4e-3,)),), supply_reference_v=5.0), ('z',))
 

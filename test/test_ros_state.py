@@ -20,7 +20,7 @@ import yaml
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = 60.0
 SAMPLES = 100
 MODEL = {'model': 'polynomial', 'polynomial.bias.z': [0.02, 0.001]}
 GOOD_OFFSET_RAD_S = 0.01
