@@ -73,6 +73,7 @@ def _use_fast_discovery() -> None:
 _use_fast_discovery()
 # How often Probe.spin_until checks its condition.
 CHECK_PERIOD_S = 0.05
+SPIN_SLICE_S = 0.01
 DRIVER_DIAGNOSTIC = 'driver_node: '            # name prefix; the source follows
 COMPENSATION_DIAGNOSTIC = 'compensation_node: compensation'
 # The probe records streams with a deep queue: on this 2-core machine it shares the CPU
@@ -282,8 +283,11 @@ class Probe:
     def spin_for(self, seconds: float) -> None:
         """Take every callback that becomes ready within ``seconds``."""
         end = time.monotonic() + seconds
-        while (remaining := end - time.monotonic()) > 0:
-            self.executor.spin_once(timeout_sec=remaining)
+        while time.monotonic() < end:
+            # The same timeout every call: rclpy keeps its iterator over ready callbacks only
+            # while the arguments repeat; restarted at every call, it yields the first ready
+            # entity again and again (the busy diagnostics) and starves the others.
+            self.spin_once(SPIN_SLICE_S)
 
     def spin_until(self, condition, timeout: float, what: str, logs=None):
         """
