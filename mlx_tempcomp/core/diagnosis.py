@@ -40,11 +40,12 @@ from typing import Callable, Mapping, Optional
 
 import numpy as np
 
-from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EffectModel, FirstOrderLag,
+from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EffectModel, EFFECTS, FirstOrderLag,
                       LIVE_EFFECTS, play_state, temperature_rate_c_s)
 from .errors import CalibrationError, ConfigError
 from .fitting import MIN_SPAN_C, OrderScore
 from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
+from .model_interface import INPUTS, ModelInputs
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -590,15 +591,9 @@ class _Problem:
             rate = rate[:, axis:axis + 1]
             column = 0
 
-        def given(needed: bool, values):
-            return values[span] if needed else None
-
-        corrected = model.correct(
-            rate, source.temperature_c[span], time_s=given(model.needs_time, source.time_s),
-            temperature_2_c=given(model.needs_temperature_2, source.temperature_2_c),
-            acceleration_m_s2=given(model.needs_acceleration, source.acceleration_m_s2),
-            supply_voltage_v=given(model.needs_supply_voltage, source.supply_voltage_v),
-        ).rate_rad_s[:, column]
+        inputs = ModelInputs(**{name: getattr(source, name)[span] for name in model.inputs})
+        corrected = model.correct(rate, source.temperature_c[span],
+                                  inputs).rate_rad_s[:, column]
         if source.reference_rad_s is not None:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
@@ -703,17 +698,16 @@ def _skipped(problem: _Problem) -> dict:
                                f'{TIME_CONSTANTS_PER_RECORD:g} times into it')
     if bounds['thermal_lag_s'][0] > bounds['thermal_lag_s'][1]:
         skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
-    if problem.supply is None:
-        skipped['supply_voltage'] = 'needs column supply_voltage'
-    elif problem.supply_reference is None:
+    for effect in EFFECTS:
+        lacking = [column for name in sorted(effect.inputs)
+                   if getattr(problem.full, name) is None for column in INPUTS[name].columns]
+        if lacking:
+            skipped[effect.name] = f'needs column{"s" * (len(lacking) > 1)} {", ".join(lacking)}'
+    if 'supply_voltage' not in skipped and problem.supply_reference is None:
         skipped['supply_voltage'] = 'supply_voltage is constant'
-    if problem.temperature_2 is None:
-        skipped['secondary_temperature'] = 'needs column temperature_2'
-    elif problem.secondary is None:
+    if 'secondary_temperature' not in skipped and problem.secondary is None:
         skipped['secondary_temperature'] = 'temperature_2 is constant'
-    if problem.acceleration is None:
-        skipped['acceleration_sensitivity'] = 'needs columns acc_x, acc_y, acc_z'
-    else:
+    if 'acceleration_sensitivity' not in skipped:
         turn_deg, change_m_s2 = problem.motion()
         if turn_deg < MOTION_DEG and change_m_s2 < MOTION_M_S2:
             skipped['acceleration_sensitivity'] = (
