@@ -9,7 +9,7 @@ node subscribes to those, the toolkit asks a record for them.
 """
 
 from dataclasses import dataclass, fields
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -65,6 +65,7 @@ class CorrectedRate:
     temperature_clamped: np.ndarray
 
 
+@runtime_checkable
 class ModelStream(Protocol):
     """Runs a model block by block, keeping the state of its stateful effects."""
 
@@ -79,6 +80,7 @@ class ModelStream(Protocol):
         """Correct one row: (rad/s per axis as a list, any clamped), bits as a block of one."""
 
 
+@runtime_checkable
 class CompensationModel(Protocol):
     """
     A model the compensation node runs: EEPROM, polynomial, linear BTC, effects, chain.
