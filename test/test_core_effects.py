@@ -1,9 +1,12 @@
 """EffectModel: each effect's formula, batch against stream, parameters round trip, bad input."""
 
+from dataclasses import fields, replace
 import math
 
-from mlx_tempcomp.core.effects import (AxisTerms, EffectModel, FirstOrderLag, play_state,
-                                       PlayOperator, temperature_rate_c_s, TemperatureSlope)
+from mlx_tempcomp.core.effects import (AxisTerms, EFFECT_NAMES, EffectModel, EFFECTS,
+                                       FirstOrderLag, LIVE_EFFECTS, PARAMETER_DESCRIPTIONS,
+                                       play_state, PlayOperator, RECORD_EFFECTS,
+                                       temperature_rate_c_s, TemperatureSlope)
 from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.model_interface import ModelInputs
 import numpy as np
@@ -219,3 +222,29 @@ def test_missing_inputs_and_parameters_are_named():
     with pytest.raises(ConfigError, match='cross_axis of axis 0 needs 2 values'):
         EffectModel(terms=(AxisTerms(bias=(0.0,), cross_axis=(0.0, 0.1, 0.2)),
                            AxisTerms(bias=(0.0,))))
+
+
+def test_the_effect_table_owns_every_coefficient_once_and_describes_every_parameter():
+    owners = [name for effect in EFFECTS for name in effect.fields + effect.model_fields]
+    assert len(owners) == len(set(owners))
+    model_fields = {f.name for f in fields(EffectModel)} - {'terms', 'zro_offset_rad_s'}
+    assert set(owners) == {f.name for f in fields(AxisTerms)} | model_fields
+    parameters = {key.partition('.')[0] for key in _full_model().to_parameters(('x', 'y', 'z'))}
+    assert set(PARAMETER_DESCRIPTIONS) == parameters
+    assert set(EFFECT_NAMES) == set(LIVE_EFFECTS) | RECORD_EFFECTS
+
+
+def test_each_effect_is_present_and_needs_its_inputs_when_its_coefficients_are_set():
+    terms = _full_model().terms
+    assert set(terms[0].effects) | set(terms[1].effects) | set(terms[2].effects) == \
+        set(EFFECT_NAMES)
+    assert terms[1].effects == ('temperature_polynomial', 'temperature_rate', 'thermal_gradient',
+                                'thermal_gradient_2', 'supply_voltage', 'cross_axis')
+    for effect in EFFECTS:
+        holding = next(t for t in terms if effect.present(t))
+        model = EffectModel(terms=(replace(holding, cross_axis=()),))
+        assert effect.inputs <= model.inputs
+    assert EffectModel(terms=(AxisTerms(bias=(1.0,), hysteresis_half_width_c=1.0,
+                                        hysteresis_rad_s=0.1),)).inputs == frozenset()
+    assert _full_model().live().record_effects == ()
+    assert set(_full_model().record_effects) == RECORD_EFFECTS
