@@ -287,6 +287,7 @@ def _play_loop(temperature: np.ndarray, width: float, y: float, start: int,
         out[i] = y
     played[start:] = out
 
+
 @dataclass(frozen=True)
 class Effect:
     """
