@@ -36,6 +36,10 @@ found in (RECORD_EFFECTS); every other effect runs causally on a live stream.
 The history operators (`TemperatureSlope`, `FirstOrderLag`, `PlayOperator`)
 start at the first sample a batch or stream sees: slope 0, lag and play at
 the first temperature (the device in equilibrium at power-up).
+
+Each effect is one `Effect` of the table `EFFECTS`: its coefficient fields,
+the descriptions of its node parameters, the inputs it needs, live or not,
+and its bias term; the model, the diagnosis and the node parameters read it.
 """
 
 import collections
