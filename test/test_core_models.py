@@ -2,8 +2,8 @@ import math
 
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
-from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.eeprom import EepromFields
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.interpolation import Interpolation
 from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,

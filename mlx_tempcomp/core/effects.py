@@ -368,66 +368,81 @@ def _step_bias(term, model, inputs, history, total):
 _TIME = frozenset({'time_s'})
 # The effects in the order diagnose tries them and reports them; biases add up in it.
 EFFECTS = (
-    Effect('temperature_polynomial', ('bias',), {
-        'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
-        'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
-        'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
-        'temperature_min_c': 'effective temperatures below are clamped',
-        'temperature_max_c': 'effective temperatures above are clamped'}, 'bias', count=1,
-        model_fields=('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
-                      'temperature_max_c')),
-    Effect('thermal_lag', ('thermal_lag_s',), {
-        'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: T_eff '
-                         '= first-order lag of T with time constant |lag|',
-        'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the slope '
-                                     'over this window (s)'}, 'thermal_lag_s',
-        model_fields=('temperature_rate_window_s',), inputs=_TIME),
-    Effect('temperature_rate', ('temperature_rate_rad_s_per_c_s',), {
-        'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'},
-        'temperature_rate_rad_s_per_c_s', inputs=_TIME, bias=_rate_bias),
-    Effect('thermal_gradient', ('gradient_time_constants_s', 'gradient_rad_s_per_c'), {
-        'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at most 2)',
-        'gradient_rad_s_per_c': 'axis {axis}: bias + g_k x (T - lag_k(T)), one per time '
-                                'constant'}, 'gradient_time_constants_s', count=1, inputs=_TIME,
-        bias=_gradient_bias),
-    # The second term of thermal_gradient's fields: summed there.
-    Effect('thermal_gradient_2', (), {}, 'gradient_time_constants_s', count=2, inputs=_TIME),
-    Effect('hysteresis', ('hysteresis_half_width_c', 'hysteresis_rad_s'), {
-        'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play operator',
-        'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state'},
-        'hysteresis_rad_s', bias=_hysteresis_bias),
-    Effect('supply_voltage', ('supply_voltage',), {
-        'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power 1, '
-                          'rad/s',
-        'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k'},
-        'supply_voltage', model_fields=('supply_reference_v',),
-        inputs=frozenset({'supply_voltage_v'}), bias=_supply_bias),
-    Effect('secondary_temperature', ('secondary',), {
-        'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, rad/s',
-        'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
-        'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2'}, 'secondary',
-        model_fields=('secondary_reference_c', 'secondary_scale_c'),
-        inputs=frozenset({'temperature_2_c'}), bias=_secondary_bias),
-    Effect('acceleration_sensitivity', ('acceleration_rad_s_per_m_s2',), {
-        'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, z acceleration'},
-        'acceleration_rad_s_per_m_s2', inputs=frozenset({'acceleration_m_s2'}),
-        bias=_acceleration_bias),
-    Effect('scale_factor_temperature', ('scale',), {
-        'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)'}, 'scale'),
-    Effect('rate_nonlinearity', ('nonlinearity',), {
-        'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)'},
-        'nonlinearity'),
-    Effect('cross_axis', ('cross_axis',), {
-        'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)'},
-        'cross_axis'),
-    Effect('time_drift', ('time_drift_rad_s_per_s',), {
-        'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since time_reference_s',
-        'time_reference_s': 'time drift is zero at this stamp (s)'}, 'time_drift_rad_s_per_s',
-        model_fields=('time_reference_s',), inputs=_TIME, live=False, bias=_drift_bias),
-    Effect('bias_step', ('bias_steps',), {
-        'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
-        'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s'},
-        'bias_steps', inputs=_TIME, live=False, bias=_step_bias),
+    Effect('temperature_polynomial', fields=('bias',), marker='bias', count=1,
+           model_fields=('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
+                         'temperature_max_c'),
+           descriptions={
+               'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
+               'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
+               'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
+               'temperature_min_c': 'effective temperatures below are clamped',
+               'temperature_max_c': 'effective temperatures above are clamped'}),
+    Effect('thermal_lag', fields=('thermal_lag_s',), marker='thermal_lag_s', inputs=_TIME,
+           model_fields=('temperature_rate_window_s',),
+           descriptions={
+               'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: '
+                                'T_eff = first-order lag of T with time constant |lag|',
+               'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the '
+                                            'slope over this window (s)'}),
+    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',),
+           marker='temperature_rate_rad_s_per_c_s', inputs=_TIME, bias=_rate_bias,
+           descriptions={'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'}),
+    Effect('thermal_gradient', fields=('gradient_time_constants_s', 'gradient_rad_s_per_c'),
+           marker='gradient_time_constants_s', count=1, inputs=_TIME, bias=_gradient_bias,
+           descriptions={
+               'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at '
+                                            'most 2)',
+               'gradient_rad_s_per_c': 'axis {axis}: bias + g_k x (T - lag_k(T)), one per time '
+                                       'constant'}),
+    # The second term in thermal_gradient's fields, summed there.
+    Effect('thermal_gradient_2', fields=(), marker='gradient_time_constants_s', count=2,
+           inputs=_TIME, descriptions={}),
+    Effect('hysteresis', fields=('hysteresis_half_width_c', 'hysteresis_rad_s'),
+           marker='hysteresis_rad_s', bias=_hysteresis_bias,
+           descriptions={
+               'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play '
+                                          'operator',
+               'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state'}),
+    Effect('supply_voltage', fields=('supply_voltage',), marker='supply_voltage',
+           model_fields=('supply_reference_v',), inputs=frozenset({'supply_voltage_v'}),
+           bias=_supply_bias,
+           descriptions={
+               'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power '
+                                 '1, rad/s',
+               'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k'}),
+    Effect('secondary_temperature', fields=('secondary',), marker='secondary',
+           model_fields=('secondary_reference_c', 'secondary_scale_c'),
+           inputs=frozenset({'temperature_2_c'}), bias=_secondary_bias,
+           descriptions={
+               'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, '
+                            'rad/s',
+               'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
+               'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2'}),
+    Effect('acceleration_sensitivity', fields=('acceleration_rad_s_per_m_s2',),
+           marker='acceleration_rad_s_per_m_s2', inputs=frozenset({'acceleration_m_s2'}),
+           bias=_acceleration_bias,
+           descriptions={'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, '
+                                                        'z acceleration'}),
+    Effect('scale_factor_temperature', fields=('scale',), marker='scale',
+           descriptions={'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: '
+                                  'none)'}),
+    Effect('rate_nonlinearity', fields=('nonlinearity',), marker='nonlinearity',
+           descriptions={'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 '
+                                         'poly(u)'}),
+    Effect('cross_axis', fields=('cross_axis',), marker='cross_axis',
+           descriptions={'cross_axis': 'axis {axis}: cross-axis coefficients, one per model '
+                                       'axis (own: 0)'}),
+    Effect('time_drift', fields=('time_drift_rad_s_per_s',), marker='time_drift_rad_s_per_s',
+           model_fields=('time_reference_s',), inputs=_TIME, live=False, bias=_drift_bias,
+           descriptions={
+               'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since '
+                                         'time_reference_s',
+               'time_reference_s': 'time drift is zero at this stamp (s)'}),
+    Effect('bias_step', fields=('bias_steps',), marker='bias_steps', inputs=_TIME, live=False,
+           bias=_step_bias,
+           descriptions={
+               'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
+               'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s'}),
 )
 EFFECT_NAMES = tuple(effect.name for effect in EFFECTS)
 # Effects that need the clock of the record they were fitted on: not for a live node.

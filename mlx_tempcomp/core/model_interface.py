@@ -113,4 +113,3 @@ class CompensationModel(Protocol):
 
     def offset_rad_s(self, temperature_c: float) -> np.ndarray:
         """Give the ZRO offset as rate at ``temperature_c``."""
-
