@@ -609,6 +609,11 @@ class EffectModel(OffsetModel):
                                    if effect.present(term)))
 
     @functools.cached_property
+    def _biases(self) -> tuple:
+        """Give the effects with a bias term present on each axis."""
+        return tuple(tuple(e for e in _BIAS_EFFECTS if e.present(term)) for term in self.terms)
+
+    @functools.cached_property
     def has_cross_axis(self) -> bool:
         return any(any(t.cross_axis) for t in self.terms)
 
@@ -666,7 +671,8 @@ class EffectModel(OffsetModel):
         bias = np.empty(rate.shape)
         x = np.empty(rate.shape)
         clamped = np.isnan(temperature)
-        for axis, (term, history) in enumerate(zip(self.terms, histories)):
+        for axis, (term, history, biases) in enumerate(zip(self.terms, histories,
+                                                           self._biases)):
             effective = temperature[:, axis]
             if term.thermal_lag_s > 0.0:
                 effective = effective + term.thermal_lag_s * history.slope
@@ -676,9 +682,8 @@ class EffectModel(OffsetModel):
             clamped[:, axis] |= limited != effective
             x[:, axis] = (limited - self.reference_temperature_c) / self.temperature_scale_c
             total = np.polynomial.polynomial.polyval(x[:, axis], term.bias)
-            for effect in _BIAS_EFFECTS:
-                if effect.present(term):
-                    total = effect.bias(term, self, inputs, history, total)
+            for effect in biases:
+                total = effect.bias(term, self, inputs, history, total)
             bias[:, axis] = total
         corrected = rate - bias
         for axis, term in enumerate(self.terms):

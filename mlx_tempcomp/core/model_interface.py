@@ -8,7 +8,7 @@ record must hold for each). A model lists what it needs in ``inputs``; the
 node subscribes to those, the toolkit asks a record for them.
 """
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -32,8 +32,10 @@ class ModelInputs:
 
     def rows(self) -> 'ModelInputs':
         """Give one row's values as a block of one row."""
-        return ModelInputs(**{f.name: None if getattr(self, f.name) is None
-                              else [getattr(self, f.name)] for f in fields(self)})
+        def block(value):
+            return None if value is None else [value]
+        return ModelInputs(block(self.time_s), block(self.temperature_2_c),
+                           block(self.acceleration_m_s2), block(self.supply_voltage_v))
 
 
 NO_INPUTS = ModelInputs()
