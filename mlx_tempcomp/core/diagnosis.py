@@ -308,9 +308,8 @@ class _Problem:
         self.temperature = head(recording.temperature_c)
         self.rate = head(recording.gyro_rad_s)
         self.reference = head(recording.reference_rad_s)
-        self.temperature_2 = head(recording.temperature_2_c)
-        self.acceleration = head(recording.acceleration_m_s2)
-        self.supply = head(recording.supply_voltage_v)
+        # The model inputs the record has (None: not recorded).
+        self.inputs = ModelInputs(**{name: head(getattr(recording, name)) for name in INPUTS})
         self.test_rows = total - self.rows
         self._check_size()
         low, high = float(np.min(self.temperature)), float(np.max(self.temperature))
@@ -327,8 +326,8 @@ class _Problem:
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
         self.target = self.mean(error)
-        self.secondary = _centre_and_half_span(self.temperature_2)
-        self.supply_reference = _centre_and_half_span(self.supply)
+        self.secondary = _centre_and_half_span(self.inputs.temperature_2_c)
+        self.supply_reference = _centre_and_half_span(self.inputs.supply_voltage_v)
         self.bounds = self._bounds()
         self._cache = {}
 
@@ -413,7 +412,7 @@ class _Problem:
         return self.cached('cubic', lambda: self.powers(self.temperature, 0, PX4_ORDER))
 
     def acceleration_means(self) -> np.ndarray:
-        return self.cached('acceleration', lambda: self.mean(self.acceleration))
+        return self.cached('acceleration', lambda: self.mean(self.inputs.acceleration_m_s2))
 
     def design(self, axis: int, spec: _Spec) -> np.ndarray:
         """Return the bin-mean design matrix of an axis; columns in `_terms` order."""
@@ -612,7 +611,7 @@ def _skipped(problem: _Problem) -> dict:
         skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
     for effect in EFFECTS:
         lacking = [column for name in sorted(effect.inputs)
-                   if getattr(problem.full, name) is None for column in INPUTS[name].columns]
+                   if getattr(problem.inputs, name) is None for column in INPUTS[name].columns]
         if lacking:
             skipped[effect.name] = f'needs column{"s" * (len(lacking) > 1)} {", ".join(lacking)}'
     if 'supply_voltage' not in skipped and problem.supply_reference is None:
@@ -818,13 +817,13 @@ def _play_columns(problem: _Problem, axis: int, spec: _Spec, width_c: float) -> 
 def _supply_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
     reference, _ = problem.supply_reference
     return problem.cached('supply', lambda: problem.powers(
-        problem.supply - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
+        problem.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
 
 
 def _secondary_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
     reference, scale = problem.secondary
     return problem.cached('secondary', lambda: problem.powers(
-        (problem.temperature_2 - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
+        (problem.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
 
 
 def _scale_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:

@@ -32,10 +32,7 @@ class ModelInputs:
 
     def rows(self) -> 'ModelInputs':
         """Give one row's values as a block of one row."""
-        def block(value):
-            return None if value is None else [value]
-        return ModelInputs(block(self.time_s), block(self.temperature_2_c),
-                           block(self.acceleration_m_s2), block(self.supply_voltage_v))
+        return ModelInputs(*(None if value is None else [value] for value in vars(self).values()))
 
 
 NO_INPUTS = ModelInputs()
