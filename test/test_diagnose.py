@@ -18,6 +18,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
 from mlx_tempcomp.sources.recording import Recording
@@ -359,7 +360,7 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     assert model == expected.model
     # The node-side model, run from the record's start, gives the reported test error.
     corrected = model.correct(recording.gyro_rad_s, recording.temperature_c,
-                              time_s=recording.time_s).rate_rad_s
+                              ModelInputs(time_s=recording.time_s)).rate_rad_s
     test = slice(rows - int(math.floor(TEST_FRACTION * rows)), rows)
     seconds = np.floor(recording.time_s[test] - recording.time_s[test][0])
     starts = np.flatnonzero(np.concatenate(([True], seconds[1:] != seconds[:-1])))

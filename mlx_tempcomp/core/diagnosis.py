@@ -35,16 +35,18 @@ unless ``record_effects`` asks for them.
 """
 
 from dataclasses import dataclass, field, replace
+import functools
 import math
 from typing import Callable, Mapping, Optional
 
 import numpy as np
 
-from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EffectModel, FirstOrderLag,
-                      LIVE_EFFECTS, play_state, temperature_rate_c_s)
+from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, EffectModel, EFFECTS,
+                      FirstOrderLag, LIVE_EFFECTS, play_state, temperature_rate_c_s)
 from .errors import CalibrationError, ConfigError
 from .fitting import MIN_SPAN_C, OrderScore
 from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
+from .model_interface import INPUTS, ModelInputs
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -222,39 +224,37 @@ class Diagnosis:
 
 @dataclass(frozen=True)
 class _Spec:
-    """The effects of one axis and their nonlinear parameters (absent: 0, (), None, False)."""
+    """
+    The effects of one axis: the polynomial order and each effect's choice.
+
+    ``choices`` pairs an effect with what the search chose for it (a time
+    constant, a width, an order, True), in EFFECT_NAMES order: the order of
+    the design columns. ``thermal_gradient`` holds one or two time constants,
+    the second being ``thermal_gradient_2``.
+    """
 
     order: int
-    thermal_lag_s: float = 0.0
-    temperature_rate: bool = False
-    gradient_s: tuple = ()
-    hysteresis_half_width_c: float = 0.0
-    supply_order: int = 0
-    secondary_order: int = 0
-    acceleration: bool = False
-    scale_order: int = -1
-    nonlinearity_order: int = 0
-    cross_axis: bool = False
-    time_drift: bool = False
-    bias_step_time_s: Optional[float] = None
+    choices: tuple = ()
+
+    def get(self, effect: str, default=None):
+        return dict(self.choices).get(effect, default)
+
+    def with_choice(self, effect: str, choice) -> '_Spec':
+        choices = dict(self.choices, **{effect: choice})
+        return replace(self, choices=tuple((e, choices[e]) for e in EFFECT_NAMES if e in choices))
+
+    @property
+    def thermal_lag_s(self) -> float:
+        return self.get('thermal_lag', 0.0)
+
+    @property
+    def gradient_s(self) -> tuple:
+        return self.get('thermal_gradient', ())
 
     @property
     def effects(self) -> set:
-        present = {BASE_EFFECT,
-                   'thermal_lag' if self.thermal_lag_s else '',
-                   'temperature_rate' if self.temperature_rate else '',
-                   'thermal_gradient' if self.gradient_s else '',
-                   'thermal_gradient_2' if len(self.gradient_s) > 1 else '',
-                   'hysteresis' if self.hysteresis_half_width_c else '',
-                   'supply_voltage' if self.supply_order else '',
-                   'secondary_temperature' if self.secondary_order else '',
-                   'acceleration_sensitivity' if self.acceleration else '',
-                   'scale_factor_temperature' if self.scale_order >= 0 else '',
-                   'rate_nonlinearity' if self.nonlinearity_order else '',
-                   'cross_axis' if self.cross_axis else '',
-                   'time_drift' if self.time_drift else '',
-                   'bias_step' if self.bias_step_time_s is not None else ''}
-        return present - {''}
+        present = {BASE_EFFECT} | {effect for effect, _ in self.choices}
+        return present | ({'thermal_gradient_2'} if len(self.gradient_s) > 1 else set())
 
 
 @dataclass(frozen=True)
@@ -308,9 +308,8 @@ class _Problem:
         self.temperature = head(recording.temperature_c)
         self.rate = head(recording.gyro_rad_s)
         self.reference = head(recording.reference_rad_s)
-        self.temperature_2 = head(recording.temperature_2_c)
-        self.acceleration = head(recording.acceleration_m_s2)
-        self.supply = head(recording.supply_voltage_v)
+        # The model inputs the record has (None: not recorded).
+        self.inputs = ModelInputs(**{name: head(getattr(recording, name)) for name in INPUTS})
         self.test_rows = total - self.rows
         self._check_size()
         low, high = float(np.min(self.temperature)), float(np.max(self.temperature))
@@ -327,8 +326,8 @@ class _Problem:
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
         self.target = self.mean(error)
-        self.secondary = _centre_and_half_span(self.temperature_2)
-        self.supply_reference = _centre_and_half_span(self.supply)
+        self.secondary = _centre_and_half_span(self.inputs.temperature_2_c)
+        self.supply_reference = _centre_and_half_span(self.inputs.supply_voltage_v)
         self.bounds = self._bounds()
         self._cache = {}
 
@@ -372,7 +371,8 @@ class _Problem:
         sums = np.add.reduceat(values, self.starts, axis=0)
         return sums / (self.counts if sums.ndim == 1 else self.counts[:, None])
 
-    def _cached(self, key, build):
+    def cached(self, key, build):
+        """Give ``build()``, computed once per ``key``: the features the trials share."""
         if key not in self._cache:
             self._cache[key] = build()
         return self._cache[key]
@@ -388,7 +388,7 @@ class _Problem:
     def x(self, lag_s: float) -> np.ndarray:
         return (self.effective(lag_s) - self.centre_c) / self.half_span_c
 
-    def _powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
+    def powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
         columns = []
         power = values ** first
         for _ in range(first, last + 1):
@@ -401,90 +401,26 @@ class _Problem:
         def build():
             effective = self.effective(lag_s)
             x = (effective - self.centre_c) / self.half_span_c
-            return (self._powers(x, 0, self.settings.max_order), float(np.min(effective)),
+            return (self.powers(x, 0, self.settings.max_order), float(np.min(effective)),
                     float(np.max(effective)))
-        return self._cached(('lag', lag_s), build)
+        return self.cached(('lag', lag_s), build)
 
     def polynomial(self, lag_s: float) -> np.ndarray:
         return self._lag_features(lag_s)[0]
 
     def raw_cubic(self) -> np.ndarray:
-        return self._cached('cubic', lambda: self._powers(self.temperature, 0, PX4_ORDER))
-
-    def rate_of_change(self) -> np.ndarray:
-        return self._cached('rate', lambda: self.mean(self.slope)[:, None])
-
-    def gradient(self, time_constant_s: float) -> np.ndarray:
-        def build():
-            lagged = FirstOrderLag(time_constant_s).batch(self.time, self.temperature)
-            return self.mean(self.temperature - lagged)
-        return self._cached(('gradient', time_constant_s), build)
-
-    def play(self, width_c: float) -> np.ndarray:
-        return self._cached(('play', width_c),
-                            lambda: self.mean(play_state(self.temperature, width_c))[:, None])
-
-    def supply_powers(self) -> np.ndarray:
-        reference, _ = self.supply_reference
-        return self._cached('supply', lambda: self._powers(self.supply - reference, 1,
-                                                           max(SUPPLY_ORDERS)))
-
-    def drift(self) -> np.ndarray:
-        return self._cached('drift', lambda: self.mean(
-            (self.time - self.time_reference_s) / self.duration_s)[:, None])
-
-    def step(self, time_s: float) -> np.ndarray:
-        return self._cached(('step', time_s), lambda: self.mean(
-            (self.time >= time_s).astype(np.float64))[:, None])
-
-    def secondary_powers(self) -> np.ndarray:
-        reference, scale = self.secondary
-        return self._cached('secondary', lambda: self._powers(
-            (self.temperature_2 - reference) / scale, 1, max(SECONDARY_ORDERS)))
+        return self.cached('cubic', lambda: self.powers(self.temperature, 0, PX4_ORDER))
 
     def acceleration_means(self) -> np.ndarray:
-        return self._cached('acceleration', lambda: self.mean(self.acceleration))
-
-    def scale(self, axis: int, lag_s: float) -> np.ndarray:
-        def build():
-            x = self.x(lag_s)
-            truth = self.reference[:, axis]
-            return np.column_stack([self.mean(truth * x ** k)
-                                    for k in range(max(SCALE_ORDERS) + 1)])
-        return self._cached(('scale', axis, lag_s), build)
-
-    def nonlinearity(self, axis: int) -> np.ndarray:
-        return self._cached(('nonlinearity', axis), lambda: self._powers(
-            self.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))
-
-    def cross(self, axis: int) -> np.ndarray:
-        others = [j for j in range(len(self.axes)) if j != axis]
-        return self._cached(('cross', axis), lambda: self.mean(self.reference[:, others]))
+        return self.cached('acceleration', lambda: self.mean(self.inputs.acceleration_m_s2))
 
     def design(self, axis: int, spec: _Spec) -> np.ndarray:
         """Return the bin-mean design matrix of an axis; columns in `_terms` order."""
         blocks = [self.polynomial(spec.thermal_lag_s)[:, :spec.order + 1]]
-        if spec.temperature_rate:
-            blocks.append(self.rate_of_change())
-        blocks.extend(self.gradient(tau)[:, None] for tau in spec.gradient_s)
-        if spec.hysteresis_half_width_c:
-            blocks.append(self.play(spec.hysteresis_half_width_c))
-        if spec.supply_order:
-            blocks.append(self.supply_powers()[:, :spec.supply_order])
-        if spec.secondary_order:
-            blocks.append(self.secondary_powers()[:, :spec.secondary_order])
-        if spec.acceleration:
-            blocks.append(self.acceleration_means())
-        if spec.scale_order >= 0:
-            blocks.append(self.scale(axis, spec.thermal_lag_s)[:, :spec.scale_order + 1])
-        if spec.nonlinearity_order:
-            blocks.append(self.nonlinearity(axis)[:, :spec.nonlinearity_order - 1])
-        if spec.cross_axis:
-            blocks.append(self.cross(axis))
-        if spec.time_drift:
-            blocks.append(self.drift())
-        if spec.bias_step_time_s is not None:
-            blocks.append(self.step(spec.bias_step_time_s))
+        for effect, choice in spec.choices:
+            columns = _FITS[effect].columns
+            if columns is not None:
+                blocks.append(columns(self, axis, spec, choice))
         return np.column_stack(blocks)
 
     def score(self, design: np.ndarray, axis: int) -> _Score:
@@ -521,33 +457,9 @@ class _Problem:
         def take(count: int) -> tuple:
             return tuple(next(values) for _ in range(count))
 
-        terms = {'bias': take(spec.order + 1), 'thermal_lag_s': spec.thermal_lag_s}
-        if spec.temperature_rate:
-            terms['temperature_rate_rad_s_per_c_s'] = take(1)[0]
-        if spec.gradient_s:
-            terms.update(gradient_time_constants_s=spec.gradient_s,
-                         gradient_rad_s_per_c=take(len(spec.gradient_s)))
-        if spec.hysteresis_half_width_c:
-            terms.update(hysteresis_half_width_c=spec.hysteresis_half_width_c,
-                         hysteresis_rad_s=take(1)[0])
-        if spec.supply_order:
-            terms['supply_voltage'] = take(spec.supply_order)
-        if spec.secondary_order:
-            terms['secondary'] = take(spec.secondary_order)
-        if spec.acceleration:
-            terms['acceleration_rad_s_per_m_s2'] = take(3)
-        if spec.scale_order >= 0:
-            terms['scale'] = take(spec.scale_order + 1)
-        if spec.nonlinearity_order:
-            terms['nonlinearity'] = take(spec.nonlinearity_order - 1)
-        if spec.cross_axis:
-            others = iter(take(len(self.axes) - 1))
-            terms['cross_axis'] = tuple(0.0 if j == axis else next(others)
-                                        for j in range(len(self.axes)))
-        if spec.time_drift:
-            terms['time_drift_rad_s_per_s'] = take(1)[0] / self.duration_s
-        if spec.bias_step_time_s is not None:
-            terms['bias_steps'] = ((spec.bias_step_time_s, take(1)[0]),)
+        terms = {'bias': take(spec.order + 1)}
+        for effect, choice in spec.choices:
+            terms.update(_FITS[effect].terms(self, axis, choice, take))
         return AxisTerms(**terms)
 
     def model(self, specs: tuple, fold: Optional[int] = None) -> EffectModel:
@@ -590,15 +502,9 @@ class _Problem:
             rate = rate[:, axis:axis + 1]
             column = 0
 
-        def given(needed: bool, values):
-            return values[span] if needed else None
-
-        corrected = model.correct(
-            rate, source.temperature_c[span], time_s=given(model.needs_time, source.time_s),
-            temperature_2_c=given(model.needs_temperature_2, source.temperature_2_c),
-            acceleration_m_s2=given(model.needs_acceleration, source.acceleration_m_s2),
-            supply_voltage_v=given(model.needs_supply_voltage, source.supply_voltage_v),
-        ).rate_rad_s[:, column]
+        inputs = ModelInputs(**{name: getattr(source, name)[span] for name in model.inputs})
+        corrected = model.correct(rate, source.temperature_c[span],
+                                  inputs).rate_rad_s[:, column]
         if source.reference_rad_s is not None:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
@@ -703,17 +609,16 @@ def _skipped(problem: _Problem) -> dict:
                                f'{TIME_CONSTANTS_PER_RECORD:g} times into it')
     if bounds['thermal_lag_s'][0] > bounds['thermal_lag_s'][1]:
         skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
-    if problem.supply is None:
-        skipped['supply_voltage'] = 'needs column supply_voltage'
-    elif problem.supply_reference is None:
+    for effect in EFFECTS:
+        lacking = [column for name in sorted(effect.inputs)
+                   if getattr(problem.inputs, name) is None for column in INPUTS[name].columns]
+        if lacking:
+            skipped[effect.name] = f'needs column{"s" * (len(lacking) > 1)} {", ".join(lacking)}'
+    if 'supply_voltage' not in skipped and problem.supply_reference is None:
         skipped['supply_voltage'] = 'supply_voltage is constant'
-    if problem.temperature_2 is None:
-        skipped['secondary_temperature'] = 'needs column temperature_2'
-    elif problem.secondary is None:
+    if 'secondary_temperature' not in skipped and problem.secondary is None:
         skipped['secondary_temperature'] = 'temperature_2 is constant'
-    if problem.acceleration is None:
-        skipped['acceleration_sensitivity'] = 'needs columns acc_x, acc_y, acc_z'
-    else:
+    if 'acceleration_sensitivity' not in skipped:
         turn_deg, change_m_s2 = problem.motion()
         if turn_deg < MOTION_DEG and change_m_s2 < MOTION_M_S2:
             skipped['acceleration_sensitivity'] = (
@@ -806,59 +711,227 @@ def _available(effect: str, spec: _Spec) -> bool:
 def _best_trial(problem: _Problem, axis: int, spec: _Spec, effect: str) -> Optional[tuple]:
     """Return (best spec, its score) for one effect, None if none fits the search bounds."""
     search = _Search(problem, axis)
-    bounds = problem.bounds
-    if effect == 'thermal_lag':
-        low, high = bounds['thermal_lag_s']
-        for sign in (1.0, -1.0):
-            _grid_search(TIME_GRID_S, low, high,
-                         lambda tau: search(replace(spec, thermal_lag_s=sign * tau)))
-    elif effect == 'temperature_rate':
-        search(replace(spec, temperature_rate=True))
-    elif effect == 'thermal_gradient':
-        low, high = bounds['gradient_time_constant_s']
-        _grid_search(TIME_GRID_S, low, high, lambda tau: search(replace(spec, gradient_s=(tau,))))
-    elif effect == 'thermal_gradient_2':
-        _second_gradient(search, spec, bounds['gradient_time_constant_s'])
-    elif effect == 'hysteresis':
-        low, high = bounds['hysteresis_half_width_c']
-        _grid_search(WIDTH_GRID_C, low, high,
-                     lambda width: search(replace(spec, hysteresis_half_width_c=width)))
-    elif effect == 'supply_voltage':
-        for order in SUPPLY_ORDERS:
-            search(replace(spec, supply_order=order))
-    elif effect == 'secondary_temperature':
-        for order in SECONDARY_ORDERS:
-            search(replace(spec, secondary_order=order))
-    elif effect == 'acceleration_sensitivity':
-        search(replace(spec, acceleration=True))
-    elif effect == 'scale_factor_temperature':
-        for order in SCALE_ORDERS:
-            search(replace(spec, scale_order=order))
-    elif effect == 'rate_nonlinearity':
-        for order in NONLINEARITY_ORDERS:
-            search(replace(spec, nonlinearity_order=order))
-    elif effect == 'cross_axis':
-        search(replace(spec, cross_axis=True))
-    elif effect == 'time_drift':
-        search(replace(spec, time_drift=True))
-    elif effect == 'bias_step':
-        search(replace(spec, bias_step_time_s=_step_time(problem, axis, spec)))
+    _FITS[effect].trials(search, problem, axis, spec)
     return search.best
 
 
-def _second_gradient(search: _Search, spec: _Spec, bounds: tuple) -> None:
+@dataclass(frozen=True)
+class _Fit:
+    """
+    How the loop fits one effect on an axis.
+
+    ``trials(search, problem, axis, spec)`` scores each choice worth trying
+    with `_Search`; ``columns(problem, axis, spec, choice)`` gives the
+    effect's bin-mean design columns (None: it moves the polynomial's x);
+    ``terms(problem, axis, choice, take)`` its `AxisTerms` fields, ``take(n)``
+    giving its next n fitted coefficients (None: another effect holds its
+    choice); ``report(terms, problem)`` its fitted parameters in SI units.
+    """
+
+    trials: Callable
+    report: Callable
+    columns: Optional[Callable] = None
+    terms: Optional[Callable] = None
+
+
+def _flag(effect: str) -> Callable:
+    """Trials of an effect without a choice: one, the effect in."""
+    def trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+        search(spec.with_choice(effect, True))
+    return trials
+
+
+def _orders(effect: str, orders: tuple) -> Callable:
+    """Trials of an effect whose choice is a polynomial order: each of ``orders``."""
+    def trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+        for order in orders:
+            search(spec.with_choice(effect, order))
+    return trials
+
+
+def _lag_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['thermal_lag_s']
+    for sign in (1.0, -1.0):
+        _grid_search(TIME_GRID_S, low, high,
+                     lambda tau: search(spec.with_choice('thermal_lag', sign * tau)))
+
+
+def _lag_report(terms: AxisTerms, problem: _Problem) -> dict:
+    lag = terms.thermal_lag_s
+    return {'thermal_lag_s': lag,
+            'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
+                     'the element lags: T_eff = first-order lag of T'),
+            'temperature_rate_window_s': problem.settings.rate_window_s}
+
+
+def _rate_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    return problem.cached('rate', lambda: problem.mean(problem.slope)[:, None])
+
+
+def _gradient_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['gradient_time_constant_s']
+    _grid_search(TIME_GRID_S, low, high,
+                 lambda tau: search(spec.with_choice('thermal_gradient', (tau,))))
+
+
+def _second_gradient(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
     """Search a second gradient time constant, then the first again beside it."""
+    bounds = problem.bounds['gradient_time_constant_s']
     (first,) = spec.gradient_s
 
     def pair(kept: float, tau: float) -> float:
         if max(kept, tau) < MIN_GRADIENT_RATIO * min(kept, tau):
             return math.inf
-        return search(replace(spec, gradient_s=tuple(sorted((kept, tau)))))
+        return search(spec.with_choice('thermal_gradient', tuple(sorted((kept, tau)))))
 
     _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(first, tau))
     if search.best is not None:
         second = next(t for t in search.best[0].gradient_s if t != first)
         _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(second, tau))
+
+
+def _gradient_columns(problem: _Problem, axis: int, spec: _Spec, taus: tuple) -> np.ndarray:
+    def difference(tau: float) -> np.ndarray:
+        lagged = FirstOrderLag(tau).batch(problem.time, problem.temperature)
+        return problem.mean(problem.temperature - lagged)
+    return np.column_stack([problem.cached(('gradient', tau), functools.partial(difference, tau))
+                            for tau in taus])
+
+
+def _gradient_report(terms: AxisTerms, problem: _Problem) -> dict:
+    return {'time_constants_s': list(terms.gradient_time_constants_s),
+            'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
+
+
+def _hysteresis_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['hysteresis_half_width_c']
+    _grid_search(WIDTH_GRID_C, low, high,
+                 lambda width: search(spec.with_choice('hysteresis', width)))
+
+
+def _play_columns(problem: _Problem, axis: int, spec: _Spec, width_c: float) -> np.ndarray:
+    return problem.cached(('play', width_c), lambda: problem.mean(
+        play_state(problem.temperature, width_c))[:, None])
+
+
+def _supply_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    reference, _ = problem.supply_reference
+    return problem.cached('supply', lambda: problem.powers(
+        problem.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
+
+
+def _secondary_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    reference, scale = problem.secondary
+    return problem.cached('secondary', lambda: problem.powers(
+        (problem.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
+
+
+def _scale_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    lag_s = spec.thermal_lag_s
+
+    def build():
+        x = problem.x(lag_s)
+        truth = problem.reference[:, axis]
+        return np.column_stack([problem.mean(truth * x ** k)
+                                for k in range(max(SCALE_ORDERS) + 1)])
+    return problem.cached(('scale', axis, lag_s), build)[:, :order + 1]
+
+
+def _nonlinearity_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    return problem.cached(('nonlinearity', axis), lambda: problem.powers(
+        problem.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))[:, :order - 1]
+
+
+def _cross_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    others = [j for j in range(len(problem.axes)) if j != axis]
+    return problem.cached(('cross', axis), lambda: problem.mean(problem.reference[:, others]))
+
+
+def _cross_terms(problem: _Problem, axis: int, choice, take) -> dict:
+    others = iter(take(len(problem.axes) - 1))
+    return {'cross_axis': tuple(0.0 if j == axis else next(others)
+                                for j in range(len(problem.axes)))}
+
+
+def _drift_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    return problem.cached('drift', lambda: problem.mean(
+        (problem.time - problem.time_reference_s) / problem.duration_s)[:, None])
+
+
+def _step_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    search(spec.with_choice('bias_step', _step_time(problem, axis, spec)))
+
+
+def _step_columns(problem: _Problem, axis: int, spec: _Spec, time_s: float) -> np.ndarray:
+    return problem.cached(('step', time_s), lambda: problem.mean(
+        (problem.time >= time_s).astype(np.float64))[:, None])
+
+
+def _step_report(terms: AxisTerms, problem: _Problem) -> dict:
+    (time_s, step_rad_s), = terms.bias_steps
+    return {'time_s': time_s, 'step_rad_s': step_rad_s,
+            'after_start_s': time_s - problem.time_reference_s}
+
+
+# Every effect but BASE_EFFECT; the design columns come in EFFECT_NAMES order.
+_FITS = {
+    'thermal_lag': _Fit(_lag_trials, _lag_report,
+                        terms=lambda problem, axis, lag_s, take: {'thermal_lag_s': lag_s}),
+    'temperature_rate': _Fit(
+        _flag('temperature_rate'),
+        lambda terms, problem: {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
+                                'temperature_rate_window_s': problem.settings.rate_window_s},
+        _rate_columns,
+        lambda problem, axis, choice, take: {'temperature_rate_rad_s_per_c_s': take(1)[0]}),
+    'thermal_gradient': _Fit(
+        _gradient_trials, _gradient_report, _gradient_columns,
+        lambda problem, axis, taus, take: {'gradient_time_constants_s': taus,
+                                           'gradient_rad_s_per_c': take(len(taus))}),
+    'thermal_gradient_2': _Fit(_second_gradient, _gradient_report),
+    'hysteresis': _Fit(
+        _hysteresis_trials,
+        lambda terms, problem: {'half_width_c': terms.hysteresis_half_width_c,
+                                'hysteresis_rad_s': terms.hysteresis_rad_s},
+        _play_columns,
+        lambda problem, axis, width_c, take: {'hysteresis_half_width_c': width_c,
+                                              'hysteresis_rad_s': take(1)[0]}),
+    'supply_voltage': _Fit(
+        _orders('supply_voltage', SUPPLY_ORDERS),
+        lambda terms, problem: {'rad_s_per_v_k': list(terms.supply_voltage),
+                                'supply_reference_v': problem.supply_reference[0]},
+        _supply_columns, lambda problem, axis, order, take: {'supply_voltage': take(order)}),
+    'secondary_temperature': _Fit(
+        _orders('secondary_temperature', SECONDARY_ORDERS),
+        lambda terms, problem: {'coefficients_rad_s': list(terms.secondary)},
+        _secondary_columns, lambda problem, axis, order, take: {'secondary': take(order)}),
+    'acceleration_sensitivity': _Fit(
+        _flag('acceleration_sensitivity'),
+        lambda terms, problem: {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)},
+        lambda problem, axis, spec, choice: problem.acceleration_means(),
+        lambda problem, axis, choice, take: {'acceleration_rad_s_per_m_s2': take(3)}),
+    'scale_factor_temperature': _Fit(
+        _orders('scale_factor_temperature', SCALE_ORDERS),
+        lambda terms, problem: {'relative_coefficients': list(terms.scale)},
+        _scale_columns, lambda problem, axis, order, take: {'scale': take(order + 1)}),
+    'rate_nonlinearity': _Fit(
+        _orders('rate_nonlinearity', NONLINEARITY_ORDERS),
+        lambda terms, problem: {'coefficients': list(terms.nonlinearity)},
+        _nonlinearity_columns,
+        lambda problem, axis, order, take: {'nonlinearity': take(order - 1)}),
+    'cross_axis': _Fit(_flag('cross_axis'),
+                       lambda terms, problem: {'coefficients': list(terms.cross_axis)},
+                       _cross_columns, _cross_terms),
+    'time_drift': _Fit(
+        _flag('time_drift'),
+        lambda terms, problem: {'rad_s_per_s': terms.time_drift_rad_s_per_s,
+                                'time_reference_s': problem.time_reference_s},
+        _drift_columns,
+        lambda problem, axis, choice, take: {
+            'time_drift_rad_s_per_s': take(1)[0] / problem.duration_s}),
+    'bias_step': _Fit(_step_trials, _step_report, _step_columns,
+                      lambda problem, axis, time_s, take: {
+                          'bias_steps': ((time_s, take(1)[0]),)}),
+}
 
 
 def _unbounded(problem: _Problem, effect: str, spec: _Spec) -> str:
@@ -888,39 +961,7 @@ def _parameters(effect: str, terms: AxisTerms, problem: _Problem) -> dict:
         return {'order': len(terms.bias) - 1, 'bias_rad_s': list(terms.bias),
                 'reference_temperature_c': problem.centre_c,
                 'temperature_scale_c': problem.half_span_c}
-    if effect == 'thermal_lag':
-        lag = terms.thermal_lag_s
-        return {'thermal_lag_s': lag,
-                'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
-                         'the element lags: T_eff = first-order lag of T'),
-                'temperature_rate_window_s': problem.settings.rate_window_s}
-    if effect == 'temperature_rate':
-        return {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
-                'temperature_rate_window_s': problem.settings.rate_window_s}
-    if effect in ('thermal_gradient', 'thermal_gradient_2'):
-        return {'time_constants_s': list(terms.gradient_time_constants_s),
-                'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
-    if effect == 'hysteresis':
-        return {'half_width_c': terms.hysteresis_half_width_c,
-                'hysteresis_rad_s': terms.hysteresis_rad_s}
-    if effect == 'supply_voltage':
-        return {'rad_s_per_v_k': list(terms.supply_voltage),
-                'supply_reference_v': problem.supply_reference[0]}
-    if effect == 'time_drift':
-        return {'rad_s_per_s': terms.time_drift_rad_s_per_s,
-                'time_reference_s': problem.time_reference_s}
-    if effect == 'bias_step':
-        return {'time_s': terms.bias_steps[0][0], 'step_rad_s': terms.bias_steps[0][1],
-                'after_start_s': terms.bias_steps[0][0] - problem.time_reference_s}
-    if effect == 'secondary_temperature':
-        return {'coefficients_rad_s': list(terms.secondary)}
-    if effect == 'acceleration_sensitivity':
-        return {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)}
-    if effect == 'scale_factor_temperature':
-        return {'relative_coefficients': list(terms.scale)}
-    if effect == 'rate_nonlinearity':
-        return {'coefficients': list(terms.nonlinearity)}
-    return {'coefficients': list(terms.cross_axis)}
+    return _FITS[effect].report(terms, problem)
 
 
 def _judge(problem: _Problem, base: _Score, score: _Score) -> tuple:
