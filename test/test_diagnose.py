@@ -111,7 +111,12 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     assert [s.effect for s in steps[:2]] == ['temperature_polynomial', effect]
     # Held-out errors chain: each step starts where the one before ended.
     assert steps[1].before == steps[0].after
-    assert steps[-1].after.rms_rad_s <= 0.5 * steps[0].after.rms_rad_s
+    # Forward, each block is predicted from a past of at least a quarter of the part: the
+    # first ones from little supply wander or few turns, so less than the 2x elsewhere.
+    assert steps[-1].after.rms_rad_s <= 0.7 * steps[0].after.rms_rad_s
+    round_robin = result.comparison['round_robin']
+    assert round_robin['diagnosed'][0].rms_rad_s <= \
+        0.5 * round_robin['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
     assert not result.model.record_effects
@@ -119,10 +124,9 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     if effect == 'thermal_lag':
         assert parameters['thermal_lag_s'] == pytest.approx(LAG_S, rel=0.15)
     elif effect == 'thermal_gradient':
-        # Two time constants: the second is named too, one short and one long.
-        assert 'thermal_gradient_2' in result.per_axis[0].effects
-        short_s, long_s = result.model.terms[0].gradient_time_constants_s
-        assert short_s < 500.0 < long_s
+        # One time constant between the truth's two (a second gains too little forward).
+        (time_constant_s,) = result.model.terms[0].gradient_time_constants_s
+        assert 120.0 < time_constant_s < 900.0
     elif effect == 'supply_voltage':
         assert parameters['rad_s_per_v_k'][0] == pytest.approx(math.radians(0.4), rel=0.05)
     elif effect == 'temperature_rate':
@@ -324,7 +328,7 @@ def test_cli_report_json_schema(cli_run):
     assert [s['effect'] for s in z['steps']] == ['temperature_polynomial']
     step = {f['effect']: f for f in y['findings']}['bias_step']
     assert step['passes'] and step['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
-    for scope in ('cross_validation', 'test'):
+    for scope in ('forward', 'round_robin', 'test'):
         methods = report['comparison'][scope]
         assert set(methods) == {'none', 'px4_cubic', 'temperature_polynomial', 'diagnosed'}
         assert methods['diagnosed']['x']['rms'] < 0.5 * methods['px4_cubic']['x']['rms']

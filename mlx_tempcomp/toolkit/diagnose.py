@@ -14,8 +14,9 @@ import argparse
 import math
 from pathlib import Path
 
-from .common import (add_recording_options, check_output_folder, float_type, load,
-                     non_negative_float, non_negative_int, UserError, write_json, write_result)
+from .common import (add_recording_options, add_validation_options, check_output_folder,
+                     fraction, load, non_negative_float, non_negative_int, UserError,
+                     validation_settings, write_json, write_result)
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.effects import RECORD_EFFECTS
@@ -30,12 +31,9 @@ METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bi
           'bias')
 
 
-_fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
-
-
 def _test_part(text: str):
     """Parse --test: 'cycle' or a fraction in [0, 1) (argparse type)."""
-    return 'cycle' if text == 'cycle' else _fraction(text)
+    return 'cycle' if text == 'cycle' else fraction(text)
 
 
 def add_parser(commands) -> None:
@@ -43,19 +41,21 @@ def add_parser(commands) -> None:
     defaults = DiagnosisSettings()
     parser = commands.add_parser(
         'diagnose', help='find the effects a temperature polynomial misses, add them, report',
-        description='Fit a temperature polynomial (order by cross-validation), then test '
+        description='Fit a temperature polynomial (order by held-out blocks), then test '
                     'each effect it lacks (thermal lag, hysteresis, time drift, bias step, '
                     'second temperature, acceleration, scale factor, rate nonlinearity, '
                     'cross-axis) on held-out blocks and add the best significant one, until '
-                    'none helps. Writes report.md, report.json, PNG plots and params.yaml '
-                    'for the compensation node into --out.')
+                    'none helps. Blocks are judged forward in time by default (each predicted '
+                    'by a fit on the blocks before it). Writes report.md, report.json, PNG '
+                    'plots and params.yaml for the compensation node into --out.')
     add_recording_options(parser)
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='folder for the report, plots and parameter file (created)')
+    add_validation_options(parser)
     parser.add_argument('--folds', type=non_negative_int, default=defaults.folds, metavar='N',
-                        help='cross-validation folds (default: %(default)s)')
+                        help='round-robin folds (default: %(default)s)')
     parser.add_argument('--blocks', type=non_negative_int, default=defaults.blocks,
-                        metavar='N', help='contiguous blocks dealt round-robin to the folds '
+                        metavar='N', help='contiguous blocks the diagnosed part is cut into '
                                           '(default: %(default)s)')
     parser.add_argument('--average-s', type=non_negative_float, default=defaults.average_s,
                         metavar='S', help='bin length the residual is averaged over, 0 per '
@@ -63,7 +63,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--max-order', type=non_negative_int, default=defaults.max_order,
                         metavar='N', help='highest polynomial order tried (default: '
                                           '%(default)s)')
-    parser.add_argument('--min-gain', type=_fraction, default=defaults.min_gain, metavar='F',
+    parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
     parser.add_argument('--block-tolerance', type=non_negative_float,
@@ -74,7 +74,7 @@ def add_parser(commands) -> None:
     test.add_argument('--test', type=_test_part, metavar='F|cycle',
                       help="keep a final test set: the last F of the record, or 'cycle' for "
                            'the last full heating/cooling cycle (the record needs two)')
-    test.add_argument('--test-fraction', type=_fraction, metavar='F',
+    test.add_argument('--test-fraction', type=fraction, metavar='F',
                       help='same as --test F')
     parser.add_argument('--record-effects', action='store_true',
                         help='also search time drift and bias steps, which are tied to the '
@@ -119,7 +119,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
             max_order=args.max_order, min_gain=args.min_gain,
             block_tolerance=args.block_tolerance, test_cycle=test == 'cycle',
             test_fraction=0.0 if test == 'cycle' else test,
-            record_effects=args.record_effects)
+            record_effects=args.record_effects, **validation_settings(args))
         diagnosis = run_diagnosis(recording, settings, progress=bars)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
@@ -240,7 +240,12 @@ def _report(source: str, recording, diagnosis) -> dict:
                  'bins': diagnosis.bins,
                  'skipped_while_loading': dict(recording.skipped),
                  'sorted_while_loading': recording.sorted_rows},
-        'settings': {'folds': settings.folds, 'blocks': settings.blocks,
+        'settings': {'validation': settings.validation,
+                     'other_validation': settings.other_validation,
+                     'min_past': settings.min_past,
+                     'held_out_scheme': settings.split().describe(),
+                     'other_scheme': settings.split(settings.other_validation).describe(),
+                     'folds': settings.folds, 'blocks': settings.blocks,
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
                      'block_tolerance': settings.block_tolerance,
@@ -288,8 +293,12 @@ def _comparison_lines(report: dict) -> list:
     lines = []
     names = list(report['axes'])
     header = ('method', *(f'{a} RMS' for a in names), *(f'{a} peak' for a in names))
-    test = report['settings']['test']
-    scopes = {'cross_validation': 'Fold cross-validation over the diagnosed part',
+    settings = report['settings']
+    test = settings['test']
+    scopes = {settings['validation']: f'Held-out blocks, {settings["held_out_scheme"]} '
+                                      '(decides)',
+              settings['other_validation']: f'Held-out blocks, {settings["other_scheme"]} '
+                                            '(reported beside)',
               'test': 'Test set (' + ('the last full heating/cooling cycle' if test == 'cycle'
                                       else f'the last {test:g} of the record')
                       + ', never seen by the diagnosis)'}
@@ -302,7 +311,7 @@ def _comparison_lines(report: dict) -> list:
         lines += ['', 'Diagnosed / PX4-style cubic, RMS: ' + ', '.join(
             f'{a} {diagnosed[a]["rms"] / cubic[a]["rms"]:.2f}x' for a in names
             if cubic[a]['rms'])]
-    lines += ['', 'The cubic in cross-validation is least squares of T^0..T^3 (raw '
+    lines += ['', 'The cubic on held-out blocks is least squares of T^0..T^3 (raw '
                   'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
                   '3) on every row of the diagnosed part, as the PX4 script does.']
     return lines
@@ -319,11 +328,12 @@ def _axis_lines(name: str, axis: dict) -> list:
                       _e(s['peak_after'])) for s in axis['steps']])
     first, last = axis['steps'][0], axis['steps'][-1]
     lines += ['', '### Held-out RMS per block (step 0 -> final model)', '']
-    lines += _table(('block', 'fold', 'step 0', 'final', 'change'),
-                    [(k, k % len(first['fold_rms_after']), _e(before), _e(after),
+    lines += _table(('block', 'step 0', 'final', 'change'),
+                    [(k, _e(before), _e(after),
                       f'{(after - before) / before:+.0%}' if before else '-')
                      for k, (before, after) in enumerate(zip(first['block_rms_after'],
-                                                             last['block_rms_after']))])
+                                                             last['block_rms_after']))
+                     if before is not None])
     lines += ['', '### Candidates rejected', '']
     lines += _table(('round', 'effect', 'held-out gain', 'why'),
                     [(c['round'], c['effect'], f'{c["held_out_gain"]:.3f}'
@@ -353,8 +363,8 @@ def _markdown(report: dict) -> str:
              + (f'; rows out of time order sorted into place: {rows["sorted_while_loading"]}'
                 if rows['sorted_while_loading'] else ''),
              f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
-             f'- held-out scheme: {settings["blocks"]} contiguous blocks dealt round-robin '
-             f'to {settings["folds"]} folds; stateful inputs (temperature slope over '
+             f'- held-out scheme (decides): {settings["held_out_scheme"]}; reported beside: '
+             f'{settings["other_scheme"]}; stateful inputs (temperature slope over '
              f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
              'over the whole record before rows are split.',
              f'- an effect is added when its relative held-out RMS reduction is at least '
