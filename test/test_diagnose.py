@@ -152,6 +152,44 @@ def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
     assert len(axis.steps[0].after.block_rms_rad_s) == result.settings.blocks
 
 
+def test_an_axis_writes_the_cubic_unless_its_model_beats_it_by_the_margin():
+    # Clean: the loop finds the polynomial of order 3, the cubic itself (1.00x): not 5 %
+    # better, so the cubic is written, and says so.
+    clean = diagnosed('clean')
+    choice = clean.per_axis[0].choice
+    assert choice.written == 'px4_cubic' and choice.margin == 0.05
+    assert choice.ratio == pytest.approx(1.0, abs=0.01)
+    assert 'not 5% better, so the simpler cubic is written' in choice.reason
+    assert clean.model.terms[0].effects == ('temperature_polynomial',)
+    assert len(clean.model.terms[0].bias) == 4
+    # A found model that beats the cubic by more than the margin is written.
+    hysteresis = diagnosed('hysteresis')
+    choice = hysteresis.per_axis[0].choice
+    assert choice.written == 'diagnosed' and choice.ratio < 0.95 and not choice.reason
+    assert 'hysteresis' in hysteresis.model.terms[0].effects
+    forward = hysteresis.comparison['forward']
+    assert choice.found == forward['diagnosed'][0]
+    assert choice.cubic == forward['px4_cubic'][0]
+
+
+def test_a_found_model_no_better_than_the_cubic_is_not_written():
+    """Bias step record: the order the loop finds is worse than the cubic on the test part."""
+    found = diagnose(recording('bias_step'), DiagnosisSettings(test_fraction=TEST_FRACTION,
+                                                               baseline_margin=0.0))
+    written = diagnosed('bias_step')
+    assert found.per_axis[0].choice.written == 'diagnosed'
+    assert found.per_axis[0].order == 2
+    choice = written.per_axis[0].choice
+    assert choice.written == 'px4_cubic' and 0.95 < choice.ratio < 1.0
+    assert len(written.model.terms[0].bias) == 4
+    found_rms, written_rms, cubic_rms = (
+        r.comparison['test'][method][0].rms_rad_s
+        for r, method in ((found, 'diagnosed'), (written, 'diagnosed'), (found, 'px4_cubic')))
+    print(f'test RMS / cubic: found {found_rms / cubic_rms:.3f}, written '
+          f'{written_rms / cubic_rms:.3f}')
+    assert written_rms < found_rms
+
+
 def test_record_effects_are_findings_by_default_and_added_when_asked():
     result = diagnosed('bias_step')
     axis = result.per_axis[0]
@@ -295,6 +333,11 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
     assert 'axis y: record-only finding bias_step: a step of' in stdout
     assert 'diagnose: round 1' in stderr, 'the progress bar was asked for'
+    # The console ends with the model each axis writes, its error and the cubic's.
+    last = stdout.splitlines()[-3:]
+    assert [line.split(':')[0] for line in last] == ['axis x', 'axis y', 'axis z']
+    assert last[0].startswith('axis x: writes polynomial order ') and 'hysteresis' in last[0]
+    assert all('forward-validated RMS' in line and 'cubic' in line for line in last)
     report_md = (out / 'report.md').read_text()
     assert '## Axis x' in report_md and '### Test set' in report_md
     assert '### Held-out RMS per block' in report_md

@@ -33,6 +33,12 @@ axis's held-out RMS. The loop stops when no axis
 accepts anything. Every reported error of a step comes from
 `EffectModel.correct`, the code the node runs, on fold models.
 
+The PX4-style cubic (a cubic in T, clamped as the node runs it) is the
+baseline every axis must beat: the model the loop found is written only
+when its held-out RMS under the deciding validation is at least
+``baseline_margin`` below the cubic's; otherwise the axis writes the cubic,
+and `ModelChoice` says why.
+
 By default the loop searches only the effects a node can run on a live
 stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
 moved. The effects tied to the record's clock (time drift, bias steps) are
@@ -102,6 +108,7 @@ class DiagnosisSettings:
     record_effects: bool = False
     validation: str = FORWARD
     min_past: float = DEFAULT_MIN_PAST
+    baseline_margin: float = 0.05
 
     def __post_init__(self) -> None:
         checks = (
@@ -123,6 +130,8 @@ class DiagnosisSettings:
              'hold out either the last cycle or a test fraction, not both'),
             (math.isfinite(self.rate_window_s) and self.rate_window_s > 0.0,
              f'rate_window_s must be positive, got {self.rate_window_s}'),
+            (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
+             f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
         )
         for ok, msg in checks:
             if not ok:
@@ -185,13 +194,36 @@ class Candidate:
 
 
 @dataclass(frozen=True)
+class ModelChoice:
+    """
+    The model an axis writes: the one the loop found, or the PX4-style cubic.
+
+    ``found`` and ``cubic`` are their held-out errors under the deciding
+    validation; the found model is written when its RMS is at most
+    (1 - ``margin``) x the cubic's, else ``reason`` says why the cubic is.
+    """
+
+    written: str
+    found: HeldOutError
+    cubic: HeldOutError
+    margin: float
+    reason: str = ''
+
+    @property
+    def ratio(self) -> float:
+        """Give the found model's held-out RMS over the cubic's."""
+        return self.found.rms_rad_s / self.cubic.rms_rad_s if self.cubic.rms_rad_s else math.inf
+
+
+@dataclass(frozen=True)
 class AxisDiagnosis:
     """
     What the loop found on one axis.
 
     ``findings`` holds the record effects (time drift, bias step) tested on
     top of the final model when the search left them out; one whose
-    ``reason`` is empty passed every test.
+    ``reason`` is empty passed every test. ``choice`` says which model the
+    axis writes (`ModelChoice`).
     """
 
     axis: str
@@ -200,6 +232,7 @@ class AxisDiagnosis:
     steps: tuple
     rejected: tuple
     findings: tuple = ()
+    choice: Optional[ModelChoice] = None
 
     @property
     def effects(self) -> tuple:
@@ -1073,6 +1106,17 @@ def _findings(problem: _Problem, axis: int, spec: _Spec, number: int) -> tuple:
     return tuple(findings)
 
 
+def _choose_model(found: HeldOutError, cubic: HeldOutError, margin: float) -> ModelChoice:
+    """Write the found model if it beats the cubic by ``margin``, else the cubic."""
+    choice = ModelChoice('diagnosed', found, cubic, margin)
+    if choice.ratio <= 1.0 - margin:
+        return choice
+    return replace(choice, written='px4_cubic', reason=(
+        f'the model found has held-out RMS {found.rms_rad_s:.3e} rad/s, {choice.ratio:.2f}x '
+        f"the PX4-style cubic's {cubic.rms_rad_s:.3e} rad/s: not {margin:.0%} better, so the "
+        'simpler cubic is written'))
+
+
 def _cubic_errors(problem: _Problem, folds: _Folds) -> tuple:
     """
     Return the held-out error of the PX4-style cubic per axis.
@@ -1200,10 +1244,18 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         active = set(accepted)
     findings = [() if settings.record_effects else _findings(problem, a, specs[a], number)
                 for a in range(len(axes))]
+    cubic = _cubic_errors(problem, problem.folds)
+    choices = tuple(_choose_model(errors[a], cubic[a], settings.baseline_margin)
+                    for a in range(len(axes)))
+    found = tuple(specs)
+    if any(choice.written == 'px4_cubic' for choice in choices):
+        specs = [_Spec(PX4_ORDER) if choice.written == 'px4_cubic' else spec
+                 for spec, choice in zip(found, choices)]
+        residual, errors = problem.held_out(tuple(specs), 'held-out check of the cubic')
     model = problem.model(tuple(specs))
     other = problem.folds_of(settings.other_validation)
     comparison = {settings.validation: {
-        'none': none_errors, 'px4_cubic': _cubic_errors(problem, problem.folds),
+        'none': none_errors, 'px4_cubic': cubic,
         'temperature_polynomial': tuple(axis_steps[0].after for axis_steps in steps),
         'diagnosed': errors}, settings.other_validation: {
         'none': tuple(problem.error(problem.target[:, a], other) for a in range(len(axes))),
@@ -1219,8 +1271,8 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     test = None
     if problem.test_rows:
         comparison['test'], test = _compare_test(problem, base_model, model)
-    per_axis = tuple(AxisDiagnosis(name, specs[a].order, scores[a], tuple(steps[a]),
-                                   tuple(rejected[a]), findings[a])
+    per_axis = tuple(AxisDiagnosis(name, found[a].order, scores[a], tuple(steps[a]),
+                                   tuple(rejected[a]), findings[a], choices[a])
                      for a, name in enumerate(axes))
     return Diagnosis(axes=axes, settings=settings, model=model, base_model=base_model,
                      per_axis=per_axis, skipped=tuple(sorted(skipped.items())),

@@ -66,6 +66,11 @@ def add_parser(commands) -> None:
     parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
+    parser.add_argument('--baseline-margin', type=fraction, default=defaults.baseline_margin,
+                        metavar='F', help='write the model found on an axis only when its '
+                                          'held-out RMS is at least F below the PX4-style '
+                                          "cubic's, else write the cubic (default: "
+                                          '%(default)s)')
     parser.add_argument('--block-tolerance', type=non_negative_float,
                         default=defaults.block_tolerance, metavar='F',
                         help='refuse an effect when a held-out block gets worse by more than F '
@@ -117,7 +122,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
-            block_tolerance=args.block_tolerance, test_cycle=test == 'cycle',
+            block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
+            test_cycle=test == 'cycle',
             test_fraction=0.0 if test == 'cycle' else test,
             record_effects=args.record_effects, **validation_settings(args))
         diagnosis = run_diagnosis(recording, settings, progress=bars)
@@ -146,6 +152,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
         raise UserError(msg) from None
     print(_summary(report))
     print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
+    print('\n'.join(_written_lines(report)))
     return 0
 
 
@@ -187,14 +194,25 @@ def _finding_text(finding) -> str:
             '(imu/recalibrate_zro) covers it on a live node')
 
 
+def _written(axis, terms) -> dict:
+    """Return what an axis writes into params.yaml, with the figures it was chosen on."""
+    choice = axis.choice
+    return {'model': choice.written, 'effects': list(terms.effects),
+            'polynomial_order': len(terms.bias) - 1,
+            'held_out_rms': _number(choice.found.rms_rad_s),
+            'cubic_held_out_rms': _number(choice.cubic.rms_rad_s),
+            'ratio': _number(choice.ratio), 'margin': choice.margin, 'reason': choice.reason}
+
+
 def _report(source: str, recording, diagnosis) -> dict:
     """Return the content of report.json (all errors in rad/s)."""
     settings = diagnosis.settings
     average = f'{settings.average_s:g} s' if settings.average_s else 'one sample'
     skipped = [{'effect': effect, 'reason': reason} for effect, reason in diagnosis.skipped]
     axes = {}
-    for axis in diagnosis.per_axis:
+    for axis, terms in zip(diagnosis.per_axis, diagnosis.model.terms):
         axes[axis.axis] = {
+            'written': _written(axis, terms),
             'steps': [{'effect': s.effect, 'live': s.effect not in RECORD_EFFECTS,
                        'parameters': _plain(dict(s.parameters)),
                        'rms_before': _number(s.before.rms_rad_s),
@@ -249,13 +267,14 @@ def _report(source: str, recording, diagnosis) -> dict:
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
                      'block_tolerance': settings.block_tolerance,
+                     'baseline_margin': settings.baseline_margin,
                      'test': 'cycle' if settings.test_cycle else settings.test_fraction,
                      'record_effects': settings.record_effects,
                      'temperature_rate_window_s': settings.rate_window_s},
         'effects': {'searched': list(settings.effects),
                     'record_only': sorted(RECORD_EFFECTS),
-                    'in_params_yaml': sorted({e for a in diagnosis.per_axis
-                                              for e in a.effects})},
+                    'in_params_yaml': sorted({e for t in diagnosis.model.terms
+                                              for e in t.effects})},
         'search_bounds': {name: [float(low), float(high)]
                           for name, (low, high) in diagnosis.bounds.items()},
         'axes': axes,
@@ -350,6 +369,31 @@ def _axis_lines(name: str, axis: dict) -> list:
     return lines + ['']
 
 
+def _model_text(written: dict) -> str:
+    """Name a written model: the cubic, or the polynomial order and the effects beside it."""
+    if written['model'] == 'px4_cubic':
+        return 'the PX4-style cubic'
+    added = [e for e in written['effects'] if e != 'temperature_polynomial']
+    return (f'polynomial order {written["polynomial_order"]}'
+            + (' + ' + ', '.join(added) if added else ''))
+
+
+def _written_lines(report: dict) -> list:
+    """One line per axis: the model written, its held-out error and the cubic's."""
+    scheme = report['settings']['validation'].replace('_', '-')
+    lines = []
+    for name, axis in report['axes'].items():
+        written = axis['written']
+        found = (f'{scheme}-validated RMS {_e(written["held_out_rms"])} rad/s, cubic '
+                 f'{_e(written["cubic_held_out_rms"])} rad/s ({written["ratio"]:.2f}x)')
+        if written['model'] == 'px4_cubic':
+            lines.append(f'axis {name}: writes the PX4-style cubic; the model found has '
+                         f'{found}, not {written["margin"]:.0%} better')
+        else:
+            lines.append(f'axis {name}: writes {_model_text(written)}, {found}')
+    return lines
+
+
 def _markdown(report: dict) -> str:
     rows = report['rows']
     settings = report['settings']
@@ -382,6 +426,13 @@ def _markdown(report: dict) -> str:
                                              for name, (low, high) in bounds.items()),
              '- step errors come from EffectModel.correct (the code the node runs) on fold '
              'models; all values in rad/s.', '']
+    lines += ['## Model written (params.yaml)', '',
+              f'Each axis writes the model the loop found when its held-out RMS '
+              f'({settings["validation"].replace("_", "-")}) is at least '
+              f'{settings["baseline_margin"]:.0%} below the PX4-style cubic\'s, else the '
+              'cubic.', '']
+    lines += [f'- {line}' for line in _written_lines(report)]
+    lines.append('')
     if report['skipped']:
         lines += ['## Skipped candidates', '']
         lines += [f'- {s["effect"]}: {s["reason"]}' for s in report['skipped']]
