@@ -28,6 +28,9 @@ import yaml
 NOISE_DPS = 0.02
 TEMPERATURE_NOISE_C = 0.02
 STEP_TIME_S = 9000.0
+# Issue 15's record: a step of 1.9e-3 rad/s at 3840 s and nothing else.
+SMALL_STEP_TIME_S = 3840.0
+SMALL_STEP_RAD_S = 1.9e-3
 LAG_S = 200.0
 TEST_FRACTION = 0.25
 QUIET = Noise(bias_instability_dps=0.0)
@@ -41,6 +44,8 @@ EFFECTS = {
     'temperature_rate': (Effects(zro_dps_per_c_s=4.0), QUIET),
     'supply_voltage': (Effects(zro_supply_dps_per_v=0.4), QUIET),
     'bias_step': (Effects(bias_steps=((STEP_TIME_S, 0.2),)), QUIET),
+    'small_step': (Effects(bias_steps=((SMALL_STEP_TIME_S, math.degrees(SMALL_STEP_RAD_S)),)),
+                   QUIET),
 }
 STEP_STRUCTURE = {'effect', 'live', 'parameters', 'rms_before', 'rms_after', 'peak_before',
                   'peak_after', 'block_rms_before', 'block_rms_after'}
@@ -119,7 +124,7 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
         0.5 * round_robin['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
-    assert not result.model.record_effects
+    assert not result.model.record_effects and result.per_axis[0].cause is None
     parameters = steps[1].parameters
     if effect == 'thermal_lag':
         assert parameters['thermal_lag_s'] == pytest.approx(LAG_S, rel=0.15)
@@ -141,6 +146,7 @@ def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
     axis = result.per_axis[0]
     assert axis.effects == ('temperature_polynomial',)
     assert axis.order == 3
+    assert axis.cause is None
     # Every live effect this record can support was tried, and refused.
     live = set(LIVE_EFFECTS) - {'temperature_polynomial', 'thermal_gradient_2',
                                 'secondary_temperature', 'acceleration_sensitivity',
@@ -188,6 +194,27 @@ def test_a_found_model_no_better_than_the_cubic_is_not_written():
     print(f'test RMS / cubic: found {found_rms / cubic_rms:.3f}, written '
           f'{written_rms / cubic_rms:.3f}')
     assert written_rms < found_rms
+
+
+@pytest.mark.parametrize('name, time_s, step_rad_s', [
+    ('bias_step', STEP_TIME_S, math.radians(0.2)),
+    ('small_step', SMALL_STEP_TIME_S, SMALL_STEP_RAD_S)])
+def test_a_bias_step_is_named_the_cause_and_gets_no_live_stand_in(name, time_s, step_rad_s):
+    axis = diagnosed(name).per_axis[0]
+    assert axis.effects == ('temperature_polynomial',)
+    assert axis.cause.effect == 'bias_step' and axis.cause.reason == ''
+    assert axis.cause.parameters['time_s'] == pytest.approx(time_s, abs=5.0)
+    assert axis.cause.parameters['step_rad_s'] == pytest.approx(step_rad_s, rel=0.15)
+    # Even with every live candidate let through by the judging, the step explains more:
+    # the live ones are refused as stand-ins, none is added.
+    lax = diagnose(recording(name), DiagnosisSettings(test_fraction=TEST_FRACTION, min_gain=0.0,
+                                                      significance=0.0, block_tolerance=100.0))
+    axis = lax.per_axis[0]
+    assert axis.effects == ('temperature_polynomial',) and axis.cause.effect == 'bias_step'
+    stand_ins = [c for c in axis.rejected if c.reason.startswith(
+        'the record-only bias_step explains more')]
+    assert stand_ins and all(0.0 < c.held_out_gain < axis.cause.held_out_gain
+                             for c in stand_ins)
 
 
 def test_record_effects_are_findings_by_default_and_added_when_asked():
@@ -332,6 +359,8 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert 'axis x: held-out RMS' in stdout and 'hysteresis' in stdout
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
     assert 'axis y: record-only finding bias_step: a step of' in stdout
+    assert 'axis y: cause: bias_step, a step of' in stdout
+    assert 'axis x: cause' not in stdout and 'axis z: cause' not in stdout
     assert 'diagnose: round 1' in stderr, 'the progress bar was asked for'
     # The console ends with the model each axis writes, its error and the cubic's.
     last = stdout.splitlines()[-3:]
@@ -343,6 +372,8 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert '### Held-out RMS per block' in report_md
     assert "### Record-only effects (the record's clock; not in params.yaml)" in report_md
     assert 'ZRO recalibration at rest (imu/recalibrate_zro) covers it' in report_md
+    assert report_md.count('### Cause: a record-only effect') == 1
+    assert 'recalibrate the ZRO at rest (imu/recalibrate_zro)' in report_md
 
 
 def test_cli_report_json_schema(cli_run):
@@ -369,6 +400,9 @@ def test_cli_report_json_schema(cli_run):
         assert {f['effect'] for f in axis['findings']} == RECORD_EFFECTS
     assert [s['effect'] for s in x['steps']][:2] == ['temperature_polynomial', 'hysteresis']
     assert [s['effect'] for s in z['steps']] == ['temperature_polynomial']
+    assert x['cause'] is None and z['cause'] is None
+    assert y['cause']['effect'] == 'bias_step'
+    assert y['cause']['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
     step = {f['effect']: f for f in y['findings']}['bias_step']
     assert step['passes'] and step['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
     for scope in ('forward', 'round_robin', 'test'):

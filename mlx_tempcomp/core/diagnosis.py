@@ -42,8 +42,12 @@ and `ModelChoice` says why.
 By default the loop searches only the effects a node can run on a live
 stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
 moved. The effects tied to the record's clock (time drift, bias steps) are
-then tested on top of the final model and reported as findings, not added,
-unless ``record_effects`` asks for them.
+judged too, each round, before any live effect is added: when one passes
+and gains more than every live effect that passes, nothing live is added
+to that axis (a live term would only stand in for it), the search of the
+axis ends and the record effect is named its ``cause``. After the loop
+they are tested on top of the final model and reported as findings. Unless
+``record_effects`` puts them into the search, they are never added.
 """
 
 from dataclasses import dataclass, field, replace
@@ -222,7 +226,9 @@ class AxisDiagnosis:
 
     ``findings`` holds the record effects (time drift, bias step) tested on
     top of the final model when the search left them out; one whose
-    ``reason`` is empty passed every test. ``choice`` says which model the
+    ``reason`` is empty passed every test. ``cause`` is the record effect
+    that explained the residual better than every live effect and ended the
+    search of the axis (None if none did). ``choice`` says which model the
     axis writes (`ModelChoice`).
     """
 
@@ -233,6 +239,7 @@ class AxisDiagnosis:
     rejected: tuple
     findings: tuple = ()
     choice: Optional[ModelChoice] = None
+    cause: Optional[Candidate] = None
 
     @property
     def effects(self) -> tuple:
@@ -1128,6 +1135,21 @@ def _cubic_errors(problem: _Problem, folds: _Folds) -> tuple:
                  for a in range(len(problem.axes)))
 
 
+def _cause(record: tuple, tried: list) -> Optional[Candidate]:
+    """
+    Return the record effect that passes and gains more than every live effect that passes.
+
+    ``record`` holds the record effects' candidates (`_findings`), ``tried``
+    the live ones as (effect, trial, judged) of the same round.
+    """
+    passing = [candidate for candidate in record if not candidate.reason]
+    if not passing:
+        return None
+    best = max(passing, key=lambda candidate: candidate.held_out_gain)
+    live = max((judged[0] for _, _, judged in tried if not judged[4]), default=-math.inf)
+    return best if best.held_out_gain > live else None
+
+
 def _heating(problem: _Problem, rows: slice, starts: np.ndarray) -> np.ndarray:
     slope = temperature_rate_c_s(problem.full.time_s, problem.full.temperature_c,
                                  problem.settings.rate_window_s)[rows]
@@ -1195,6 +1217,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     steps = [[Step(BASE_EFFECT, _parameters(BASE_EFFECT, base_model.terms[a], problem),
                    none_errors[a], errors[a], 0)] for a in range(len(axes))]
     rejected = [[] for _ in axes]
+    causes = [None for _ in axes]
     active = set(range(len(axes)))
     number = 0
     while active:
@@ -1220,8 +1243,13 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                     judged = judged[:4] + (bound,)
                 tried.append((effect, trial, judged))
             tried.sort(key=lambda item: (bool(item[2][4]), -item[2][0]))
+            if not settings.record_effects:
+                causes[axis] = _cause(_findings(problem, axis, specs[axis], number), tried)
             for rank, (effect, trial, judged) in enumerate(tried):
                 reason = judged[4]
+                if not reason and causes[axis] is not None:
+                    reason = (f'the record-only {causes[axis].effect} explains more (held-out '
+                              f'gain {causes[axis].held_out_gain:.3f}): not a live stand-in')
                 if rank == 0 and not reason:
                     accepted[axis] = (effect, trial, judged[0])
                     continue
@@ -1272,7 +1300,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     if problem.test_rows:
         comparison['test'], test = _compare_test(problem, base_model, model)
     per_axis = tuple(AxisDiagnosis(name, found[a].order, scores[a], tuple(steps[a]),
-                                   tuple(rejected[a]), findings[a], choices[a])
+                                   tuple(rejected[a]), findings[a], choices[a], causes[a])
                      for a, name in enumerate(axes))
     return Diagnosis(axes=axes, settings=settings, model=model, base_model=base_model,
                      per_axis=per_axis, skipped=tuple(sorted(skipped.items())),

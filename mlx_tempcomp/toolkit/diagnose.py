@@ -179,15 +179,28 @@ def _plain(value):
     return value
 
 
-def _finding_text(finding) -> str:
-    """One sentence on a record-only effect tested on top of the final model."""
+def _record_effect_text(finding) -> str:
+    """Say what a record-only effect is: its size and, for a step, when."""
     parameters = finding.parameters
     if finding.effect == 'bias_step':
-        what = (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
+        return (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
                 f'{parameters["after_start_s"]:.1f} s after the record start (stamp '
                 f'{parameters["time_s"]:.1f} s)')
-    else:
-        what = f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+    return f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+
+
+def _cause_text(cause) -> str:
+    """One sentence on the record effect that ended an axis's search."""
+    return (f'{cause.effect}, {_record_effect_text(cause)}, explains the residual better '
+            f'than any live effect (held-out gain {cause.held_out_gain:.3f}, round '
+            f'{cause.round_number}), so no live effect stands in for it; it is tied to '
+            "this record's clock: on a live node, recalibrate the ZRO at rest "
+            '(imu/recalibrate_zro) after such a change')
+
+
+def _finding_text(finding) -> str:
+    """One sentence on a record-only effect tested on top of the final model."""
+    what = _record_effect_text(finding)
     if finding.reason:
         return f'{what} would not pass: {finding.reason}'
     return (f'{what}, held-out gain {finding.held_out_gain:.3f}; ZRO recalibration at rest '
@@ -213,6 +226,11 @@ def _report(source: str, recording, diagnosis) -> dict:
     for axis, terms in zip(diagnosis.per_axis, diagnosis.model.terms):
         axes[axis.axis] = {
             'written': _written(axis, terms),
+            'cause': None if axis.cause is None else {
+                'effect': axis.cause.effect, 'round': axis.cause.round_number,
+                'parameters': _plain(dict(axis.cause.parameters)),
+                'held_out_gain': _number(axis.cause.held_out_gain),
+                'text': _cause_text(axis.cause)},
             'steps': [{'effect': s.effect, 'live': s.effect not in RECORD_EFFECTS,
                        'parameters': _plain(dict(s.parameters)),
                        'rms_before': _number(s.before.rms_rad_s),
@@ -337,7 +355,10 @@ def _comparison_lines(report: dict) -> list:
 
 
 def _axis_lines(name: str, axis: dict) -> list:
-    lines = [f'## Axis {name}', '', '### Effects added', '']
+    lines = [f'## Axis {name}', '']
+    if axis['cause']:
+        lines += ['### Cause: a record-only effect', '', axis['cause']['text'] + '.', '']
+    lines += ['### Effects added', '']
     lines += _table(('round', 'effect', 'runs on', 'fitted constants', 'RMS before',
                      'RMS after', 'peak before', 'peak after'),
                     [(s['round'], s['effect'], 'live node' if s['live'] else 'this record',
@@ -458,6 +479,8 @@ def _summary(report: dict) -> str:
         chain = ' -> '.join([_e(steps[0]['rms_before'])]
                             + [f'{s["effect"]} {_e(s["rms_after"])}' for s in steps])
         lines.append(f'axis {name}: held-out RMS {chain}')
+        if axis['cause']:
+            lines.append(f'axis {name}: cause: {axis["cause"]["text"]}')
         lines.extend(f'axis {name}: record-only finding {f["effect"]}: {f["text"]}'
                      for f in axis['findings'] if f['passes'])
     for scope, methods in report['comparison'].items():
