@@ -217,6 +217,46 @@ def test_a_bias_step_is_named_the_cause_and_gets_no_live_stand_in(name, time_s, 
                              for c in stand_ins)
 
 
+def test_a_drift_since_power_on_is_never_worse_than_the_cubic():
+    """The clean record with a turn-on drift of 2e-3 rad/s (time constant 2 h) added."""
+    time_s, temperature_c, rate_rad_s, supply_v = simulated('clean')
+    drift_rad_s = 2e-3 * (1.0 - np.exp(-(time_s - time_s[0]) / 7200.0))
+    result = diagnose(Recording('drift', time_s, temperature_c, ('z',),
+                                (rate_rad_s + drift_rad_s)[:, None], supply_voltage_v=supply_v),
+                      DiagnosisSettings(test_fraction=TEST_FRACTION))
+    axis = result.per_axis[0]
+    test = result.comparison['test']
+    print(f'drift: found {axis.effects}, writes {axis.choice.written}, cause '
+          f'{axis.cause and axis.cause.effect}; test RMS '
+          f'{test["diagnosed"][0].rms_rad_s:.4e}, cubic {test["px4_cubic"][0].rms_rad_s:.4e}')
+    assert axis.effects == ('temperature_polynomial',)
+    assert test['diagnosed'][0].rms_rad_s <= 1.001 * test['px4_cubic'][0].rms_rad_s
+
+
+@pytest.mark.slow
+def test_slow_ramps_of_a_motionless_imu_keep_low_orders_and_the_cubic(tmp_path):
+    """
+    A stand-in for issue 15's kept-back record: 25 h at 1 Hz, ramps between 5 and 24 C.
+
+    Simulated MLX90609 chips at rest (datasheet noise with bias instability), the chamber
+    ramping at 0.08 C/min (4 h a ramp), diagnosed as the issue did: --test 0.25
+    --average-s 60.
+    """
+    record = tmp_path / 'slow.csv'
+    run_cli(['simulate', '--out', record, '--rate-hz', 1, '--start-c', 15, '--cycle-c', 24, 5,
+             24, 5, 24, 5, '--ramp-c-per-min', 0.08, '--duration-s', 90000])
+    out = tmp_path / 'out'
+    stdout, _ = run_cli(['diagnose', record, '--test', TEST_FRACTION, '--average-s', 60,
+                         '--out', out])
+    print(stdout)
+    report = json.loads((out / 'report.json').read_text())
+    test = report['comparison']['test']
+    for name, axis in report['axes'].items():
+        assert 0 <= axis['polynomial_order'] <= 3, name
+        assert axis['written']['polynomial_order'] <= 3, name
+        assert test['diagnosed'][name]['rms'] <= 1.05 * test['px4_cubic'][name]['rms'], name
+
+
 def test_record_effects_are_findings_by_default_and_added_when_asked():
     result = diagnosed('bias_step')
     axis = result.per_axis[0]
