@@ -36,8 +36,9 @@ accepts anything. Every reported error of a step comes from
 The PX4-style cubic (a cubic in T, clamped as the node runs it) is the
 baseline every axis must beat: the model the loop found is written only
 when its held-out RMS under the deciding validation is at least
-``baseline_margin`` below the cubic's; otherwise the axis writes the cubic,
-and `ModelChoice` says why.
+``baseline_margin`` below the cubic's and, under the scheme reported beside,
+not above it; otherwise the axis writes the cubic, and `ModelChoice` says
+why.
 
 By default the loop searches only the effects a node can run on a live
 stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
@@ -203,20 +204,33 @@ class ModelChoice:
     The model an axis writes: the one the loop found, or the PX4-style cubic.
 
     ``found`` and ``cubic`` are their held-out errors under the deciding
-    validation; the found model is written when its RMS is at most
-    (1 - ``margin``) x the cubic's, else ``reason`` says why the cubic is.
+    validation, ``other_found`` and ``other_cubic`` under the scheme reported
+    beside. The found model is written when its RMS is at most (1 -
+    ``margin``) x the cubic's under the first and at most the cubic's under
+    the second, else ``reason`` says why the cubic is.
     """
 
     written: str
     found: HeldOutError
     cubic: HeldOutError
     margin: float
+    other_found: HeldOutError
+    other_cubic: HeldOutError
     reason: str = ''
 
     @property
     def ratio(self) -> float:
-        """Give the found model's held-out RMS over the cubic's."""
-        return self.found.rms_rad_s / self.cubic.rms_rad_s if self.cubic.rms_rad_s else math.inf
+        """Give the found model's held-out RMS over the cubic's (deciding validation)."""
+        return _ratio(self.found, self.cubic)
+
+    @property
+    def other_ratio(self) -> float:
+        """Give the found model's held-out RMS over the cubic's (the scheme beside)."""
+        return _ratio(self.other_found, self.other_cubic)
+
+
+def _ratio(error: HeldOutError, baseline: HeldOutError) -> float:
+    return error.rms_rad_s / baseline.rms_rad_s if baseline.rms_rad_s else math.inf
 
 
 @dataclass(frozen=True)
@@ -1113,15 +1127,28 @@ def _findings(problem: _Problem, axis: int, spec: _Spec, number: int) -> tuple:
     return tuple(findings)
 
 
-def _choose_model(found: HeldOutError, cubic: HeldOutError, margin: float) -> ModelChoice:
-    """Write the found model if it beats the cubic by ``margin``, else the cubic."""
-    choice = ModelChoice('diagnosed', found, cubic, margin)
-    if choice.ratio <= 1.0 - margin:
+def _choose_model(settings: DiagnosisSettings, found: tuple, cubic: tuple) -> ModelChoice:
+    """
+    Write the found model if it beats the cubic by the margin and loses beside, else the cubic.
+
+    ``found`` and ``cubic`` are (deciding, beside) held-out errors.
+    """
+    margin = settings.baseline_margin
+    choice = ModelChoice('diagnosed', found[0], cubic[0], margin, found[1], cubic[1])
+    deciding, beside = (scheme.replace('_', '-') for scheme in (settings.validation,
+                                                                settings.other_validation))
+    if choice.ratio > 1.0 - margin:
+        reason = (f'the model found has {deciding} held-out RMS {choice.found.rms_rad_s:.3e} '
+                  f"rad/s, {choice.ratio:.2f}x the PX4-style cubic's "
+                  f'{choice.cubic.rms_rad_s:.3e} rad/s: not {margin:.0%} better')
+    elif choice.other_ratio > 1.0:
+        reason = (f'the model found has {beside} held-out RMS '
+                  f'{choice.other_found.rms_rad_s:.3e} rad/s, {choice.other_ratio:.2f}x the '
+                  f"PX4-style cubic's {choice.other_cubic.rms_rad_s:.3e} rad/s: worse there")
+    else:
         return choice
-    return replace(choice, written='px4_cubic', reason=(
-        f'the model found has held-out RMS {found.rms_rad_s:.3e} rad/s, {choice.ratio:.2f}x '
-        f"the PX4-style cubic's {cubic.rms_rad_s:.3e} rad/s: not {margin:.0%} better, so the "
-        'simpler cubic is written'))
+    return replace(choice, written='px4_cubic',
+                   reason=reason + ', so the simpler cubic is written')
 
 
 def _cubic_errors(problem: _Problem, folds: _Folds) -> tuple:
@@ -1272,25 +1299,28 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         active = set(accepted)
     findings = [() if settings.record_effects else _findings(problem, a, specs[a], number)
                 for a in range(len(axes))]
-    cubic = _cubic_errors(problem, problem.folds)
-    choices = tuple(_choose_model(errors[a], cubic[a], settings.baseline_margin)
-                    for a in range(len(axes)))
     found = tuple(specs)
+    other = problem.folds_of(settings.other_validation)
+    cubic = _cubic_errors(problem, problem.folds)
+    other_cubic = _cubic_errors(problem, other)
+    other_errors = problem.held_out(found, 'the other validation', other)[1]
+    choices = tuple(_choose_model(settings, (errors[a], other_errors[a]),
+                                  (cubic[a], other_cubic[a])) for a in range(len(axes)))
     if any(choice.written == 'px4_cubic' for choice in choices):
         specs = [_Spec(PX4_ORDER) if choice.written == 'px4_cubic' else spec
                  for spec, choice in zip(found, choices)]
         residual, errors = problem.held_out(tuple(specs), 'held-out check of the cubic')
+        other_errors = problem.held_out(tuple(specs), 'the other validation', other)[1]
     model = problem.model(tuple(specs))
-    other = problem.folds_of(settings.other_validation)
     comparison = {settings.validation: {
         'none': none_errors, 'px4_cubic': cubic,
         'temperature_polynomial': tuple(axis_steps[0].after for axis_steps in steps),
         'diagnosed': errors}, settings.other_validation: {
         'none': tuple(problem.error(problem.target[:, a], other) for a in range(len(axes))),
-        'px4_cubic': _cubic_errors(problem, other),
+        'px4_cubic': other_cubic,
         'temperature_polynomial': problem.held_out(base_specs, 'the other validation',
                                                    other)[1],
-        'diagnosed': problem.held_out(tuple(specs), 'the other validation', other)[1]}}
+        'diagnosed': other_errors}}
     held_rows = slice(0, problem.rows)
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),

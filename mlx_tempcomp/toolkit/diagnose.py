@@ -214,7 +214,8 @@ def _written(axis, terms) -> dict:
             'polynomial_order': len(terms.bias) - 1,
             'held_out_rms': _number(choice.found.rms_rad_s),
             'cubic_held_out_rms': _number(choice.cubic.rms_rad_s),
-            'ratio': _number(choice.ratio), 'margin': choice.margin, 'reason': choice.reason}
+            'ratio': _number(choice.ratio), 'margin': choice.margin,
+            'other_ratio': _number(choice.other_ratio), 'reason': choice.reason}
 
 
 def _report(source: str, recording, diagnosis) -> dict:
@@ -405,13 +406,14 @@ def _written_lines(report: dict) -> list:
     lines = []
     for name, axis in report['axes'].items():
         written = axis['written']
-        found = (f'{scheme}-validated RMS {_e(written["held_out_rms"])} rad/s, cubic '
-                 f'{_e(written["cubic_held_out_rms"])} rad/s ({written["ratio"]:.2f}x)')
+        cubic = f'{_e(written["cubic_held_out_rms"])} rad/s'
         if written['model'] == 'px4_cubic':
-            lines.append(f'axis {name}: writes the PX4-style cubic; the model found has '
-                         f'{found}, not {written["margin"]:.0%} better')
+            lines.append(f'axis {name}: writes the PX4-style cubic, {scheme}-validated RMS '
+                         f'{cubic}; {written["reason"]}')
         else:
-            lines.append(f'axis {name}: writes {_model_text(written)}, {found}')
+            lines.append(f'axis {name}: writes {_model_text(written)}, {scheme}-validated RMS '
+                         f'{_e(written["held_out_rms"])} rad/s; the cubic {cubic} '
+                         f'({written["ratio"]:.2f}x)')
     return lines
 
 
@@ -450,7 +452,8 @@ def _markdown(report: dict) -> str:
     lines += ['## Model written (params.yaml)', '',
               f'Each axis writes the model the loop found when its held-out RMS '
               f'({settings["validation"].replace("_", "-")}) is at least '
-              f'{settings["baseline_margin"]:.0%} below the PX4-style cubic\'s, else the '
+              f'{settings["baseline_margin"]:.0%} below the PX4-style cubic\'s and, '
+              f'{settings["other_validation"].replace("_", "-")}, not above it; else the '
               'cubic.', '']
     lines += [f'- {line}' for line in _written_lines(report)]
     lines.append('')
