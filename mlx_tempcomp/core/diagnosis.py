@@ -507,19 +507,26 @@ class _Problem:
     def predicted_polynomial(self, lag_s: float, folds: _Folds) -> np.ndarray:
         """Return `polynomial` as the folds predict it: T_eff clamped at their training range."""
         def build():
-            _, block_low, block_high = self._lag_features(lag_s)
-            effective = self.effective(lag_s)
-            clamped = effective.copy()
+            powers, block_low, block_high = self._lag_features(lag_s)
+            predicted = powers
+            effective = None
             for block, fold in enumerate(folds.block_fold):
-                if fold >= 0:
-                    used = folds.split.training[fold]
-                    rows = slice(self.block_edges[block], self.block_edges[block + 1])
-                    clamped[rows] = np.clip(effective[rows], np.min(block_low[used]),
-                                            np.max(block_high[used]))
-            if np.array_equal(clamped, effective):
-                return self.polynomial(lag_s)
-            return self._powers((clamped - self.centre_c) / self.half_span_c, 0,
-                                self.settings.max_order)
+                if fold < 0:
+                    continue
+                used = folds.split.training[fold]
+                low, high = np.min(block_low[used]), np.max(block_high[used])
+                if low <= block_low[block] and block_high[block] <= high:
+                    continue
+                # Only the blocks that leave their past's range are computed again.
+                if effective is None:
+                    effective, predicted = self.effective(lag_s), powers.copy()
+                rows = slice(self.block_edges[block], self.block_edges[block + 1])
+                bins = self.bin_block == block
+                x = (np.clip(effective[rows], low, high) - self.centre_c) / self.half_span_c
+                starts = self.starts[bins] - rows.start
+                predicted[bins] = (np.add.reduceat(np.polynomial.polynomial.polyvander(
+                    x, self.settings.max_order), starts, axis=0) / self.counts[bins][:, None])
+            return predicted
         return self._cached(('predicted', lag_s, folds.split.scheme), build)
 
     def rate_of_change(self) -> np.ndarray:
@@ -735,19 +742,25 @@ class _Problem:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
 
-    def held_out(self, specs: tuple, label: str, folds: Optional[_Folds] = None) -> tuple:
-        """Return (binned held-out residual (bins, axes), HeldOutError per axis)."""
+    def held_out(self, specs: tuple, label: str, folds: Optional[_Folds] = None,
+                 axes: Optional[tuple] = None) -> tuple:
+        """
+        Return (binned held-out residual (bins, axes), HeldOutError per axis).
+
+        Only ``axes`` (default: all) are run; the others' columns stay NaN.
+        """
         folds = folds or self.folds
+        axes = range(len(self.axes)) if axes is None else axes
         residual = np.full((len(self.starts), len(self.axes)), math.nan)
         count = folds.split.folds
         for fold, held in enumerate(folds.held):
             self.report(fold, count, label)
             model = self.model(specs, fold, folds)
-            for axis in range(len(self.axes)):
+            for axis in axes:
                 binned = self.mean(self.residual(model, axis, folds.stop[fold]))
                 residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
         self.report(count, count, label)
-        return residual, tuple(self.error(residual[:, axis], folds)
+        return residual, tuple(self.error(residual[:, axis], folds) if axis in axes else None
                                for axis in range(len(self.axes)))
 
     def block_rms(self, residual: np.ndarray) -> np.ndarray:
@@ -1306,11 +1319,22 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     other_errors = problem.held_out(found, 'the other validation', other)[1]
     choices = tuple(_choose_model(settings, (errors[a], other_errors[a]),
                                   (cubic[a], other_cubic[a])) for a in range(len(axes)))
-    if any(choice.written == 'px4_cubic' for choice in choices):
-        specs = [_Spec(PX4_ORDER) if choice.written == 'px4_cubic' else spec
-                 for spec, choice in zip(found, choices)]
-        residual, errors = problem.held_out(tuple(specs), 'held-out check of the cubic')
-        other_errors = problem.held_out(tuple(specs), 'the other validation', other)[1]
+    cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
+    if cubic_axes:
+        specs = [_Spec(PX4_ORDER) if a in cubic_axes else spec for a, spec in enumerate(found)]
+        # The models clamp at the range of every axis's T_eff: with the same lags, the axes
+        # that keep their model keep their figures.
+        same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}
+        run = cubic_axes if same else None
+        new_residual, new_errors = problem.held_out(tuple(specs), 'held-out check of the cubic',
+                                                    axes=run)
+        new_other = problem.held_out(tuple(specs), 'the other validation', other, run)[1]
+        changed = list(run or range(len(axes)))
+        residual = residual.copy()  # step 0's may be the same array
+        residual[:, changed] = new_residual[:, changed]
+        errors = tuple(new_errors[a] if a in changed else errors[a] for a in range(len(axes)))
+        other_errors = tuple(new_other[a] if a in changed else other_errors[a]
+                             for a in range(len(axes)))
     model = problem.model(tuple(specs))
     comparison = {settings.validation: {
         'none': none_errors, 'px4_cubic': cubic,
