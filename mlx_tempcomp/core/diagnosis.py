@@ -613,17 +613,15 @@ class _Problem:
         # The polynomial's columns come first (`design`).
         width = spec.order + 1
         predict[:, :width] = self.predicted_polynomial(spec.thermal_lag_s, folds)[:, :width]
-        return self.score(design, axis, folds, predict)
+        return self.score(design, predict, axis, folds)
 
-    def score(self, design: np.ndarray, axis: int, folds: Optional[_Folds] = None,
-              predict: Optional[np.ndarray] = None) -> _Score:
+    def score(self, design: np.ndarray, predict: np.ndarray, axis: int,
+              folds: _Folds) -> _Score:
         """
         Fit on the training bins of each fold, predict the held-out bins (NaN elsewhere).
 
-        ``predict`` is the design the held-out bins are predicted from (default: ``design``).
+        ``predict`` is the design the held-out bins are predicted from.
         """
-        folds = folds or self.folds
-        predict = design if predict is None else predict
         target = self.target[:, axis]
         weighted = design * self.counts[:, None]
         edges = np.searchsorted(self.bin_block, np.arange(self.settings.blocks + 1))
