@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 import sys
 
+from ..core.validation import DEFAULT_MIN_PAST, FORWARD, SCHEMES
 from ..errors import MlxTempCompError
 from ..model_params import parameter_file, write_parameter_file
 from ..sources.recording import load_recording, Recording, RecordingError
@@ -66,6 +67,28 @@ def float_type(accept, expected: str):
 finite_float = float_type(lambda value: True, 'a finite number')
 positive_float = float_type(lambda value: value > 0.0, 'a positive number')
 non_negative_float = float_type(lambda value: value >= 0.0, 'a number >= 0')
+fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
+# Validation schemes as the command line spells them.
+VALIDATION_OPTIONS = {scheme.replace('_', '-'): scheme for scheme in SCHEMES}
+
+
+def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> None:
+    """Add --validation and --min-past (core.validation); None when not given."""
+    default = FORWARD.replace('_', '-')
+    parser.add_argument('--validation', choices=tuple(VALIDATION_OPTIONS),
+                        help=f'{when}which held-out scheme decides: forward predicts each '
+                             'block from a fit on the blocks before it (as a node runs a model '
+                             'fitted on the past), round-robin deals blocks to --folds folds '
+                             f'(default: {default})')
+    parser.add_argument('--min-past', type=fraction, metavar='F',
+                        help=f'{when}forward: the first predicted block starts after this '
+                             f'fraction of the record (default: {DEFAULT_MIN_PAST})')
+
+
+def validation_settings(args: argparse.Namespace) -> dict:
+    """Return the validation and min_past the options ask for, defaults where not given."""
+    return {'validation': VALIDATION_OPTIONS[args.validation or FORWARD.replace('_', '-')],
+            'min_past': DEFAULT_MIN_PAST if args.min_past is None else args.min_past}
 
 
 def add_recording_options(parser: argparse.ArgumentParser) -> None:
