@@ -176,6 +176,10 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('simulation.lossless', False,
          'read every sample: a driver that falls behind lets the simulated clock lag wall '
          'time instead of skipping samples as missed reads (for tests)', read_only=True),
+    Spec('simulation.wait_for_subscriber', False,
+         'hold the simulated clock at 0 until imu/data_raw has a subscriber (or a '
+         'compensation node in the same process), so a late listener misses nothing',
+         read_only=True),
     Spec('simulation.eeprom_version', 2, 'EEPROM VERSION the simulated factory writes',
          read_only=True, low=0, high=255),
     Spec('simulation.start_temperature_c', 25.0, 'chamber temperature at start',

@@ -71,6 +71,8 @@ def _use_fast_discovery() -> None:
 
 
 _use_fast_discovery()
+# How often Probe.spin_until checks its condition.
+CHECK_PERIOD_S = 0.05
 DRIVER_DIAGNOSTIC = 'driver_node: '            # name prefix; the source follows
 COMPENSATION_DIAGNOSTIC = 'compensation_node: compensation'
 # The probe records streams with a deep queue: on this 2-core machine it shares the CPU
@@ -277,8 +279,20 @@ class Probe:
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
+    def spin_for(self, seconds: float) -> None:
+        """Take every callback that becomes ready within ``seconds``."""
+        end = time.monotonic() + seconds
+        while (remaining := end - time.monotonic()) > 0:
+            self.executor.spin_once(timeout_sec=remaining)
+
     def spin_until(self, condition, timeout: float, what: str, logs=None):
-        """Spin until ``condition()`` is truthy and return its value; fail after ``timeout``."""
+        """
+        Spin until ``condition()`` is truthy and return its value; fail after ``timeout``.
+
+        The condition is checked every CHECK_PERIOD_S, with every message that came in
+        between taken: one message per check let a costly condition (pairing thousands of
+        stamps) fall behind a 2,000 message/s stream until its queues overflowed.
+        """
         deadline = time.monotonic() + timeout
         while True:
             value = condition()
@@ -289,7 +303,7 @@ class Probe:
                 if logs is not None:
                     text += '\n' + logs.logs()
                 raise AssertionError(text)
-            self.spin_once()
+            self.spin_for(CHECK_PERIOD_S)
 
     def drain(self, quiet_s: float = 0.2, timeout: float = 5.0) -> None:
         """Take what is still queued: spin until nothing arrived for ``quiet_s``."""

@@ -325,8 +325,10 @@ def test_mpu6000_gyro_offsets_follow_a_fitted_bias_model(launcher, probe, tmp_pa
     probe.subscribe_diagnostics()
     driver = launcher.driver(simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
         'simulation.seed': seed, 'simulation.real_time_factor': 4.0,
-        # A hold near the start (2 s of wall time; inside the model's fitted range): the
-        # ramp waits for the probe to join.
+        # The simulated clock starts when the probe subscribes (a loaded machine once took
+        # longer to discover it than the whole ramp), then a hold near the start (inside
+        # the model's fitted range) lets the temperature topic match too.
+        'simulation.wait_for_subscriber': True,
         'simulation.start_temperature_c': start_c,
         'simulation.cycle_temperatures_c': [start_c + 2.0, end_c], 'simulation.hold_s': 8.0,
         'simulation.ramp_c_per_min': ramp_c_per_min,

@@ -150,3 +150,24 @@ def test_missed_reads_raise_a_warning_while_they_happen(launcher, probe):
     probe.spin_until(lambda: 'device reads missed in the last 1 s' in driver.output(),
                      TIMEOUT_S, 'the WARN in the log', launcher)
     assert '[WARN]' in first_line_with(driver.output(), 'device reads missed')
+
+
+def test_a_driver_waiting_for_its_subscriber_starts_its_clock_with_it(launcher, probe):
+    # A 20 s soak at 25 C, then a ramp to 85 C: 2.6 s of wall time at 10 x.
+    driver = launcher.driver(simulated_driver_params(**{
+        'simulation.real_time_factor': 10.0, 'simulation.wait_for_subscriber': True,
+        'simulation.start_temperature_c': 25.0, 'simulation.cycle_temperatures_c': [25.01, 85.0],
+        'simulation.hold_s': 20.0, 'simulation.ramp_c_per_min': 600.0}))
+    probe.spin_until(lambda: 'publishes /imu/data_raw' in driver.output(), TIMEOUT_S,
+                     'the driver up', launcher)
+    # Longer than the whole cycle in wall time: a clock that ran would be at 85 C by now.
+    deadline = time.monotonic() + 4.0
+    while time.monotonic() < deadline:
+        probe.spin_once()
+    assert 'the simulated clock starts' not in driver.output()
+    temperature = probe.subscribe(Temperature, 'imu/temperature_raw')
+    probe.subscribe(Imu, 'imu/data_raw')
+    probe.spin_until(lambda: temperature, TIMEOUT_S, 'a temperature', launcher)
+    assert 'subscriber present: the simulated clock starts' in driver.output()
+    # The soak's (the sensed temperature reads about 1.4 C above the chamber's), not 85 C.
+    assert temperature[0].temperature < 30.0, temperature[0].temperature

@@ -96,7 +96,8 @@ class DriverNode(Node):
         else:
             self.stream = STREAMS[self.device](StreamPorts(
                 node=self, values=self.values, axes=self.axes, publish_raw=self.publish_raw,
-                hand_off=self.hand_off, eeprom_publisher=self.eeprom_publisher))
+                hand_off=self.hand_off, has_consumer=self.has_consumer,
+                eeprom_publisher=self.eeprom_publisher))
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
@@ -154,6 +155,10 @@ class DriverNode(Node):
         publisher.publish(msg)
         if self.local_consumers:
             self.handoff.append((stream, msg))
+
+    def has_consumer(self) -> bool:
+        """Tell whether someone takes imu/data_raw: a subscriber, or a node in this process."""
+        return bool(self.local_consumers) or self.imu_publisher.get_subscription_count() > 0
 
     def hand_off(self) -> None:
         """Give the local consumers what this tick sent (called at the end of every tick)."""
@@ -266,9 +271,9 @@ class BagStream:
             # once the temperature topics are matched too (or after a grace period: some
             # consumers want the rate only) and the EEPROM message is delivered.
             # A compensation node in this process (bringup) takes the messages directly.
-            local = bool(self.node.local_consumers)
-            if not local and self.node.imu_publisher.get_subscription_count() == 0:
+            if not self.node.has_consumer():
                 return
+            local = bool(self.node.local_consumers)
             if self.first_subscriber is None:
                 self.first_subscriber = time.monotonic()
             publishers = [self.node.temperature_publisher] + \

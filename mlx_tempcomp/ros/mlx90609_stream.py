@@ -74,7 +74,8 @@ class Mlx90609Stream(TimedStream):
         self.oversample = values['oversample']
         self.simulated = real_time_factor is not None
         self.start_schedule(real_time_factor, MLX90609_SAMPLE_RATE_HZ,
-                            self.simulated and values['simulation.lossless'])
+                            self.simulated and values['simulation.lossless'],
+                            self.simulated and values['simulation.wait_for_subscriber'])
         monitor_hz = values['simulation.supply_monitor_hz']
         self.supply_publisher = stream_publisher(
             ports.node, BatteryState, 'imu/supply_voltage') if monitor_hz else None

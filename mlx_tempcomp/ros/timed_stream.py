@@ -49,6 +49,7 @@ class StreamPorts:
     axes: tuple
     publish_raw: Callable       # DriverNode.publish_raw
     hand_off: Callable          # DriverNode.hand_off, at the end of every tick
+    has_consumer: Callable      # DriverNode.has_consumer: someone takes imu/data_raw
     eeprom_publisher: Optional[object]      # imu/eeprom, where the device has one
 
 
@@ -109,7 +110,7 @@ class TimedStream:
         self.logger = ports.node.get_logger()
 
     def start_schedule(self, real_time_factor, natural_rate_hz: float,
-                       lossless: bool = False) -> None:
+                       lossless: bool = False, wait_for_subscriber: bool = False) -> None:
         values = self.values
         publish_rate_hz = values['publish_rate_hz']
         sample_rate_hz = values['sample_rate_hz'] or natural_rate_hz
@@ -137,6 +138,7 @@ class TimedStream:
         self.last_sample = time.monotonic()
         self.real_time_factor = real_time_factor
         self.lossless = lossless
+        self.waiting_for_subscriber = wait_for_subscriber
         self.start_ns = self.ports.node.get_clock().now().nanoseconds
         self.start_wall = time.monotonic()
         tick = 1.0 / publish_rate_hz / (real_time_factor or 1.0)
@@ -155,6 +157,14 @@ class TimedStream:
                    if self.lossless else ''))
 
     def tick(self) -> None:
+        if self.waiting_for_subscriber:
+            if not self.ports.has_consumer():
+                return
+            # The schedule (and the stamps) start now, at simulated time 0.
+            self.waiting_for_subscriber = False
+            self.start_wall = time.monotonic()
+            self.start_ns = self.ports.node.get_clock().now().nanoseconds
+            self.logger.info('subscriber present: the simulated clock starts')
         rate_hz = self.decimator.sample_rate_hz
         factor = self.real_time_factor or 1.0
         now = time.monotonic()
@@ -266,7 +276,8 @@ class DeviceStream(TimedStream):
         self.source_start_s = source.clock.now_s if simulated else 0.0
         self.start_schedule(self.values['simulation.real_time_factor'] if simulated
                             else None, natural_rate_hz,
-                            simulated and self.values['simulation.lossless'])
+                            simulated and self.values['simulation.lossless'],
+                            simulated and self.values['simulation.wait_for_subscriber'])
         self.logger.info(f'{hardware_id}: {self.rates}')
 
     def advance_to(self, time_s: float) -> None:
