@@ -12,7 +12,7 @@ import sys
 
 from .errors import MlxTempCompError
 from .toolkit import adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, simulate
-from .toolkit.common import EXIT_USER_ERROR
+from .toolkit.common import EXIT_USER_ERROR, run_command
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
 _COMMAND_MODULES = (eeprom, fit, allan, adis_bias, convert, diagnose, evaluate, simulate)
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return args.handler(args)
+        return run_command(args)
     except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR
