@@ -14,7 +14,10 @@ m/s/s, degC) are assumed and a note says so. Time is ``TimeUS``
 import contextlib
 import io
 import math
+import os
 import re
+import sys
+import tempfile
 
 import numpy as np
 
@@ -79,15 +82,40 @@ def _scan(path, reader):
     return rows, parameters, firmware
 
 
+@contextlib.contextmanager
+def _captured_output(chatter: io.StringIO):
+    """Send what Python and the C indexer print (stdout, stderr) into ``chatter``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile(mode='w+b') as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+                yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            sink.seek(0)
+            chatter.write(sink.read().decode('utf-8', 'replace'))
+
+
 def read_dataflash(path) -> FlightLog:
     """Read the IMU instances of a DataFlash log; FlightLogError when DFReader cannot."""
     from pymavlink import DFReader
     chatter = io.StringIO()
     try:
-        # DFReader prints what it skips; it becomes a note, not stray output.
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+        # DFReader and its C indexer print what they skip; it becomes a note, not stray output.
+        with _captured_output(chatter):
             reader = DFReader.DFReader_binary(str(path), zero_time_base=False)
             try:
+                if len(reader.formats) <= 1:
+                    msg = (f'{path}: not a DataFlash log, or cut before its first message format '
+                           '(no FMT message in it)')
+                    raise FlightLogError(msg)
                 rows, parameters, firmware = _scan(path, reader)
                 unread = int(reader.data_len - reader.offset)
                 factors = {kind: _factors(path, reader, kind) for _, kind, _ in rows}
@@ -114,7 +142,7 @@ def read_dataflash(path) -> FlightLog:
     if any(not declared for _, declared in factors.values()):
         notes.append('no FMTU units in the log: LogStructure.h units assumed (rad/s, m/s/s, '
                      'degC)')
-    else:
+    elif factors:
         notes.append('units as the log declares them (FMTU)')
     if unread > 0:
         notes.append(f'file cut short or damaged: {unread} bytes at the end not read')

@@ -166,6 +166,8 @@ def _text(report: dict) -> str:
     if report['thermal_parameters']:
         lines.append('thermal parameters in the log: ' + ', '.join(
             f'{k}={v:g}' for k, v in report['thermal_parameters'].items()))
+    if not report['instances']:
+        lines.append('no IMU samples')
     for item in report['instances']:
         device = f', device id {item["device_id"]}' if item['device_id'] is not None else ''
         lines.append(f'instance {item["instance"]} ({item["name"]}{device}):')
