@@ -200,3 +200,18 @@ def test_px4_export_of_a_csv_needs_the_device_id(exported, capsys, tmp_path):
     code = main(['fit', str(exported['train']), '--preset', 'tofupilot', '--out',
                  str(tmp_path / 'p.yaml'), '--px4-params', str(tmp_path / 'no' / 'g.params')])
     assert_user_error(code, capsys, '--px4-params', 'does not exist')
+
+
+def test_exports_from_a_flight_log_are_refused_before_anything_is_written(capsys, tmp_path):
+    from measured_data import FLIGHT_LOGS
+    log = FLIGHT_LOGS / 'ardupilot_ardusub_small.BIN'
+    if not log.is_file():
+        pytest.skip(f'flight log not present: {log} (set MLX_TEMPCOMP_SHARED)')
+    out = tmp_path / 'p.yaml'
+    # The log's IMU is rotated (AHRS_ORIENTATION 16); INS_TCAL works in the sensor frame.
+    code = main(['fit', str(log), '--out', str(out), '--ardupilot-parm', str(tmp_path / 't')])
+    assert_user_error(code, capsys, 'AHRS_ORIENTATION is 16')
+    # 0.14 C is no thermal sweep: the cubic cannot be fitted, and no file is written.
+    code = main(['fit', str(log), '--out', str(out), '--px4-params', str(tmp_path / 'g')])
+    assert_user_error(code, capsys, 'the exported cubic', 'temperature span')
+    assert list(tmp_path.iterdir()) == []

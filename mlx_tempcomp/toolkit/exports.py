@@ -162,17 +162,26 @@ def check_export_outputs(args) -> None:
     for option in ('px4_params', 'ardupilot_parm'):
         if getattr(args, option, None) is not None:
             check_output_file(getattr(args, option), '--' + option.replace('_', '-'))
+    if getattr(args, 'ardupilot_parm', None) is not None:
+        rotation = _identity(args)[2]
+        if rotation:
+            # IMU messages are in the board frame; INS_TCAL corrects in the sensor frame.
+            msg = (f'{args.input}: AHRS_ORIENTATION is {rotation}: ArduPilot corrects in the '
+                   'sensor frame and tempcal_IMU.py undoes that rotation first; this export '
+                   'does not')
+            raise UserError(msg)
 
 
 def _identity(args) -> tuple:
-    """Give the IMU's instance number and device id (None when the input has none)."""
+    """Give the IMU's instance number, device id and board rotation (0 unless a log says)."""
     if not is_flight_log(args.input):
-        return 0, None
+        return 0, None, 0
     try:
-        instance = read_flight_log(args.input).instance(args.instance)
+        log = read_flight_log(args.input)
+        instance = log.instance(args.instance)
     except FlightLogError as err:
         raise UserError(str(err)) from None
-    return instance.index, instance.device_id
+    return instance.index, instance.device_id, int(log.parameters.get('AHRS_ORIENTATION', 0))
 
 
 def _rate_error(recording) -> np.ndarray:
@@ -267,7 +276,7 @@ def write_exports(args, recording, full_model_on, start=None, full_saw_held_out=
         msg = (f'{args.input}: a flight controller corrects x, y and z; the recording has '
                f'gyro {", ".join(recording.axes)}')
         raise UserError(msg)
-    index, device_id = _identity(args)
+    index, device_id, _ = _identity(args)
     start = held_out_start(len(recording)) if start is None else start
     for line in _comparison(args, recording, full_model_on, start, full_saw_held_out):
         print(line)
@@ -311,7 +320,7 @@ def _write_ardupilot(args, model, index: int) -> None:
     constant = ', '.join(f'{axis} {c[0]:+.4e}'
                          for axis, c in zip(AXIS_NAMES, cubic.coefficients))
     print(f'wrote {args.ardupilot_parm} (ArduPilot INS_TCAL{index + 1}_*, about 35 C, range '
-          f'{cubic.temperature_min_c:.1f} to {cubic.temperature_max_c:.1f} C; the file digits '
+          f'{cubic.temperature_min_c:.1f} to {cubic.temperature_max_c:.1f} C; the file '
           f'digits move the cubic by at most {rounding:.1e} rad/s; reboot to apply)')
     print(f'  the bias at 35 C (rad/s: {constant}) has no INS_TCAL parameter: ArduPilot '
           'keeps it in INS_GYROFFS_*, learnt at boot')

@@ -314,9 +314,9 @@ def fit_command(args: argparse.Namespace) -> int:
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+    write_exports(args, recording, lambda part: _refit(args, fit, part))
     write_node_parameters(args, parameters, header)
     print(f'wrote {args.out} (model {parameters["model"]})')
-    write_exports(args, recording, lambda part: _refit(args, fit, part))
     return 0
 
 
