@@ -33,7 +33,6 @@ UNIT_FACTORS = {
     'acceleration': {'m/s/s': 1.0, 'm/s^2': 1.0, 'mm/s/s': 1e-3},
     'temperature': {'degC': 1.0, 'cdegC': 0.01},
 }
-DOCUMENTED_UNITS = {'gyro': 'rad/s', 'acceleration': 'm/s/s', 'temperature': 'degC'}
 _KIND = {'GyrX': 'gyro', 'GyrY': 'gyro', 'GyrZ': 'gyro', 'AccX': 'acceleration',
          'AccY': 'acceleration', 'AccZ': 'acceleration', 'T': 'temperature'}
 _FIRMWARE = re.compile(r'^(Ardu\w+|APM:\w+)\s+V\S+')
