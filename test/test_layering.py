@@ -9,7 +9,9 @@ functions included) and each import of another layer must be in its row. Only
 rclpy and every ROS message package, every module outside ``ros/`` imports,
 ``mlx-tempcomp --help`` and the help of every subcommand print, and ``evaluate``
 runs a parameter file's model (the command that used to pull in rclpy); the
-optional heavy imports (matplotlib, allantools, scipy) stay unloaded.
+optional heavy imports (matplotlib, allantools, scipy, and the flight-log readers'
+pyulog and pymavlink, which only sources/ulog.py and sources/dataflash.py import,
+inside a function) stay unloaded.
 """
 
 import ast
@@ -49,8 +51,11 @@ CORE_THIRD_PARTY = {'numpy', 'allantools'}
 # rclpy, its C layers and the message packages: what a machine without ROS lacks.
 ROS_PACKAGE = re.compile(r'(rclpy|rcl_\w+|rmw\w*|rosidl\w*|rpyutils|ament_index_python'
                          r'|builtin_interfaces|\w+_msgs|\w+_srvs|\w+_interfaces)$')
+# The flight-log libraries and the one reader module each may be imported by.
+FLIGHT_LOG_READERS = {'pyulog': 'mlx_tempcomp.sources.ulog',
+                      'pymavlink': 'mlx_tempcomp.sources.dataflash'}
 # Imported only where a command needs them, never by --help.
-OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy')
+OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', *FLIGHT_LOG_READERS)
 
 
 def _modules() -> dict:
@@ -118,6 +123,29 @@ def test_only_ros_imports_ros_packages_and_core_only_numpy():
         if layer == 'core' and top not in ('mlx_tempcomp', *sys.stdlib_module_names,
                                            *CORE_THIRD_PARTY):
             wrong.append(f'{module}:{line} imports {target}: core is numpy-only')
+    assert not wrong, '\n'.join(wrong)
+
+
+def _top_level_imports(tree) -> list:
+    """Give (line, imported module) of the imports a module runs when it is imported."""
+    found = []
+    for node in tree.body:
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            found.append((node.lineno, node.module))
+    return found
+
+
+def test_flight_log_libraries_are_imported_only_by_their_readers_inside_a_function():
+    wrong = [f'{module}:{line} imports {target}: only {FLIGHT_LOG_READERS[target.split(".")[0]]}'
+             ' may' for module, line, target, _ in _package_imports()
+             if FLIGHT_LOG_READERS.get(target.split('.')[0], module) != module]
+    for library, module in FLIGHT_LOG_READERS.items():
+        tree = ast.parse(_modules()[module].read_text(encoding='utf-8'))
+        wrong += [f'{module}:{line} imports {target} at module level: --help would load it'
+                  for line, target in _top_level_imports(tree)
+                  if target.split('.')[0] == library]
     assert not wrong, '\n'.join(wrong)
 
 

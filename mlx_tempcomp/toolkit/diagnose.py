@@ -17,6 +17,7 @@ from pathlib import Path
 from .common import (add_recording_options, add_validation_options, check_output_folder,
                      fraction, load, non_negative_float, non_negative_int, UserError,
                      validation_settings, write_json, write_result)
+from .exports import add_export_options, check_export_outputs, write_exports
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.effects import RECORD_EFFECTS
@@ -88,6 +89,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
                         help='node section of params.yaml (default: %(default)s)')
     add_progress_option(parser)
+    add_export_options(parser)
     parser.set_defaults(handler=diagnose_command)
 
 
@@ -115,6 +117,7 @@ class _Bars:
 
 def diagnose_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out')
+    check_export_outputs(args)
     recording = load(args)
     bars = _Bars(True if args.progress else None)
     try:
@@ -152,6 +155,9 @@ def diagnose_command(args: argparse.Namespace) -> int:
         raise UserError(msg) from None
     print(_summary(report))
     print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
+    held = diagnosis.test_rows
+    write_exports(args, recording, lambda part: diagnosis.model,
+                  start=len(recording) - held if held else None, full_saw_held_out=not held)
     print('\n'.join(_written_lines(report)))
     return 0
 

@@ -8,6 +8,8 @@ node loads (atomically). docs/toolkit-fit.md describes the models.
 """
 
 import argparse
+import contextlib
+import io
 import math
 
 import numpy as np
@@ -16,6 +18,7 @@ from .common import (add_parameter_file_options, add_recording_options,
                      add_validation_options, check_output_file, finite_float, load,
                      non_negative_int, positive_float, UserError, validation_settings,
                      write_node_parameters)
+from .exports import add_export_options, check_export_outputs, node_model, write_exports
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
@@ -291,6 +294,7 @@ def add_parser(commands) -> None:
                      help='chain: second temperature of stages 1-3 (default: the mean '
                           'second temperature over the plateaus)')
     add_parameter_file_options(fit)
+    add_export_options(fit)
     fit.set_defaults(handler=fit_command)
 
 
@@ -303,12 +307,24 @@ def fit_command(args: argparse.Namespace) -> int:
         msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
         raise UserError(msg)
     check_output_file(args.out, '--out')
+    if args.model == 'chain' and (args.px4_params or args.ardupilot_parm):
+        msg = ('--px4-params and --ardupilot-parm export a bias cubic; --model chain corrects '
+               'rate-dependent errors no firmware cubic holds')
+        raise UserError(msg)
+    check_export_outputs(args)
     recording = load(args)
     try:
         parameters, header = fit(args, recording)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+    write_exports(args, recording, lambda part: _refit(args, fit, part))
     write_node_parameters(args, parameters, header)
     print(f'wrote {args.out} (model {parameters["model"]})')
     return 0
+
+
+def _refit(args: argparse.Namespace, fit, part):
+    """Fit the same model to a part of the recording, quietly, for the exports' comparison."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        return node_model(fit(args, part)[0])
