@@ -25,14 +25,16 @@ import pytest
 GOOD_UNITS = ('a1', 'a2', 'a3', 'a4', 'a5', 'odd')
 BAD_UNITS = {'gone': 'missing.csv', 'junk': 'junk.csv'}
 SLOPE_RAD_S_PER_C = 2e-4
-ROWS = 1200
+ROWS = 600
+# A unit of two records: one row per record in the report (one model: issue 15 item 3).
+PAIR = ('a1.csv', 'a2.csv')
 DASK = Path(sys.executable).with_name('dask')
 
 
 def write_record(path: Path, seed: int, slope_factor: float = 1.0) -> str:
     """Write a CSV record of one gyro: two -20..70 C cycles, bias(T) of this unit, noise."""
     rng = np.random.default_rng(seed)
-    time_s = np.arange(ROWS) * 6.0
+    time_s = np.arange(ROWS) * 12.0
     phase = (2.0 * np.arange(ROWS) / ROWS) % 1.0
     temperature_c = 25.0 + 45.0 * (1.0 - 4.0 * np.abs(phase - 0.5)) + \
         rng.normal(0.0, 0.02, ROWS)
@@ -63,6 +65,7 @@ def records(tmp_path_factory) -> Path:
         rows.append(f'{unit},{unit}.csv')
     (folder / 'junk.csv').write_text('this is not\na recording\n', encoding='utf-8')
     rows += [f'{unit},{name}' for unit, name in BAD_UNITS.items()]
+    rows += [f'pair,{name}' for name in PAIR]
     (folder / 'units.csv').write_text('\n'.join(rows) + '\n', encoding='utf-8')
     return folder
 
@@ -97,23 +100,26 @@ def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
 
 def test_fleet_fit_is_the_single_record_command(records, tmp_path):
     out = tmp_path / 'out'
-    code, stdout, stderr = run_cli(['fleet', 'fit', '--records', f'{records}/{{unit}}.csv',
-                                    '--out', out, '--workers', 1, '--options=--max-order 3'])
+    # fsspec URLs: globbed by the client, fetched by the workers.
+    url = f'file://{records}/{{unit}}.csv'
+    code, stdout, stderr = run_cli(['fleet', 'fit', '--records', url, '--out', out,
+                                    '--workers', 1, '--options=--max-order 3'])
     assert code == 1, 'junk.csv matches the pattern and fails'
     assert 'failed: junk: ' in stderr and 'junk.csv' in stderr
     single = tmp_path / 'a2.yaml'
     assert run_cli(['fit', records / 'a2.csv', '--out', single, '--max-order', 3])[0] == 0
     fleet = (out / 'units' / 'a2' / 'params.yaml').read_text()
-    assert fleet == single.read_text().replace(str(single), str(out / 'units/a2/params.yaml'))
+    assert f'from file://{records}/a2.csv' in fleet
+    assert fleet.replace('file://', '') == \
+        single.read_text().replace(str(single), str(out / 'units/a2/params.yaml'))
     assert 'orders (chosen by' in (out / 'units' / 'a2' / 'log.txt').read_text()
 
 
 def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
     out, (code, stdout, stderr) = fleet_run
     assert code == 1
-    assert f'{len(GOOD_UNITS) + 2} units: {len(GOOD_UNITS)} done, 0 finished before ' \
-        '(skipped), 2 failed' in stdout
-    assert '6 done, 2 failed, 0 remaining' in stderr, 'the progress line'
+    assert '9 units: 7 done, 0 finished before (skipped), 2 failed' in stdout
+    assert '7 done, 2 failed, 0 remaining' in stderr, 'the progress line'
     assert 'failed: junk: ' in stderr
     fleet = json.loads((out / 'fleet.json').read_text())
     failed = {f['unit']: f['error'] for f in fleet['failed']}
@@ -132,12 +138,17 @@ def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
 def test_the_report_has_a_row_per_unit_and_flags_the_outlier(fleet_run):
     out = fleet_run[0]
     fleet = json.loads((out / 'fleet.json').read_text())
-    assert [r['unit'] for r in fleet['records']] == sorted(GOOD_UNITS)
+    assert [(r['unit'], r['record']) for r in fleet['records']] == \
+        [(u, '') for u in GOOD_UNITS] + [('pair', 'record-1'), ('pair', 'record-2')]
+    pair = out / 'units' / 'pair'
+    for k, name in enumerate(PAIR, start=1):
+        assert (pair / f'record-{k}' / 'report.json').read_text() == \
+            (out / 'units' / name[:2] / 'report.json').read_text()
     for row in fleet['records']:
         assert row['held_out_rms_rad_s']['z'] > 0.0 and row['gain_over_cubic']['z'] > 0.0
         assert isinstance(row['effects']['z'], list)
     slopes = fleet['coefficients']['z']['slope_rad_s_per_c']
-    assert slopes['units'] == len(GOOD_UNITS)
+    assert slopes['units'] == len(GOOD_UNITS) + len(PAIR)
     assert 0.8 * SLOPE_RAD_S_PER_C < slopes['median'] < 1.3 * SLOPE_RAD_S_PER_C
     flagged = {(o['unit'], o['metric']) for o in fleet['outliers']}
     assert ('odd', 'slope_rad_s_per_c') in flagged
@@ -153,22 +164,43 @@ def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     manifest = records / 'units.csv'
     inode = {unit: (out / 'units' / unit / 'unit.json').stat().st_ino for unit in GOOD_UNITS}
     code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', manifest, '--out', out])
-    assert code == 1 and f'0 done, {len(GOOD_UNITS)} finished before (skipped), 2 failed' \
+    assert code == 1 and f'0 done, {len(GOOD_UNITS) + 1} finished before (skipped), 2 failed' \
         in stdout
     assert inode == {unit: (out / 'units' / unit / 'unit.json').stat().st_ino
                      for unit in GOOD_UNITS}
-    # A unit lost (or never finished, as after Ctrl-C) runs again; --force redoes a finished one.
-    (out / 'units' / 'a3' / 'unit.json').unlink()
     one = records / 'a1_only.csv'
-    one.write_text('unit,path\na1,a1.csv\na3,a3.csv\n', encoding='utf-8')
-    code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', one, '--out', out,
-                               '--workers', 1])
-    assert code == 0 and '2 units: 1 done, 1 finished before (skipped), 0 failed' in stdout
-    assert (out / 'units' / 'a1' / 'unit.json').stat().st_ino == inode['a1']
+    one.write_text('unit,path\na1,a1.csv\n', encoding='utf-8')
     code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', one, '--out', out,
                                '--workers', 1, '--force'])
-    assert code == 0 and '2 units: 2 done, 0 finished before (skipped), 0 failed' in stdout
+    assert code == 0 and '1 units: 1 done, 0 finished before (skipped), 0 failed' in stdout
     assert (out / 'units' / 'a1' / 'unit.json').stat().st_ino != inode['a1']
+
+
+def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
+    manifest = tmp_path / 'good.csv'
+    manifest.write_text('unit,path\n' + ''.join(f'{u},{records / u}.csv\n' for u in GOOD_UNITS),
+                        encoding='utf-8')
+    out = tmp_path / 'out'
+    run = subprocess.Popen([sys.executable, '-m', 'mlx_tempcomp.cli', 'fleet', 'diagnose',
+                            '--manifest', manifest, '--out', out, '--workers', '1'],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for(lambda: list(out.glob('units/*/unit.json')), 120.0, 'the first unit')
+        run.send_signal(signal.SIGINT)
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait(30)
+    assert run.returncode == 130, stderr
+    assert 'interrupted: rerun the same command to resume' in stdout
+    finished = len(list(out.glob('units/*/unit.json')))
+    assert 1 <= finished < len(GOOD_UNITS)
+    code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', manifest, '--out', out,
+                               '--workers', 2])
+    assert code == 0
+    assert f'{len(GOOD_UNITS) - finished} done, {finished} finished before (skipped)' in stdout
+    assert len(json.loads((out / 'fleet.json').read_text())['records']) == len(GOOD_UNITS)
 
 
 def test_mistakes_are_one_line_errors(records, tmp_path):

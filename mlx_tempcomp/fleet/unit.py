@@ -82,8 +82,8 @@ def parse_command(argv: list) -> argparse.Namespace:
 
 def _local_copy(record: str, cache: Path) -> str:
     """Give a local path of the record: itself, or an fsspec URL's cached copy."""
-    if not is_url(record) or record.startswith('file://'):
-        return record.removeprefix('file://')
+    if not is_url(record):
+        return record
     import fsspec
     try:
         return fsspec.open_local(f'simplecache::{record}',
