@@ -46,6 +46,7 @@ _CSV_FORMAT = '%.12g'
 FLEET_EFFECT_SPREAD = 0.2
 FLEET_VARIED_EFFECTS = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v')
 OUTLIER_ZRO_SLOPE_DPS_PER_C = 0.2
+FLEET_UNITS_PER_OUTLIER = 50
 FLEET_SEED_STRIDE = 100000
 
 
@@ -352,8 +353,9 @@ def _fleet_units(args: argparse.Namespace) -> list:
     effects given vary by a factor 1 + 0.2 N(0, 1) (kept within 0.5 to 1.5).
     """
     rng = np.random.default_rng([args.seed, args.fleet])
-    outliers = set(rng.choice(args.fleet, size=min(args.fleet_outliers, args.fleet),
-                              replace=False).tolist())
+    count = max(1, args.fleet // FLEET_UNITS_PER_OUTLIER) if args.fleet_outliers is None \
+        else min(args.fleet_outliers, args.fleet)
+    outliers = set(rng.choice(args.fleet, size=count, replace=False).tolist())
     units = []
     for k in range(args.fleet):
         factor = {name: float(np.clip(1.0 + FLEET_EFFECT_SPREAD * rng.standard_normal(), 0.5,
@@ -478,8 +480,9 @@ def add_parser(commands) -> None:
                        help='simulate N units into the new folder --out: unit-to-unit '
                             'variation of every coefficient, a few outlier units, a manifest '
                             'units.csv for mlx-tempcomp fleet and fleet_truth.json')
-    fleet.add_argument('--fleet-outliers', type=non_negative_int, default=2, metavar='K',
+    fleet.add_argument('--fleet-outliers', type=non_negative_int, metavar='K',
                        help=f'units of --fleet whose ZRO slope is off by '
-                            f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C (default: %(default)s)')
+                            f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C (default: one in '
+                            f'{FLEET_UNITS_PER_OUTLIER}, at least one)')
     add_progress_option(simulate)
     simulate.set_defaults(handler=simulate_command)
