@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import glob
 from pathlib import Path
 import re
+from typing import Optional
 
 from ..errors import MlxTempCompError
 
@@ -34,10 +35,10 @@ class RecordSpec:
     """One record of a unit: its path or URL and how to read it (None: the default)."""
 
     path: str
-    preset: str = None
-    columns: str = None
-    imu_topic: str = None
-    temperature_topic: str = None
+    preset: Optional[str] = None
+    columns: Optional[str] = None
+    imu_topic: Optional[str] = None
+    temperature_topic: Optional[str] = None
 
     def options(self) -> list:
         """Give the single-record command's options that read this record."""

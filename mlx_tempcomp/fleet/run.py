@@ -24,7 +24,7 @@ import tempfile
 import uuid
 
 from .unit import LOG_FILE, one_line, run_unit, UNIT_FILE, UnitJob
-from ..toolkit.common import write_json
+from ..toolkit.common import UserError, write_json
 from ..toolkit.progress import Progress
 
 UNITS_FOLDER = 'units'
@@ -94,7 +94,11 @@ def _client(scheduler, workers):
     from dask.distributed import Client, LocalCluster
     address = scheduler or os.environ.get(SCHEDULER_VARIABLE)
     if address:
-        return Client(address), None
+        try:
+            return Client(address), None
+        except (OSError, ValueError) as err:  # refused, timed out, or not an address
+            msg = f'scheduler {address}: cannot connect: {one_line(err)}'
+            raise UserError(msg) from None
     # One thread per worker process: the commands are numpy and Python, and a worker
     # process runs one unit at a time anyway (unit._ONE_AT_A_TIME).
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
@@ -130,9 +134,10 @@ def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
         show()
         if not pending:
             return FleetRun((), skipped, (), False)
-        client, cluster = _client(scheduler, workers)
+        client = cluster = None
         run_id = uuid.uuid4().hex[:8]
         try:
+            client, cluster = _client(scheduler, workers)
             futures = {client.submit(run_unit, job, key=f'fleet-{run_id}-{unit}', pure=False):
                        unit for unit, job in pending.items()}
             for future in as_completed(futures):
@@ -152,7 +157,8 @@ def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
         except KeyboardInterrupt:
             interrupted = True
         finally:
-            client.close()
+            if client is not None:
+                client.close()
             if cluster is not None:
                 cluster.close()
     return FleetRun(tuple(done), skipped, tuple(failed), interrupted)
