@@ -157,6 +157,9 @@ def test_the_report_has_a_row_per_unit_and_flags_the_outlier(fleet_run):
     assert '| odd |' in markdown and 'slope_rad_s_per_c' in markdown
     assert 'issue 15 item 3' in markdown
     assert (out / 'fleet_coefficients.png').read_bytes()[:4] == b'\x89PNG'
+    (out / 'fleet.json').unlink()
+    assert run_cli(['fleet', 'report', '--out', out])[0] == 0
+    assert json.loads((out / 'fleet.json').read_text()) == fleet
 
 
 def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
@@ -215,6 +218,9 @@ def test_mistakes_are_one_line_errors(records, tmp_path):
         code, _, stderr = run_cli(['fleet', 'diagnose', '--out', tmp_path / 'out', *argv])
         assert code == 2 and stderr.startswith('error: ') and expected in stderr, stderr
         assert stderr.count('\n') == 1
+    code, _, stderr = run_cli(['fleet', 'report', '--out', tmp_path])
+    assert code == 2 and stderr == f'error: --out {tmp_path}: no units/ folder; run ' \
+        'mlx-tempcomp fleet diagnose or fit first\n'
 
 
 def test_simulate_fleet_writes_units_a_manifest_and_the_truth(tmp_path):

@@ -86,6 +86,7 @@ def _options(command: str, text: str) -> tuple:
 
 
 def fleet_command(args: argparse.Namespace) -> int:
+    """Run ``fleet diagnose`` or ``fleet fit``, then write the fleet report."""
     from .run import run_fleet
     command = args.fleet_command
     options = _options(command, args.options)
@@ -101,13 +102,25 @@ def fleet_command(args: argparse.Namespace) -> int:
              if outcome.interrupted else ''))
     for unit, error in outcome.failed:
         print(f'failed: {unit}: {error}', file=sys.stderr)
-    written = write_fleet_report(Path(args.out))
-    print(f'wrote {written}')
+    print(f'wrote {_report(Path(args.out))}')
     if outcome.interrupted:
         return EXIT_INTERRUPTED
     return EXIT_UNITS_FAILED if outcome.failed else 0
 
 
+def _report(out: Path) -> Path:
+    """Write the fleet report into ``out``; UserError without units/ or when it cannot."""
+    if not (out / 'units').is_dir():
+        msg = f'--out {out}: no units/ folder; run mlx-tempcomp fleet diagnose or fit first'
+        raise UserError(msg)
+    try:
+        return write_fleet_report(out)
+    except OSError as err:
+        msg = f'cannot write the fleet report into {out}: {err.strerror}'
+        raise UserError(msg) from None
+
+
 def report_command(args: argparse.Namespace) -> int:
-    print(f'wrote {write_fleet_report(Path(args.out))}')
+    """Write the fleet report again from what ``--out`` holds."""
+    print(f'wrote {_report(Path(args.out))}')
     return 0

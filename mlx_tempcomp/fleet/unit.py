@@ -107,12 +107,16 @@ def _run_record(job: UnitJob, index: int, work: Path, files: dict) -> None:
     local = _local_copy(record.path, work / 'cache')
     args = parse_command(command_argv(job.command, local, str(out), record.options(),
                                       job.options))
-    log = io.StringIO()
-    with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-        args.handler(args)
-    (out / LOG_FILE).write_text(log.getvalue(), encoding='utf-8')
     folder = job.record_folder(index)
     destination = str(Path(job.folder) / folder)
+    log = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+            args.handler(args)
+    except MlxTempCompError as err:
+        msg = str(err).replace(str(out), destination).replace(local, record.path)
+        raise UnitError(msg) from None
+    (out / LOG_FILE).write_text(log.getvalue(), encoding='utf-8')
     for path in sorted(out.rglob('*')):
         if not path.is_file():
             continue
@@ -137,7 +141,7 @@ def run_unit(job: UnitJob) -> dict:
             try:
                 _run_record(job, index, Path(work), files)
             except MlxTempCompError as err:
-                error = str(err).replace(str(Path(work) / f'out-{index}'), job.folder)
+                error = str(err)
             except Exception as err:  # any failure is this unit's, not the fleet's
                 error = f'{record.path}: {type(err).__name__}: {one_line(err)}'
             else:
