@@ -40,6 +40,12 @@ setup(
             'pyulog>=1.3',
             'pymavlink>=2.4.50',
         ],
+        # The fleet job (mlx-tempcomp fleet): Dask's scheduler and workers, fsspec for records
+        # given as URLs (object storage). Only mlx_tempcomp/fleet/ imports them.
+        'fleet': [
+            'dask[distributed]',
+            'fsspec',
+        ],
         # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
         # so lint results change only when someone bumps them), and colcon for
         # test/test_colcon_build.py.

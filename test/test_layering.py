@@ -4,14 +4,15 @@ The package's layers: which may import which, and what runs without ROS.
 `ALLOWED` is the import graph of docs/architecture.md ("Layers and import
 direction"): every module of the package is read (ast, imports inside
 functions included) and each import of another layer must be in its row. Only
-``ros/`` imports rclpy or a message package; no module imports a private name
-(``_name``) of another. Then, in a fresh interpreter whose import system refuses
-rclpy and every ROS message package, every module outside ``ros/`` imports,
-``mlx-tempcomp --help`` and the help of every subcommand print, and ``evaluate``
-runs a parameter file's model (the command that used to pull in rclpy); the
-optional heavy imports (matplotlib, allantools, scipy, and the flight-log readers'
-pyulog and pymavlink, which only sources/ulog.py and sources/dataflash.py import,
-inside a function) stay unloaded.
+``ros/`` imports rclpy or a message package, only ``fleet/`` Dask or fsspec;
+no module imports a private name (``_name``) of another. Then, in a fresh
+interpreter whose import system refuses rclpy and every ROS message package,
+every module outside ``ros/`` imports, ``mlx-tempcomp --help`` and the help
+of every subcommand print, and ``evaluate`` runs a parameter file's model (the
+command that used to pull in rclpy); the optional heavy imports (matplotlib,
+allantools, scipy, Dask, fsspec, and the flight-log readers' pyulog and
+pymavlink, which only sources/ulog.py and sources/dataflash.py import, inside a
+function) stay unloaded.
 """
 
 import ast
@@ -41,8 +42,10 @@ ALLOWED = {
                 'node_parameters'},
     'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
             'node_parameters'},
+    'fleet': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
+              'node_parameters', 'toolkit'},
     'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters', 'toolkit'},
+            'node_parameters', 'toolkit', 'fleet'},
 }
 # The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
 EVERYWHERE = {'errors'}
@@ -55,7 +58,11 @@ ROS_PACKAGE = re.compile(r'(rclpy|rcl_\w+|rmw\w*|rosidl\w*|rpyutils|ament_index_
 FLIGHT_LOG_READERS = {'pyulog': 'mlx_tempcomp.sources.ulog',
                       'pymavlink': 'mlx_tempcomp.sources.dataflash'}
 # Imported only where a command needs them, never by --help.
-OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', *FLIGHT_LOG_READERS)
+OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', 'dask', 'distributed', 'fsspec',
+                  *FLIGHT_LOG_READERS)
+# The fleet job's engine: imported by fleet/ only, so single-record commands and nodes never load
+# it (and inside functions, so --help does not either: OPTIONAL_HEAVY).
+FLEET_ONLY = ('dask', 'distributed', 'fsspec')
 
 
 def _modules() -> dict:
@@ -146,6 +153,13 @@ def test_flight_log_libraries_are_imported_only_by_their_readers_inside_a_functi
         wrong += [f'{module}:{line} imports {target} at module level: --help would load it'
                   for line, target in _top_level_imports(tree)
                   if target.split('.')[0] == library]
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_only_the_fleet_job_imports_dask():
+    wrong = [f'{module}:{line} imports {target}: only fleet/ may'
+             for module, line, target, _ in _package_imports()
+             if target.split('.')[0] in FLEET_ONLY and _layer(module) != 'fleet']
     assert not wrong, '\n'.join(wrong)
 
 
