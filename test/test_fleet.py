@@ -112,7 +112,7 @@ def test_fleet_fit_is_the_single_record_command(records, tmp_path):
     assert f'from file://{records}/a2.csv' in fleet
     assert fleet.replace('file://', '') == \
         single.read_text().replace(str(single), str(out / 'units/a2/params.yaml'))
-    assert 'orders (chosen by' in (out / 'units' / 'a2' / 'log.txt').read_text()
+    assert 'orders (chosen on held-out blocks' in (out / 'units' / 'a2' / 'log.txt').read_text()
 
 
 def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):

@@ -32,6 +32,7 @@ import numpy as np
 from .common import check_output_file, UserError, write_result
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
+from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES, PolynomialModel
 from ..node_parameters import build_model, COMPENSATION_SPECS
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
@@ -200,11 +201,9 @@ def _cubic(args, recording) -> PolynomialModel:
 
 def _corrected(model, recording) -> np.ndarray:
     """Run a node model over the whole recording (its history from the first row)."""
-    return model.stream().correct_block(
-        recording.gyro_rad_s, recording.temperature_c, time_s=recording.time_s,
-        temperature_2_c=recording.temperature_2_c,
-        acceleration_m_s2=recording.acceleration_m_s2,
-        supply_voltage_v=recording.supply_voltage_v).rate_rad_s
+    inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
+    return model.stream().correct_block(recording.gyro_rad_s, recording.temperature_c,
+                                        inputs).rate_rad_s
 
 
 def node_model(parameters: dict):
