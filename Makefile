@@ -4,7 +4,8 @@
 PYTHON ?= python3
 VENV := .venv
 VENV_PY := $(VENV)/bin/python
-# The nodes' environment (make demo), then the toolkit and test tools on top (make venv, test).
+# The nodes' environment (make demo), then the toolkit, the flight-log readers, the fleet job
+# (Dask) and the test tools on top (make venv, test).
 NODES_STAMP := $(VENV)/.stamp-nodes
 STAMP := $(VENV)/.stamp
 PYTEST_ARGS ?=
@@ -24,7 +25,7 @@ $(NODES_STAMP): setup.py setup.cfg package.xml
 	touch $@
 
 $(STAMP): $(NODES_STAMP)
-	$(VENV_PY) -m pip install --quiet --progress-bar off --use-pep517 -e '.[venv,toolkit,test]'
+	$(VENV_PY) -m pip install --quiet --progress-bar off --use-pep517 -e '.[venv,toolkit,flightlogs,fleet,test]'
 	touch $@
 
 demo: $(NODES_STAMP)

@@ -34,6 +34,18 @@ setup(
             'matplotlib',
             'allantools',
         ],
+        # The flight-controller log readers (sources/ulog.py, sources/dataflash.py): PX4 ULog
+        # and ArduPilot DataFlash; imported only when such a log is read.
+        'flightlogs': [
+            'pyulog>=1.3',
+            'pymavlink>=2.4.50',
+        ],
+        # The fleet job (mlx-tempcomp fleet): Dask's scheduler and workers, fsspec for records
+        # given as URLs (object storage). Only mlx_tempcomp/fleet/ imports them.
+        'fleet': [
+            'dask[distributed]',
+            'fsspec',
+        ],
         # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
         # so lint results change only when someone bumps them), and colcon for
         # test/test_colcon_build.py.

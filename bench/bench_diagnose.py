@@ -164,7 +164,11 @@ def _diagnose(data: dict) -> tuple:
                              'parameters': _brief(f.parameters)}
                             for f in axis.findings if not f.reason]
                 for axis in diagnosis.per_axis}
-    return seconds, {'cpu_s': cpu_s, 'found': found, 'findings': findings}
+    # What each axis writes, and the record effect named the cause, if any.
+    written = {axis.axis: {'model': axis.choice.written, 'ratio': axis.choice.ratio,
+                           'cause': axis.cause and axis.cause.effect}
+               for axis in diagnosis.per_axis}
+    return seconds, {'cpu_s': cpu_s, 'found': found, 'findings': findings, 'written': written}
 
 
 def _brief(parameters) -> str:
@@ -260,6 +264,10 @@ def report(args: argparse.Namespace, data_mb: float, results: dict) -> None:
         for finding in results['diagnose']['findings'][axis]:
             print(f'  {axis}  finding, not added: {finding["effect"]}, held-out gain '
                   f'{finding["gain"]:.3f} ({finding["parameters"]})')
+        written = results['diagnose']['written'][axis]
+        print(f'  {axis}  writes {written["model"]} (found / cubic held-out RMS '
+              f'{written["ratio"]:.2f}x)'
+              + (f'; cause: {written["cause"]}' if written['cause'] else ''))
 
 
 def main() -> None:

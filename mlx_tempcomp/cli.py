@@ -1,6 +1,8 @@
 """
 The ``mlx-tempcomp`` command line: the subcommands of `mlx_tempcomp.toolkit`, one module each.
 
+Plus ``fleet`` (`mlx_tempcomp.fleet.command`): those commands over every unit of a fleet.
+
 User mistakes (a missing or malformed file, an unknown VERSION, data that
 cannot support the fit asked for) print one line starting with ``error:``
 and exit with code 2, never a traceback.
@@ -11,11 +13,14 @@ import os
 import sys
 
 from .errors import MlxTempCompError
-from .toolkit import adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, simulate
-from .toolkit.common import EXIT_USER_ERROR
+from .fleet import command as fleet
+from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, inspection,
+                      simulate)
+from .toolkit.common import EXIT_USER_ERROR, run_command
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
-_COMMAND_MODULES = (eeprom, fit, allan, adis_bias, convert, diagnose, evaluate, simulate)
+_COMMAND_MODULES = (inspection, eeprom, fit, allan, adis_bias, convert, diagnose, evaluate,
+                    simulate, fleet)
 
 # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
 EXIT_BROKEN_PIPE = 141
@@ -34,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return args.handler(args)
+        return run_command(args)
     except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR

@@ -21,9 +21,10 @@ import yaml
 from .core.chain import CalibrationChain, ChainModel
 from .core.compensation import table_compensation
 from .core.conversion import Output, SensorTransfer
-from .core.effects import AxisTerms, EffectModel
+from .core.effects import AxisTerms, EffectModel, PARAMETER_DESCRIPTIONS
 from .core.errors import ConfigError
 from .core.interpolation import Interpolation
+from .core.model_interface import ModelInputs
 from .core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
 from .core.recalibration import RecalibrationLimits
 from .errors import MlxTempCompError
@@ -272,35 +273,6 @@ DRIVER_SPECS = COMMON_SPECS + (
          'last write', read_only=True, low=0.001, high=100.0),
 )
 
-_EFFECT_DESCRIPTIONS = {
-    'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
-    'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
-    'temperature_min_c': 'effective temperatures below are clamped',
-    'temperature_max_c': 'effective temperatures above are clamped',
-    'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the slope over '
-                                 'this window (s)',
-    'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k',
-    'time_reference_s': 'time drift is zero at this stamp (s)',
-    'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
-    'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2',
-    'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: T_eff = '
-                     'first-order lag of T with time constant |lag|',
-    'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt',
-    'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at most 2)',
-    'gradient_rad_s_per_c': 'axis {axis}: bias + g_k x (T - lag_k(T)), one per time constant',
-    'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power 1, rad/s',
-    'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play operator',
-    'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state',
-    'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since time_reference_s',
-    'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
-    'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, rad/s',
-    'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, z acceleration',
-    'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)',
-    'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)',
-    'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)',
-    'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
-    'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s',
-}
 _CHAIN_DESCRIPTIONS = {
     'full_scale_rad_s': 'full scale; the polynomials run in x = rate / full scale',
     'reference_temperature_c': 'Tref of dT = T - Tref',
@@ -332,7 +304,7 @@ def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bo
 # Scalars default to the model's own defaults; unset lists mean an absent effect.
 EFFECT_SPECS = _model_specs(
     'effects.', EffectModel((AxisTerms(bias=(0.0,)),) * 3).to_parameters(AXIS_NAMES),
-    _EFFECT_DESCRIPTIONS, required=False)
+    PARAMETER_DESCRIPTIONS, required=False)
 # A chain has no neutral default: every parameter must be given.
 _ZEROS, _POLYNOMIALS = (0.0, 0.0, 0.0), ((0.0,),) * 3
 CHAIN_SPECS = _model_specs('chain.', CalibrationChain(
@@ -586,9 +558,11 @@ def _check_output(model, name: str, axes: tuple) -> None:
     samples = _PROBE_RATE.size
     with np.errstate(all='ignore'):
         corrected = model.stream().correct_block(
-            np.repeat(_PROBE_RATE[:, None], model.axes, axis=1), _PROBE_TEMPERATURE,
-            getattr(model, 'time_reference_s', 0.0) + _PROBE_TIME_S, _PROBE_TEMPERATURE,
-            np.tile([0.0, 0.0, 9.81], (samples, 1)), np.full(samples, 5.0)).rate_rad_s
+            np.repeat(_PROBE_RATE[:, None], model.axes, axis=1), _PROBE_TEMPERATURE, ModelInputs(
+                time_s=getattr(model, 'time_reference_s', 0.0) + _PROBE_TIME_S,
+                temperature_2_c=_PROBE_TEMPERATURE,
+                acceleration_m_s2=np.tile([0.0, 0.0, 9.81], (samples, 1)),
+                supply_voltage_v=np.full(samples, 5.0))).rate_rad_s
     beyond = ~(np.abs(corrected) <= MAX_COMPENSATED_RATE_RAD_S)   # NaN included
     if beyond.any():
         row, axis = np.argwhere(beyond)[0]

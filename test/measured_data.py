@@ -1,5 +1,8 @@
 """
-Where the measured data set lies: ``shared/`` beside the repository, never copied into it.
+Where the measured data lies: ``shared/`` beside the repository, never copied into it.
+
+MEASURED_CSV is the measured thermal cycle, FLIGHT_LOGS the folder of the four small
+flight-controller logs (data/flight_logs, its README.md gives their figures).
 
 Looked up in order: the folder named by MLX_TEMPCOMP_SHARED; ``shared`` beside
 this checkout; ``shared`` beside the checkout this one was cloned from (CI
@@ -23,13 +26,14 @@ def _origin() -> list:
     return [Path(url).parent / 'shared'] if url and Path(url).is_dir() else []
 
 
-def _measured_csv() -> Path:
+def _shared(relative: Path) -> Path:
     folders = ([Path(os.environ['MLX_TEMPCOMP_SHARED'])] if 'MLX_TEMPCOMP_SHARED' in os.environ
                else []) + [_ROOT.parent / 'shared'] + _origin()
     for folder in folders:
-        if (folder / RELATIVE).is_file():
-            return folder / RELATIVE
-    return folders[0] / RELATIVE
+        if (folder / relative).exists():
+            return folder / relative
+    return folders[0] / relative
 
 
-MEASURED_CSV = _measured_csv()
+MEASURED_CSV = _shared(RELATIVE)
+FLIGHT_LOGS = _shared(Path('data') / 'flight_logs')

@@ -9,6 +9,7 @@ import sys
 from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.model_params import (effect_parameters, parameter_file,
                                        polynomial_parameters, write_parameter_file)
@@ -118,7 +119,8 @@ def test_effects_model_runs_with_time_from_the_first_sample(tmp_path, capsys):
                            str(tmp_path / 'c.csv'))
     assert report['model'] == 'effects'
     expected = model.correct(np.column_stack([columns['gyro_x'], columns['gyro_z']]),
-                             columns['temperature'], time_s=columns['time']).rate_rad_s
+                             columns['temperature'],
+                             ModelInputs(time_s=columns['time'])).rate_rad_s
     written = load_recording(tmp_path / 'c.csv')
     np.testing.assert_allclose(written.gyro_rad_s, expected, rtol=1e-12, atol=1e-15)
     assert report['per_sample']['x']['mean'] == pytest.approx(np.mean(expected[:, 0]))

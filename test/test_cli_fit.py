@@ -68,7 +68,8 @@ def fitted(tmp_path, capsys):
 
 def test_fit_chooses_true_orders_and_reproduces_bias(fitted):
     out_path, out = fitted
-    assert 'orders (chosen by 5-fold cross-validation over 20 blocks): x 3, z 2' in out
+    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
+            'predicted from the blocks before it): x 3, z 2') in out
     assert out.startswith(f'{out_path.parent / "sweep.csv"}: 4000 rows used; skipped: none\n')
     assert 'fitted temperature range: -40.00 to 85.00 C' in out
     text = out_path.read_text()
@@ -151,7 +152,8 @@ def test_measured_sweep_with_tofupilot_preset(tmp_path, capsys):
     assert main(['fit', str(MEASURED_CSV), '--preset', 'tofupilot', '--out',
                  str(out_path)]) == 0
     out = capsys.readouterr().out
-    assert 'orders (chosen by 5-fold cross-validation over 20 blocks): x ' in out
+    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
+            'predicted from the blocks before it): x ') in out
     assert 'skipped: dropped by preset 1' in out
     axes, model = model_from_yaml(out_path)
     assert axes == ('x', 'y', 'z')
@@ -234,7 +236,8 @@ def test_relative_true_temperature_defaults_to_the_mean(tmp_path, capsys):
     out = capsys.readouterr().out
     mean_c = np.mean(np.loadtxt(path, delimiter=',', skiprows=1)[:, 1])
     assert f'T_true = {mean_c:.2f} C (mean temperature of the data)' in out
-    assert 'orders (chosen by 5-fold cross-validation over 20 blocks): x 3, z 2' in out
+    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
+            'predicted from the blocks before it): x 3, z 2') in out
     model = build_model(node_values(out_path))
     np.testing.assert_allclose(model.correct([[0.1, -0.2]], [mean_c]).rate_rad_s,
                                [[0.1, -0.2]], rtol=0.0, atol=1e-15)

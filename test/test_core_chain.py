@@ -14,9 +14,11 @@ largest error seen over 60 seeds. Without noise the fit recovers the truth to 1e
 import dataclasses
 import math
 
-from mlx_tempcomp.core.chain import (CalibrationChain, ChainSettings, find_plateaus,
-                                     fit_chain, format_stage_table, stage_errors, STAGE_NAMES)
+from mlx_tempcomp.core.chain import (CalibrationChain, ChainModel, ChainSettings,
+                                     find_plateaus, fit_chain, format_stage_table, stage_errors,
+                                     STAGE_NAMES)
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
+from mlx_tempcomp.core.model_interface import CompensationModel, ModelInputs, ModelStream
 from mlx_tempcomp.simulation.turntable import simulate_turntable, TurntableProtocol
 import numpy as np
 import pytest
@@ -157,6 +159,21 @@ def test_parameters_round_trip_and_correct_identically(session, fitted):
     assert rebuilt == fitted.chain
     args = (session.measured_rad_s, session.temperature_c, session.temperature_2_c)
     np.testing.assert_array_equal(rebuilt.correct(*args), fitted.chain.correct(*args))
+
+
+def test_chain_model_has_the_model_interface_and_needs_the_second_temperature(session, fitted):
+    model = ChainModel(fitted.chain)
+    assert isinstance(model, CompensationModel) and isinstance(model.stream(), ModelStream)
+    assert model.inputs == {'temperature_2_c'}
+    rows = slice(0, 5)
+    inputs = ModelInputs(temperature_2_c=session.temperature_2_c[rows])
+    block = model.stream().correct_block(session.measured_rad_s[rows],
+                                         session.temperature_c[rows], inputs)
+    np.testing.assert_array_equal(block.rate_rad_s, fitted.chain.correct(
+        session.measured_rad_s[rows], session.temperature_c[rows],
+        session.temperature_2_c[rows]))
+    with pytest.raises(ConfigError, match='needs temperature_2_c'):
+        model.correct(session.measured_rad_s[rows], session.temperature_c[rows])
 
 
 def test_chain_formula_on_hand_computed_values():

@@ -1,10 +1,14 @@
 """EffectModel: each effect's formula, batch against stream, parameters round trip, bad input."""
 
+from dataclasses import fields, replace
 import math
 
-from mlx_tempcomp.core.effects import (AxisTerms, EffectModel, FirstOrderLag, play_state,
-                                       PlayOperator, temperature_rate_c_s, TemperatureSlope)
+from mlx_tempcomp.core.effects import (AxisTerms, EFFECT_NAMES, EffectModel, EFFECTS,
+                                       FirstOrderLag, LIVE_EFFECTS, PARAMETER_DESCRIPTIONS,
+                                       play_state, PlayOperator, RECORD_EFFECTS,
+                                       temperature_rate_c_s, TemperatureSlope)
 from mlx_tempcomp.core.errors import ConfigError
+from mlx_tempcomp.core.model_interface import ModelInputs
 import numpy as np
 import pytest
 
@@ -44,8 +48,11 @@ def _full_model():
                        supply_reference_v=5.1, zro_offset_rad_s=(0.001, 0.002, 0.003))
 
 
-INPUTS = ('rate_rad_s', 'temperature_c', 'time_s', 'temperature_2_c', 'acceleration_m_s2',
-          'supply_voltage_v')
+INPUTS = ('time_s', 'temperature_2_c', 'acceleration_m_s2', 'supply_voltage_v')
+
+
+def _inputs(data: dict, rows=slice(None)) -> ModelInputs:
+    return ModelInputs(**{name: data[name][rows] for name in INPUTS})
 
 
 def _through_stream(model, data: dict, edges) -> tuple:
@@ -53,7 +60,9 @@ def _through_stream(model, data: dict, edges) -> tuple:
     stream = model.stream()
     rates, clamped = [], []
     for start, stop in zip(edges[:-1], edges[1:]):
-        result = stream.correct_block(*(data[name][start:stop] for name in INPUTS))
+        rows = slice(start, stop)
+        result = stream.correct_block(data['rate_rad_s'][rows], data['temperature_c'][rows],
+                                      _inputs(data, rows))
         rates.append(result.rate_rad_s)
         clamped.append(result.temperature_clamped)
     return np.concatenate(rates), np.concatenate(clamped)
@@ -62,7 +71,7 @@ def _through_stream(model, data: dict, edges) -> tuple:
 def test_stream_gives_the_batch_result_in_any_blocks():
     data = _record()
     model = _full_model()
-    batch = model.correct(*(data[name] for name in INPUTS))
+    batch = model.correct(data['rate_rad_s'], data['temperature_c'], _inputs(data))
     samples = len(data['time_s'])
     one_by_one, clamped = _through_stream(model, data, list(range(samples + 1)))
     rng = np.random.default_rng(4)
@@ -108,7 +117,8 @@ def test_thermal_lag_recovers_the_die_temperature_of_a_first_order_lag():
     model = EffectModel(terms=(AxisTerms(bias=(0.0, 1.0), thermal_lag_s=tau_s),),
                         reference_temperature_c=0.0, temperature_scale_c=1.0,
                         temperature_rate_window_s=10.0)
-    bias = -model.correct(np.zeros((time_s.size, 1)), sensor_c, time_s).rate_rad_s[:, 0]
+    bias = -model.correct(np.zeros((time_s.size, 1)), sensor_c,
+                          ModelInputs(time_s=time_s)).rate_rad_s[:, 0]
     settled = time_s > 300.0
     np.testing.assert_allclose(bias[settled], die_c[settled], atol=1e-3)
 
@@ -151,7 +161,7 @@ def test_thermal_gradient_follows_the_lagging_node():
     model = EffectModel(terms=(AxisTerms(bias=(0.0,), gradient_time_constants_s=(tau_s,),
                                          gradient_rad_s_per_c=(gain,)),))
     bias = -model.correct(np.zeros((time_s.size, 1)), 20.0 + ramp_c_s * time_s,
-                          time_s).rate_rad_s[:, 0]
+                          ModelInputs(time_s=time_s)).rate_rad_s[:, 0]
     assert bias[0] == 0.0
     # Less half a sample: the input is held at each sample's value since the one before.
     np.testing.assert_allclose(bias[time_s > 500.0], gain * (tau_s - 0.25) * ramp_c_s, rtol=1e-4)
@@ -200,9 +210,11 @@ def test_missing_inputs_and_parameters_are_named():
     with pytest.raises(ConfigError, match='needs time_s'):
         model.correct(data['rate_rad_s'], data['temperature_c'])
     with pytest.raises(ConfigError, match='needs temperature_2_c'):
-        model.stream().correct_block([[0.0] * 3], [25.0], [1.0], None, [[0.0] * 3], [5.0])
+        model.stream().correct_block([[0.0] * 3], [25.0], ModelInputs(
+            time_s=[1.0], acceleration_m_s2=[[0.0] * 3], supply_voltage_v=[5.0]))
     with pytest.raises(ConfigError, match='needs supply_voltage_v'):
-        model.stream().correct_block([[0.0] * 3], [25.0], [1.0], [30.0], [[0.0] * 3])
+        model.stream().correct_block([[0.0] * 3], [25.0], ModelInputs(
+            time_s=[1.0], temperature_2_c=[30.0], acceleration_m_s2=[[0.0] * 3]))
     parameters = model.to_parameters(('x', 'y', 'z'))
     del parameters['bias.y']
     with pytest.raises(ConfigError, match='bias.y is missing'):
@@ -210,3 +222,29 @@ def test_missing_inputs_and_parameters_are_named():
     with pytest.raises(ConfigError, match='cross_axis of axis 0 needs 2 values'):
         EffectModel(terms=(AxisTerms(bias=(0.0,), cross_axis=(0.0, 0.1, 0.2)),
                            AxisTerms(bias=(0.0,))))
+
+
+def test_the_effect_table_owns_every_coefficient_once_and_describes_every_parameter():
+    owners = [name for effect in EFFECTS for name in effect.fields + effect.model_fields]
+    assert len(owners) == len(set(owners))
+    model_fields = {f.name for f in fields(EffectModel)} - {'terms', 'zro_offset_rad_s'}
+    assert set(owners) == {f.name for f in fields(AxisTerms)} | model_fields
+    parameters = {key.partition('.')[0] for key in _full_model().to_parameters(('x', 'y', 'z'))}
+    assert set(PARAMETER_DESCRIPTIONS) == parameters
+    assert set(EFFECT_NAMES) == set(LIVE_EFFECTS) | RECORD_EFFECTS
+
+
+def test_each_effect_is_present_and_needs_its_inputs_when_its_coefficients_are_set():
+    terms = _full_model().terms
+    assert set(terms[0].effects) | set(terms[1].effects) | set(terms[2].effects) == \
+        set(EFFECT_NAMES)
+    assert terms[1].effects == ('temperature_polynomial', 'temperature_rate', 'thermal_gradient',
+                                'thermal_gradient_2', 'supply_voltage', 'cross_axis')
+    for effect in EFFECTS:
+        holding = next(t for t in terms if effect.present(t))
+        model = EffectModel(terms=(replace(holding, cross_axis=()),))
+        assert effect.inputs <= model.inputs
+    assert EffectModel(terms=(AxisTerms(bias=(1.0,), hysteresis_half_width_c=1.0,
+                                        hysteresis_rad_s=0.1),)).inputs == frozenset()
+    assert _full_model().live().record_effects == ()
+    assert set(_full_model().record_effects) == RECORD_EFFECTS

@@ -4,6 +4,7 @@ from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import (CHUNK_ROWS, contiguous_blocks, fit_polynomial,
                                        fold_rows, format_order_table, select_orders)
 from mlx_tempcomp.core.models import PolynomialModel
+from mlx_tempcomp.core.validation import FORWARD, ROUND_ROBIN
 import numpy as np
 import pytest
 
@@ -49,7 +50,8 @@ def test_order_selection_picks_the_true_order(true_order):
     assert selection.axis == 'x'
     assert [score.order for score in selection.scores] == list(range(9))
     assert selection.rule.startswith('one-standard-error')
-    assert all(len(score.block_rms_rad_s) == 5 for score in selection.scores)
+    # forward: blocks 5 to 19 of 20 each predicted from the blocks before it
+    assert all(len(score.block_rms_rad_s) == 15 for score in selection.scores)
 
 
 def test_order_selection_per_axis_and_table():
@@ -70,7 +72,9 @@ def test_order_selection_per_axis_and_table():
 def test_unsupported_orders_score_inf_and_are_never_chosen():
     temperature_c = np.repeat(np.linspace(0.0, 30.0, 4), 50)
     rate_rad_s = 1e-3 + 1e-4 * temperature_c
-    (selection,) = select_orders(temperature_c, rate_rad_s, candidate_orders=range(0, 5))
+    # Round-robin: forward, the first predicted block's past holds one temperature only.
+    (selection,) = select_orders(temperature_c, rate_rad_s, candidate_orders=range(0, 5),
+                                 validation=ROUND_ROBIN)
     print(format_order_table((selection,)))
     assert selection.order == 1
     means = {score.order: score.mean_rms_rad_s for score in selection.scores}
@@ -147,15 +151,23 @@ def test_error_fewer_than_two_blocks_or_folds():
     with pytest.raises(CalibrationError, match=r'at least 2 blocks, got 1'):
         contiguous_blocks(100, 1)
     with pytest.raises(CalibrationError, match=r'2 <= folds <= blocks, got 5 folds, 1 blocks'):
-        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), blocks=1)
+        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), blocks=1,
+                      validation=ROUND_ROBIN)
     with pytest.raises(CalibrationError, match=r'got 1 folds'):
-        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), folds=1)
+        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), folds=1,
+                      validation=ROUND_ROBIN)
+    with pytest.raises(CalibrationError, match=r'of 4 blocks the first 3 \(--min-past 0.75\)'):
+        select_orders(np.linspace(0.0, 40.0, 100), np.zeros(100), blocks=4, min_past=0.75)
 
 
-def test_folds_deal_contiguous_blocks_round_robin():
-    held_out = fold_rows(20, blocks=10, folds=5)
+def test_folds_deal_contiguous_blocks_round_robin_or_forward():
+    held_out = fold_rows(20, blocks=10, folds=5, scheme=ROUND_ROBIN)
     assert [rows.tolist() for rows in held_out] == [
         [0, 1, 10, 11], [2, 3, 12, 13], [4, 5, 14, 15], [6, 7, 16, 17], [8, 9, 18, 19]]
+    # Forward: each block after the first quarter alone, in time order.
+    held_out = fold_rows(20, blocks=10, min_past=0.25)
+    assert [rows.tolist() for rows in held_out] == [[6, 7], [8, 9], [10, 11], [12, 13],
+                                                    [14, 15], [16, 17], [18, 19]]
     with pytest.raises(CalibrationError, match=r'cannot split 3 samples into 5 blocks'):
         contiguous_blocks(3, 5)
 
@@ -187,11 +199,12 @@ def test_fit_equals_a_direct_lstsq_per_axis():
         assert error < 1e-10
 
 
-def direct_block_rms_rad_s(temperature_c, rate_rad_s, order, blocks, folds):
+def direct_block_rms_rad_s(temperature_c, rate_rad_s, order, blocks, folds, scheme):
     """Return the held-out RMS per fold: lstsq on the training rows, correct on the held out."""
     rms = []
-    for held_out in fold_rows(temperature_c.size, blocks, folds):
-        train = np.delete(np.arange(temperature_c.size), held_out)
+    for held_out in fold_rows(temperature_c.size, blocks, folds, scheme):
+        rows = np.arange(temperature_c.size)
+        train = rows[:held_out[0]] if scheme == FORWARD else np.delete(rows, held_out)
         low_c, high_c = np.min(temperature_c[train]), np.max(temperature_c[train])
         model = PolynomialModel(
             bias_coefficients=(direct_fit(temperature_c[train], rate_rad_s[train], order),),
@@ -203,10 +216,12 @@ def direct_block_rms_rad_s(temperature_c, rate_rad_s, order, blocks, folds):
     return np.array(rms)
 
 
-@pytest.mark.parametrize('samples, blocks, folds, highest', [
-    (3000, 20, 5, 8), (2 * CHUNK_ROWS + 1001, 2, 2, 3)])  # the second: blocks of 2 chunks
-def test_cross_validation_equals_direct_fits_on_the_training_rows(samples, blocks, folds,
-                                                                  highest):
+@pytest.mark.parametrize('samples, blocks, folds, highest, scheme', [
+    (3000, 20, 5, 8, ROUND_ROBIN), (3000, 20, 5, 8, FORWARD),
+    (2 * CHUNK_ROWS + 1001, 2, 2, 3, ROUND_ROBIN),  # blocks of 2 chunks
+    (2 * CHUNK_ROWS + 1001, 4, 2, 3, FORWARD)])
+def test_held_out_scores_equal_direct_fits_on_the_training_rows(samples, blocks, folds,
+                                                                highest, scheme):
     # a ramp up then a cycle: the first block's lowest temperatures are held out alone, so
     # its fold's model is clamped to a narrower range than the whole record's
     phase = np.linspace(0.0, 1.0, samples)
@@ -217,12 +232,13 @@ def test_cross_validation_equals_direct_fits_on_the_training_rows(samples, block
                   + rng.normal(0.0, 1e-4, samples))
     (selection,) = select_orders(temperature_c, rate_rad_s,
                                  candidate_orders=range(0, highest + 1), blocks=blocks,
-                                 folds=folds)
-    first_fold = fold_rows(samples, blocks, folds)[0]
-    assert np.min(temperature_c[first_fold]) < np.min(np.delete(temperature_c, first_fold))
+                                 folds=folds, validation=scheme)
+    held = fold_rows(samples, blocks, folds, scheme)[0]
+    train = temperature_c[:held[0]] if scheme == FORWARD else np.delete(temperature_c, held)
+    assert np.ptp(np.concatenate((train, temperature_c[held]))) > np.ptp(train)
     for score in selection.scores:
         expected = direct_block_rms_rad_s(temperature_c, rate_rad_s, score.order, blocks,
-                                          folds)
+                                          folds, scheme)
         np.testing.assert_allclose(score.block_rms_rad_s, expected, rtol=1e-9, atol=0.0)
 
 
@@ -246,7 +262,8 @@ def test_temperatures_too_close_to_determine_the_order():
                r'\(design matrix rank 2\)')
     with pytest.raises(CalibrationError, match=message):
         fit_polynomial(temperature_c, rate_rad_s, 2)
+    # Round-robin: forward, the first predicted blocks' past holds one temperature only.
     (selection,) = select_orders(temperature_c, rate_rad_s, candidate_orders=range(3),
-                                 blocks=6, folds=3)
+                                 blocks=6, folds=3, validation=ROUND_ROBIN)
     assert [score.mean_rms_rad_s == np.inf for score in selection.scores] == [False, False, True]
     assert selection.order == 1

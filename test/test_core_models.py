@@ -3,8 +3,11 @@ import math
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.interpolation import Interpolation
+from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,
+                                               ModelStream)
 from mlx_tempcomp.core.models import EepromModel, LinearBtcModel, PolynomialModel
 from mlx_tempcomp.core.table import factory_table
 import numpy as np
@@ -162,3 +165,22 @@ def test_one_row_gives_the_block_bits(interpolation):
                 rate, clamped = stream.correct_one(rates[i].tolist(), columns[i].tolist())
                 np.testing.assert_array_equal(rate, block.rate_rad_s[i])
                 assert clamped == bool(block.temperature_clamped[i].any())
+
+
+def test_every_model_the_node_runs_has_the_model_interface():
+    table = factory_table(FIELDS, Output.DIGITAL)
+    models = (EepromModel(table_compensation([table], 75.0, Output.DIGITAL)),
+              PolynomialModel(bias_coefficients=((1e-3, 1e-5),)),
+              LinearBtcModel(pbc_rad_s=(1e-3,), btc_rad_s_per_c=(1e-5,), t3_c=25.0),
+              EffectModel(terms=(AxisTerms(bias=(1e-3,), secondary=(1e-4,)),)))
+    for model in models:
+        assert isinstance(model, CompensationModel), model.name
+        assert isinstance(model.stream(), ModelStream), model.name
+        assert model.inputs <= set(INPUTS), model.name
+    assert models[3].inputs == {'temperature_2_c'}
+    # A stateless model takes the inputs every model takes, and ignores them.
+    given = ModelInputs(time_s=[0.0], temperature_2_c=[30.0])
+    for model in models[:3]:
+        assert model.inputs == frozenset()
+        np.testing.assert_array_equal(model.stream().correct_block([[0.1]], [30.0], given)
+                                      .rate_rad_s, model.correct([[0.1]], [30.0]).rate_rad_s)

@@ -14,10 +14,12 @@ import json
 import math
 
 from cli_checks import assert_user_error
+from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
 from mlx_tempcomp.sources.recording import Recording
@@ -28,6 +30,9 @@ import yaml
 NOISE_DPS = 0.02
 TEMPERATURE_NOISE_C = 0.02
 STEP_TIME_S = 9000.0
+# Issue 15's record: a step of 1.9e-3 rad/s at 3840 s and nothing else.
+SMALL_STEP_TIME_S = 3840.0
+SMALL_STEP_RAD_S = 1.9e-3
 LAG_S = 200.0
 TEST_FRACTION = 0.25
 QUIET = Noise(bias_instability_dps=0.0)
@@ -41,6 +46,8 @@ EFFECTS = {
     'temperature_rate': (Effects(zro_dps_per_c_s=4.0), QUIET),
     'supply_voltage': (Effects(zro_supply_dps_per_v=0.4), QUIET),
     'bias_step': (Effects(bias_steps=((STEP_TIME_S, 0.2),)), QUIET),
+    'small_step': (Effects(bias_steps=((SMALL_STEP_TIME_S, math.degrees(SMALL_STEP_RAD_S)),)),
+                   QUIET),
 }
 STEP_STRUCTURE = {'effect', 'live', 'parameters', 'rms_before', 'rms_after', 'peak_before',
                   'peak_after', 'block_rms_before', 'block_rms_after'}
@@ -103,26 +110,31 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     result = diagnosed(effect)
     steps = result.per_axis[0].steps
     test = result.comparison['test']
-    print(f'{effect}: added {", ".join(s.effect for s in steps[1:])}; cross-validated RMS '
-          f'{steps[0].after.rms_rad_s:.3e} -> {steps[-1].after.rms_rad_s:.3e}, test '
+    robin = result.comparison['round_robin']
+    print(f'{effect}: added {", ".join(s.effect for s in steps[1:])}; forward RMS '
+          f'{steps[0].after.rms_rad_s:.3e} -> {steps[-1].after.rms_rad_s:.3e}, round-robin '
+          f'{robin["temperature_polynomial"][0].rms_rad_s:.3e} -> '
+          f'{robin["diagnosed"][0].rms_rad_s:.3e}, test '
           f'{test["temperature_polynomial"][0].rms_rad_s:.3e} -> '
           f'{test["diagnosed"][0].rms_rad_s:.3e} rad/s (PX4 cubic '
           f'{test["px4_cubic"][0].rms_rad_s:.3e})')
     assert [s.effect for s in steps[:2]] == ['temperature_polynomial', effect]
     # Held-out errors chain: each step starts where the one before ended.
     assert steps[1].before == steps[0].after
-    assert steps[-1].after.rms_rad_s <= 0.5 * steps[0].after.rms_rad_s
+    # Forward, each block is predicted from a past of at least a quarter of the part: the
+    # first ones from little supply wander or few turns, so less than the 2x elsewhere.
+    assert steps[-1].after.rms_rad_s <= 0.7 * steps[0].after.rms_rad_s
+    assert robin['diagnosed'][0].rms_rad_s <= 0.5 * robin['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
-    assert not result.model.record_effects
+    assert not result.model.record_effects and result.per_axis[0].cause is None
     parameters = steps[1].parameters
     if effect == 'thermal_lag':
         assert parameters['thermal_lag_s'] == pytest.approx(LAG_S, rel=0.15)
     elif effect == 'thermal_gradient':
-        # Two time constants: the second is named too, one short and one long.
-        assert 'thermal_gradient_2' in result.per_axis[0].effects
-        short_s, long_s = result.model.terms[0].gradient_time_constants_s
-        assert short_s < 500.0 < long_s
+        # One time constant between the truth's two (a second gains too little forward).
+        (time_constant_s,) = result.model.terms[0].gradient_time_constants_s
+        assert 120.0 < time_constant_s < 900.0
     elif effect == 'supply_voltage':
         assert parameters['rad_s_per_v_k'][0] == pytest.approx(math.radians(0.4), rel=0.05)
     elif effect == 'temperature_rate':
@@ -137,6 +149,7 @@ def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
     axis = result.per_axis[0]
     assert axis.effects == ('temperature_polynomial',)
     assert axis.order == 3
+    assert axis.cause is None
     # Every live effect this record can support was tried, and refused.
     live = set(LIVE_EFFECTS) - {'temperature_polynomial', 'thermal_gradient_2',
                                 'secondary_temperature', 'acceleration_sensitivity',
@@ -146,6 +159,131 @@ def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
     assert result.model.terms[0].effects == ('temperature_polynomial',)
     # Per-block figures come with every step.
     assert len(axis.steps[0].after.block_rms_rad_s) == result.settings.blocks
+
+
+def test_an_axis_writes_the_cubic_unless_its_model_beats_it_by_the_margin():
+    # Clean: the loop finds the polynomial of order 3, the cubic itself (1.00x): not 5 %
+    # better, so the cubic is written, and says so.
+    clean = diagnosed('clean')
+    choice = clean.per_axis[0].choice
+    assert choice.written == 'px4_cubic' and choice.margin == 0.05
+    assert choice.ratio == pytest.approx(1.0, abs=0.01)
+    assert 'not 5% better, so the simpler cubic is written' in choice.reason
+    assert clean.model.terms[0].effects == ('temperature_polynomial',)
+    assert len(clean.model.terms[0].bias) == 4
+    # A found model that beats the cubic by more than the margin is written.
+    hysteresis = diagnosed('hysteresis')
+    choice = hysteresis.per_axis[0].choice
+    assert choice.written == 'diagnosed' and choice.ratio < 0.95 and not choice.reason
+    assert 'hysteresis' in hysteresis.model.terms[0].effects
+    forward = hysteresis.comparison['forward']
+    assert choice.found == forward['diagnosed'][0]
+    assert choice.cubic == forward['px4_cubic'][0]
+
+
+def test_on_the_measured_cycle_no_axis_is_worse_than_the_cubic(tmp_path):
+    """
+    The measured cycle, --test 0.25: x keeps its live effects, y writes the cubic.
+
+    Forward, y's order 2 is 0.81x the cubic; round-robin it is 1.18x, so the cubic is
+    written (the test part would have been 1.48x). Round two reached x 0.51x, y 0.47x and
+    z 0.94x of the cubic on the test part.
+    """
+    if not MEASURED_CSV.is_file():
+        pytest.skip(f'measured data not present: {MEASURED_CSV}')
+    out = tmp_path / 'out'
+    stdout, _ = run_cli(['diagnose', MEASURED_CSV, '--preset', 'tofupilot', '--test', 0.25,
+                         '--out', out])
+    report = json.loads((out / 'report.json').read_text())
+    test = report['comparison']['test']
+    ratio = {a: test['diagnosed'][a]['rms'] / test['px4_cubic'][a]['rms'] for a in 'xyz'}
+    print(stdout, ratio)
+    # round two: x 4.982e-03, z 2.742e-03 over the cubic's 9.718e-03 and 2.914e-03
+    assert ratio['x'] <= 0.513 and ratio['y'] <= 1.0 and ratio['z'] <= 0.941
+    x, y = report['axes']['x'], report['axes']['y']
+    assert {'thermal_gradient', 'temperature_rate'} <= set(x['written']['effects'])
+    assert y['written']['model'] == 'px4_cubic' and y['written']['other_ratio'] > 1.0
+    assert 'axis y: writes the PX4-style cubic, forward-validated RMS' in stdout
+    assert 'round-robin held-out RMS' in stdout and 'worse there' in stdout
+
+
+def test_a_found_model_no_better_than_the_cubic_is_not_written():
+    """Bias step record: the order the loop finds is worse than the cubic on the test part."""
+    found = diagnose(recording('bias_step'), DiagnosisSettings(test_fraction=TEST_FRACTION,
+                                                               baseline_margin=0.0))
+    written = diagnosed('bias_step')
+    assert found.per_axis[0].choice.written == 'diagnosed'
+    assert found.per_axis[0].order == 2
+    choice = written.per_axis[0].choice
+    assert choice.written == 'px4_cubic' and 0.95 < choice.ratio < 1.0
+    assert len(written.model.terms[0].bias) == 4
+    found_rms, written_rms, cubic_rms = (
+        r.comparison['test'][method][0].rms_rad_s
+        for r, method in ((found, 'diagnosed'), (written, 'diagnosed'), (found, 'px4_cubic')))
+    print(f'test RMS / cubic: found {found_rms / cubic_rms:.3f}, written '
+          f'{written_rms / cubic_rms:.3f}')
+    assert written_rms < found_rms
+
+
+@pytest.mark.parametrize('name, time_s, step_rad_s', [
+    ('bias_step', STEP_TIME_S, math.radians(0.2)),
+    ('small_step', SMALL_STEP_TIME_S, SMALL_STEP_RAD_S)])
+def test_a_bias_step_is_named_the_cause_and_gets_no_live_stand_in(name, time_s, step_rad_s):
+    axis = diagnosed(name).per_axis[0]
+    assert axis.effects == ('temperature_polynomial',)
+    assert axis.cause.effect == 'bias_step' and axis.cause.reason == ''
+    assert axis.cause.parameters['time_s'] == pytest.approx(time_s, abs=5.0)
+    assert axis.cause.parameters['step_rad_s'] == pytest.approx(step_rad_s, rel=0.15)
+    # Even with every live candidate let through by the judging, the step explains more:
+    # the live ones are refused as stand-ins, none is added.
+    lax = diagnose(recording(name), DiagnosisSettings(test_fraction=TEST_FRACTION, min_gain=0.0,
+                                                      significance=0.0, block_tolerance=100.0))
+    axis = lax.per_axis[0]
+    assert axis.effects == ('temperature_polynomial',) and axis.cause.effect == 'bias_step'
+    stand_ins = [c for c in axis.rejected if c.reason.startswith(
+        'the record-only bias_step explains more')]
+    assert stand_ins and all(0.0 < c.held_out_gain < axis.cause.held_out_gain
+                             for c in stand_ins)
+
+
+def test_a_drift_since_power_on_is_never_worse_than_the_cubic():
+    """The clean record with a turn-on drift of 2e-3 rad/s (time constant 2 h) added."""
+    time_s, temperature_c, rate_rad_s, supply_v = simulated('clean')
+    drift_rad_s = 2e-3 * (1.0 - np.exp(-(time_s - time_s[0]) / 7200.0))
+    result = diagnose(Recording('drift', time_s, temperature_c, ('z',),
+                                (rate_rad_s + drift_rad_s)[:, None], supply_voltage_v=supply_v),
+                      DiagnosisSettings(test_fraction=TEST_FRACTION))
+    axis = result.per_axis[0]
+    test = result.comparison['test']
+    print(f'drift: found {axis.effects}, writes {axis.choice.written}, cause '
+          f'{axis.cause and axis.cause.effect}; test RMS '
+          f'{test["diagnosed"][0].rms_rad_s:.4e}, cubic {test["px4_cubic"][0].rms_rad_s:.4e}')
+    assert axis.effects == ('temperature_polynomial',)
+    assert test['diagnosed'][0].rms_rad_s <= 1.001 * test['px4_cubic'][0].rms_rad_s
+
+
+@pytest.mark.slow
+def test_slow_ramps_of_a_motionless_imu_keep_low_orders_and_the_cubic(tmp_path):
+    """
+    A stand-in for issue 15's kept-back record: 25 h at 1 Hz, ramps between 5 and 24 C.
+
+    Simulated MLX90609 chips at rest (datasheet noise with bias instability), the chamber
+    ramping at 0.08 C/min (4 h a ramp), diagnosed as the issue did: --test 0.25
+    --average-s 60.
+    """
+    record = tmp_path / 'slow.csv'
+    run_cli(['simulate', '--out', record, '--rate-hz', 1, '--start-c', 15, '--cycle-c', 24, 5,
+             24, 5, 24, 5, '--ramp-c-per-min', 0.08, '--duration-s', 90000])
+    out = tmp_path / 'out'
+    stdout, _ = run_cli(['diagnose', record, '--test', TEST_FRACTION, '--average-s', 60,
+                         '--out', out])
+    print(stdout)
+    report = json.loads((out / 'report.json').read_text())
+    test = report['comparison']['test']
+    for name, axis in report['axes'].items():
+        assert 0 <= axis['polynomial_order'] <= 3, name
+        assert axis['written']['polynomial_order'] <= 3, name
+        assert test['diagnosed'][name]['rms'] <= 1.05 * test['px4_cubic'][name]['rms'], name
 
 
 def test_record_effects_are_findings_by_default_and_added_when_asked():
@@ -290,12 +428,21 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert 'axis x: held-out RMS' in stdout and 'hysteresis' in stdout
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
     assert 'axis y: record-only finding bias_step: a step of' in stdout
+    assert 'axis y: cause: bias_step, a step of' in stdout
+    assert 'axis x: cause' not in stdout and 'axis z: cause' not in stdout
     assert 'diagnose: round 1' in stderr, 'the progress bar was asked for'
+    # The console ends with the model each axis writes, its error and the cubic's.
+    last = stdout.splitlines()[-3:]
+    assert [line.split(':')[0] for line in last] == ['axis x', 'axis y', 'axis z']
+    assert last[0].startswith('axis x: writes polynomial order ') and 'hysteresis' in last[0]
+    assert all('forward-validated RMS' in line and 'cubic' in line for line in last)
     report_md = (out / 'report.md').read_text()
     assert '## Axis x' in report_md and '### Test set' in report_md
     assert '### Held-out RMS per block' in report_md
     assert "### Record-only effects (the record's clock; not in params.yaml)" in report_md
     assert 'ZRO recalibration at rest (imu/recalibrate_zro) covers it' in report_md
+    assert report_md.count('### Cause: a record-only effect') == 1
+    assert 'recalibrate the ZRO at rest (imu/recalibrate_zro)' in report_md
 
 
 def test_cli_report_json_schema(cli_run):
@@ -322,9 +469,12 @@ def test_cli_report_json_schema(cli_run):
         assert {f['effect'] for f in axis['findings']} == RECORD_EFFECTS
     assert [s['effect'] for s in x['steps']][:2] == ['temperature_polynomial', 'hysteresis']
     assert [s['effect'] for s in z['steps']] == ['temperature_polynomial']
+    assert x['cause'] is None and z['cause'] is None
+    assert y['cause']['effect'] == 'bias_step'
+    assert y['cause']['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
     step = {f['effect']: f for f in y['findings']}['bias_step']
     assert step['passes'] and step['parameters']['time_s'] == pytest.approx(STEP_TIME_S, abs=5)
-    for scope in ('cross_validation', 'test'):
+    for scope in ('forward', 'round_robin', 'test'):
         methods = report['comparison'][scope]
         assert set(methods) == {'none', 'px4_cubic', 'temperature_polynomial', 'diagnosed'}
         assert methods['diagnosed']['x']['rms'] < 0.5 * methods['px4_cubic']['x']['rms']
@@ -359,7 +509,7 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     assert model == expected.model
     # The node-side model, run from the record's start, gives the reported test error.
     corrected = model.correct(recording.gyro_rad_s, recording.temperature_c,
-                              time_s=recording.time_s).rate_rad_s
+                              ModelInputs(time_s=recording.time_s)).rate_rad_s
     test = slice(rows - int(math.floor(TEST_FRACTION * rows)), rows)
     seconds = np.floor(recording.time_s[test] - recording.time_s[test][0])
     starts = np.flatnonzero(np.concatenate(([True], seconds[1:] != seconds[:-1])))

@@ -17,6 +17,7 @@ import tempfile
 
 from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
+from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.model_params import (linear_btc_parameters, parameter_file,
                                        polynomial_parameters, write_parameter_file)
@@ -98,9 +99,10 @@ def assert_finite_output(model) -> None:
     rates, temperatures = np.meshgrid(RATES, TEMPERATURES_C)
     samples = rates.size
     rate = np.repeat(rates.reshape(-1, 1), model.axes, axis=1)
-    result = model.stream().correct_block(
-        rate, temperatures.reshape(-1), np.arange(samples) * 0.01, temperatures.reshape(-1),
-        np.tile([0.0, 0.0, 9.81], (samples, 1)), np.full(samples, 5.0))
+    result = model.stream().correct_block(rate, temperatures.reshape(-1), ModelInputs(
+        time_s=np.arange(samples) * 0.01, temperature_2_c=temperatures.reshape(-1),
+        acceleration_m_s2=np.tile([0.0, 0.0, 9.81], (samples, 1)),
+        supply_voltage_v=np.full(samples, 5.0)))
     assert np.all(np.isfinite(result.rate_rad_s)), model
 
 

@@ -4,12 +4,15 @@ The package's layers: which may import which, and what runs without ROS.
 `ALLOWED` is the import graph of docs/architecture.md ("Layers and import
 direction"): every module of the package is read (ast, imports inside
 functions included) and each import of another layer must be in its row. Only
-``ros/`` imports rclpy or a message package; no module imports a private name
-(``_name``) of another. Then, in a fresh interpreter whose import system refuses
-rclpy and every ROS message package, every module outside ``ros/`` imports,
-``mlx-tempcomp --help`` and the help of every subcommand print, and ``evaluate``
-runs a parameter file's model (the command that used to pull in rclpy); the
-optional heavy imports (matplotlib, allantools, scipy) stay unloaded.
+``ros/`` imports rclpy or a message package, only ``fleet/`` Dask or fsspec;
+no module imports a private name (``_name``) of another. Then, in a fresh
+interpreter whose import system refuses rclpy and every ROS message package,
+every module outside ``ros/`` imports, ``mlx-tempcomp --help`` and the help
+of every subcommand print, and ``evaluate`` runs a parameter file's model (the
+command that used to pull in rclpy); the optional heavy imports (matplotlib,
+allantools, scipy, Dask, fsspec, and the flight-log readers' pyulog and
+pymavlink, which only sources/ulog.py and sources/dataflash.py import, inside a
+function) stay unloaded.
 """
 
 import ast
@@ -39,8 +42,10 @@ ALLOWED = {
                 'node_parameters'},
     'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
             'node_parameters'},
+    'fleet': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
+              'node_parameters', 'toolkit'},
     'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters', 'toolkit'},
+            'node_parameters', 'toolkit', 'fleet'},
 }
 # The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
 EVERYWHERE = {'errors'}
@@ -49,8 +54,15 @@ CORE_THIRD_PARTY = {'numpy', 'allantools'}
 # rclpy, its C layers and the message packages: what a machine without ROS lacks.
 ROS_PACKAGE = re.compile(r'(rclpy|rcl_\w+|rmw\w*|rosidl\w*|rpyutils|ament_index_python'
                          r'|builtin_interfaces|\w+_msgs|\w+_srvs|\w+_interfaces)$')
+# The flight-log libraries and the one reader module each may be imported by.
+FLIGHT_LOG_READERS = {'pyulog': 'mlx_tempcomp.sources.ulog',
+                      'pymavlink': 'mlx_tempcomp.sources.dataflash'}
 # Imported only where a command needs them, never by --help.
-OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy')
+OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', 'dask', 'distributed', 'fsspec',
+                  *FLIGHT_LOG_READERS)
+# The fleet job's engine: imported by fleet/ only, so single-record commands and nodes never load
+# it (and inside functions, so --help does not either: OPTIONAL_HEAVY).
+FLEET_ONLY = ('dask', 'distributed', 'fsspec')
 
 
 def _modules() -> dict:
@@ -118,6 +130,36 @@ def test_only_ros_imports_ros_packages_and_core_only_numpy():
         if layer == 'core' and top not in ('mlx_tempcomp', *sys.stdlib_module_names,
                                            *CORE_THIRD_PARTY):
             wrong.append(f'{module}:{line} imports {target}: core is numpy-only')
+    assert not wrong, '\n'.join(wrong)
+
+
+def _top_level_imports(tree) -> list:
+    """Give (line, imported module) of the imports a module runs when it is imported."""
+    found = []
+    for node in tree.body:
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            found.append((node.lineno, node.module))
+    return found
+
+
+def test_flight_log_libraries_are_imported_only_by_their_readers_inside_a_function():
+    wrong = [f'{module}:{line} imports {target}: only {FLIGHT_LOG_READERS[target.split(".")[0]]}'
+             ' may' for module, line, target, _ in _package_imports()
+             if FLIGHT_LOG_READERS.get(target.split('.')[0], module) != module]
+    for library, module in FLIGHT_LOG_READERS.items():
+        tree = ast.parse(_modules()[module].read_text(encoding='utf-8'))
+        wrong += [f'{module}:{line} imports {target} at module level: --help would load it'
+                  for line, target in _top_level_imports(tree)
+                  if target.split('.')[0] == library]
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_only_the_fleet_job_imports_dask():
+    wrong = [f'{module}:{line} imports {target}: only fleet/ may'
+             for module, line, target, _ in _package_imports()
+             if target.split('.')[0] in FLEET_ONLY and _layer(module) != 'fleet']
     assert not wrong, '\n'.join(wrong)
 
 

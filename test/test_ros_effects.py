@@ -12,6 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.chain import ChainModel
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.model_params import (chain_parameters, effect_parameters, parameter_file,
                                        write_parameter_file)
 from mlx_tempcomp.ros import messages
@@ -79,9 +80,9 @@ def effect_model(recording: dict) -> EffectModel:
 
 def correct(model, recording: dict, gyro_rad_s=None) -> np.ndarray:
     gyro = recording['gyro_rad_s'] if gyro_rad_s is None else gyro_rad_s
-    return model.correct(gyro, recording['temperature_c'], time_s=recording['time_s'],
-                         temperature_2_c=recording['temperature_2_c'],
-                         acceleration_m_s2=recording['acceleration_m_s2']).rate_rad_s
+    return model.correct(gyro, recording['temperature_c'], ModelInputs(
+        time_s=recording['time_s'], temperature_2_c=recording['temperature_2_c'],
+        acceleration_m_s2=recording['acceleration_m_s2'])).rate_rad_s
 
 
 def with_effects_gyro(model: EffectModel, recording: dict) -> dict:
@@ -129,7 +130,7 @@ def test_effects_model_replay_matches_the_offline_correction(launcher, probe, tm
                          (2, {'thermal_lag_s': 0.0})):
         other = correct(model.with_terms(axis, **change), recording)
         assert np.max(np.abs(other[:, axis] - expected[:, axis])) > 1e-5
-    assert model.needs_time and model.needs_temperature_2 and model.needs_acceleration
+    assert {'time_s', 'temperature_2_c', 'acceleration_m_s2'} <= model.inputs
     count = write_bag(tmp_path / 'bag', recording)
     model_file = write_model_file(tmp_path / 'effects.yaml',
                                   effect_parameters(model, ('x', 'y', 'z')))
@@ -404,13 +405,13 @@ def test_supply_voltage_paired_by_stamp_feeds_the_supply_terms(launcher, probe, 
     # The node's state starts at the first sample it pairs: so does the offline run.
     time_s = np.array([stamps_ns[i] / 1e9 for i in kept])
     rate, temperature = rate_rad_s[kept, None], temperature_c[kept]
-    expected = model.correct(rate, temperature, time_s=time_s,
-                             supply_voltage_v=np.float32(supply_v[kept]).astype(np.float64))
+    expected = model.correct(rate, temperature, ModelInputs(
+        time_s=time_s, supply_voltage_v=np.float32(supply_v[kept]).astype(np.float64)))
     output = np.array([rates(got[stamps_ns[i]])[2] for i in kept])
     np.testing.assert_allclose(output, expected.rate_rad_s[:, 0], rtol=0.0, atol=1e-12)
     # The supply terms are in: without them the output differs by millirad/s.
     assert np.max(np.abs(output - model.with_terms(0, supply_voltage=()).correct(
-        rate, temperature, time_s=time_s).rate_rad_s[:, 0])) > 5e-4
+        rate, temperature, ModelInputs(time_s=time_s)).rate_rad_s[:, 0])) > 5e-4
 
 
 def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_samples(
@@ -477,8 +478,8 @@ def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_sample
     stamps = np.array([stamps_ns[i] for i in kept])
     held = np.searchsorted([m for m, _ in monitor], stamps, side='right') - 1
     # The node's state starts at the first sample it compensated: so does the offline run.
-    expected = model.correct(rate_rad_s[kept, None], temperature_c[kept], time_s=stamps / 1e9,
-                             supply_voltage_v=np.array([monitor[k][1] for k in held]))
+    expected = model.correct(rate_rad_s[kept, None], temperature_c[kept], ModelInputs(
+        time_s=stamps / 1e9, supply_voltage_v=np.array([monitor[k][1] for k in held])))
     output = np.array([rates(got[stamps_ns[i]])[2] for i in kept])
     np.testing.assert_allclose(output, expected.rate_rad_s[:, 0], rtol=0.0, atol=1e-12)
     # Every held voltage was used: the output is not that of any one voltage.

@@ -33,7 +33,8 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import AXIS_NAMES, CorrectedRate, model_fingerprint, OffsetModel, one_row
+from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
+from .models import AXIS_NAMES, model_fingerprint, OffsetModel, one_row
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 
@@ -233,9 +234,7 @@ class ChainModel(OffsetModel):
 
     name = 'chain'
     axes = 3
-    needs_time = False
-    needs_temperature_2 = True
-    needs_acceleration = False
+    inputs = frozenset({'temperature_2_c'})
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'zro_offset_rad_s', _vector('zro_offset_rad_s',
@@ -244,15 +243,15 @@ class ChainModel(OffsetModel):
     def fingerprint(self) -> str:
         return model_fingerprint(self.name, self.chain.to_parameters())
 
-    def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
-                acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
-        """Correct a batch; ``temperature_2_c`` (samples,) is required."""
-        if temperature_2_c is None:
+    def correct(self, rate_rad_s, temperature_c,
+                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
+        """Correct a batch; ``inputs.temperature_2_c`` (samples,) is required."""
+        if inputs.temperature_2_c is None:
             raise ConfigError('the chain model needs temperature_2_c (offset_2 stage)')
         temperature = np.asarray(temperature_c, dtype=np.float64)
         if temperature.ndim == 2:
             temperature = temperature.mean(axis=1)
-        corrected = self.chain.correct(rate_rad_s, temperature, temperature_2_c)
+        corrected = self.chain.correct(rate_rad_s, temperature, inputs.temperature_2_c)
         return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s),
                              np.zeros(corrected.shape, dtype=bool))
 
@@ -265,9 +264,9 @@ class _ChainStream:
     def __init__(self, model: ChainModel):
         self.model = model
 
-    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
-        return self.model.correct(rates_rad_s, temperatures_c, temperature_2_c=temperature_2_c)
+    def correct_block(self, rates_rad_s, temperatures_c,
+                      inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
+        return self.model.correct(rates_rad_s, temperatures_c, inputs)
 
     def correct_one(self, *row) -> tuple:
         """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""

@@ -5,12 +5,18 @@ Truth is the reference rate when the recording has one, else zero (taken at
 rest); the residual is corrected minus truth. The error figure is the RMS
 (and peak) of the residual averaged over consecutive bins of ``average_s``
 seconds (0: per sample) on held-out rows: averaging keeps white noise from
-hiding a bias. The record is cut into ``blocks`` contiguous blocks dealt
-round-robin to ``folds`` folds, so training data surrounds every held-out
-block and a single thermal cycle's extremes stay covered. Bins never span
-two blocks. Stateful inputs (temperature slope, lags, play state) are
-computed over the whole record first, then rows are split, as the node does
-when it replays the record from the start.
+hiding a bias. The record is cut into ``blocks`` contiguous blocks dealt to
+folds by `validation.split`, the code path `fit` uses too: forward in time
+by default (each block after the first ``min_past`` predicted by a fit on
+the blocks before it, as a node runs a model fitted on the past), or
+round-robin to ``folds`` folds; ``validation`` chooses which decides, and
+the other's figures are reported beside. Bins never span two blocks.
+Stateful inputs (temperature slope, lags, play state) are computed over the
+whole record first, then rows are split, as the node does when it replays
+the record from the start. A fold's model clamps the (effective)
+temperature at the range of its training blocks, as the node clamps at its
+fitted range: forward, a block hotter or colder than its past is predicted
+at the edge of that past.
 
 Step 0 fits the temperature polynomial, its order per axis chosen by the
 one-standard-error rule over the folds. Each round, every effect an axis
@@ -27,24 +33,39 @@ axis's held-out RMS. The loop stops when no axis
 accepts anything. Every reported error of a step comes from
 `EffectModel.correct`, the code the node runs, on fold models.
 
+The PX4-style cubic (a cubic in T, clamped as the node runs it) is the
+baseline every axis must beat: the model the loop found is written only
+when its held-out RMS under the deciding validation is at least
+``baseline_margin`` below the cubic's and, under the scheme reported beside,
+not above it; otherwise the axis writes the cubic, and `ModelChoice` says
+why.
+
 By default the loop searches only the effects a node can run on a live
 stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
 moved. The effects tied to the record's clock (time drift, bias steps) are
-then tested on top of the final model and reported as findings, not added,
-unless ``record_effects`` asks for them.
+judged too, each round, before any live effect is added: when one passes
+and gains more than every live effect that passes, nothing live is added
+to that axis (a live term would only stand in for it), the search of the
+axis ends and the record effect is named its ``cause``. After the loop
+they are tested on top of the final model and reported as findings. Unless
+``record_effects`` puts them into the search, they are never added.
 """
 
 from dataclasses import dataclass, field, replace
+import functools
 import math
 from typing import Callable, Mapping, Optional
 
 import numpy as np
 
-from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EffectModel, FirstOrderLag,
-                      LIVE_EFFECTS, play_state, temperature_rate_c_s)
+from .effects import (AxisTerms, DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, EffectModel, EFFECTS,
+                      FirstOrderLag, LIVE_EFFECTS, play_state, temperature_rate_c_s)
 from .errors import CalibrationError, ConfigError
-from .fitting import MIN_SPAN_C, OrderScore
+from .fitting import MIN_SPAN_C
 from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
+from .model_interface import INPUTS, ModelInputs
+from .validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD,
+                         one_standard_error, order_score, ROUND_ROBIN, split, training_sums)
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -81,17 +102,20 @@ Progress = Optional[Callable[[int, int, str], None]]
 class DiagnosisSettings:
     """How the diagnosis splits, averages and judges; see the module docstring."""
 
-    folds: int = 5
-    blocks: int = 20
+    folds: int = DEFAULT_FOLDS
+    blocks: int = DEFAULT_BLOCKS
     average_s: float = 1.0
     max_order: int = 8
-    min_gain: float = 0.05
+    min_gain: float = 0.1
     significance: float = 2.0
-    block_tolerance: float = 0.5
+    block_tolerance: float = 1.0
     test_fraction: float = 0.0
     test_cycle: bool = False
     rate_window_s: float = DEFAULT_RATE_WINDOW_S
     record_effects: bool = False
+    validation: str = FORWARD
+    min_past: float = DEFAULT_MIN_PAST
+    baseline_margin: float = 0.05
 
     def __post_init__(self) -> None:
         checks = (
@@ -113,10 +137,22 @@ class DiagnosisSettings:
              'hold out either the last cycle or a test fraction, not both'),
             (math.isfinite(self.rate_window_s) and self.rate_window_s > 0.0,
              f'rate_window_s must be positive, got {self.rate_window_s}'),
+            (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
+             f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
         )
         for ok, msg in checks:
             if not ok:
                 raise CalibrationError(msg)
+        self.split()
+
+    def split(self, scheme: Optional[str] = None):
+        """Deal the blocks to folds by ``scheme`` (default: the deciding one)."""
+        return split(self.blocks, scheme or self.validation, self.folds, self.min_past)
+
+    @property
+    def other_validation(self) -> str:
+        """Give the scheme reported beside the deciding one."""
+        return ROUND_ROBIN if self.validation == FORWARD else FORWARD
 
     @property
     def effects(self) -> tuple:
@@ -126,7 +162,11 @@ class DiagnosisSettings:
 
 @dataclass(frozen=True)
 class HeldOutError:
-    """Error of binned residuals in rad/s: RMS, peak |.|, and RMS per fold and per block."""
+    """
+    Error of binned residuals in rad/s: RMS, peak |.|, and RMS per fold and per block.
+
+    Blocks no fold predicts (forward validation's first blocks) have NaN there.
+    """
 
     rms_rad_s: float
     peak_rad_s: float
@@ -161,13 +201,51 @@ class Candidate:
 
 
 @dataclass(frozen=True)
+class ModelChoice:
+    """
+    The model an axis writes: the one the loop found, or the PX4-style cubic.
+
+    ``found`` and ``cubic`` are their held-out errors under the deciding
+    validation, ``other_found`` and ``other_cubic`` under the scheme reported
+    beside. The found model is written when its RMS is at most (1 -
+    ``margin``) x the cubic's under the first and at most the cubic's under
+    the second, else ``reason`` says why the cubic is.
+    """
+
+    written: str
+    found: HeldOutError
+    cubic: HeldOutError
+    margin: float
+    other_found: HeldOutError
+    other_cubic: HeldOutError
+    reason: str = ''
+
+    @property
+    def ratio(self) -> float:
+        """Give the found model's held-out RMS over the cubic's (deciding validation)."""
+        return _ratio(self.found, self.cubic)
+
+    @property
+    def other_ratio(self) -> float:
+        """Give the found model's held-out RMS over the cubic's (the scheme beside)."""
+        return _ratio(self.other_found, self.other_cubic)
+
+
+def _ratio(error: HeldOutError, baseline: HeldOutError) -> float:
+    return error.rms_rad_s / baseline.rms_rad_s if baseline.rms_rad_s else math.inf
+
+
+@dataclass(frozen=True)
 class AxisDiagnosis:
     """
     What the loop found on one axis.
 
     ``findings`` holds the record effects (time drift, bias step) tested on
     top of the final model when the search left them out; one whose
-    ``reason`` is empty passed every test.
+    ``reason`` is empty passed every test. ``cause`` is the record effect
+    that explained the residual better than every live effect and ended the
+    search of the axis (None if none did). ``choice`` says which model the
+    axis writes (`ModelChoice`).
     """
 
     axis: str
@@ -176,6 +254,8 @@ class AxisDiagnosis:
     steps: tuple
     rejected: tuple
     findings: tuple = ()
+    choice: Optional[ModelChoice] = None
+    cause: Optional[Candidate] = None
 
     @property
     def effects(self) -> tuple:
@@ -198,8 +278,9 @@ class Diagnosis:
     """
     The result: the model, the steps per axis, and the comparison with simpler models.
 
-    ``comparison`` maps 'cross_validation' (and 'test' with a test part)
-    to a mapping of each of METHODS to one `HeldOutError` per axis.
+    ``comparison`` maps each validation scheme, the deciding one first (and
+    'test' with a test part), to a mapping of each of METHODS to one
+    `HeldOutError` per axis.
     ``skipped`` lists (effect, reason) for effects the data cannot support
     or the settings leave out.
     """
@@ -222,39 +303,37 @@ class Diagnosis:
 
 @dataclass(frozen=True)
 class _Spec:
-    """The effects of one axis and their nonlinear parameters (absent: 0, (), None, False)."""
+    """
+    The effects of one axis: the polynomial order and each effect's choice.
+
+    ``choices`` pairs an effect with what the search chose for it (a time
+    constant, a width, an order, True), in EFFECT_NAMES order: the order of
+    the design columns. ``thermal_gradient`` holds one or two time constants,
+    the second being ``thermal_gradient_2``.
+    """
 
     order: int
-    thermal_lag_s: float = 0.0
-    temperature_rate: bool = False
-    gradient_s: tuple = ()
-    hysteresis_half_width_c: float = 0.0
-    supply_order: int = 0
-    secondary_order: int = 0
-    acceleration: bool = False
-    scale_order: int = -1
-    nonlinearity_order: int = 0
-    cross_axis: bool = False
-    time_drift: bool = False
-    bias_step_time_s: Optional[float] = None
+    choices: tuple = ()
+
+    def get(self, effect: str, default=None):
+        return dict(self.choices).get(effect, default)
+
+    def with_choice(self, effect: str, choice) -> '_Spec':
+        choices = dict(self.choices, **{effect: choice})
+        return replace(self, choices=tuple((e, choices[e]) for e in EFFECT_NAMES if e in choices))
+
+    @property
+    def thermal_lag_s(self) -> float:
+        return self.get('thermal_lag', 0.0)
+
+    @property
+    def gradient_s(self) -> tuple:
+        return self.get('thermal_gradient', ())
 
     @property
     def effects(self) -> set:
-        present = {BASE_EFFECT,
-                   'thermal_lag' if self.thermal_lag_s else '',
-                   'temperature_rate' if self.temperature_rate else '',
-                   'thermal_gradient' if self.gradient_s else '',
-                   'thermal_gradient_2' if len(self.gradient_s) > 1 else '',
-                   'hysteresis' if self.hysteresis_half_width_c else '',
-                   'supply_voltage' if self.supply_order else '',
-                   'secondary_temperature' if self.secondary_order else '',
-                   'acceleration_sensitivity' if self.acceleration else '',
-                   'scale_factor_temperature' if self.scale_order >= 0 else '',
-                   'rate_nonlinearity' if self.nonlinearity_order else '',
-                   'cross_axis' if self.cross_axis else '',
-                   'time_drift' if self.time_drift else '',
-                   'bias_step' if self.bias_step_time_s is not None else ''}
-        return present - {''}
+        present = {BASE_EFFECT} | {effect for effect, _ in self.choices}
+        return present | ({'thermal_gradient_2'} if len(self.gradient_s) > 1 else set())
 
 
 @dataclass(frozen=True)
@@ -270,23 +349,35 @@ def _rms(values, weights) -> float:
     return math.sqrt(float(np.sum(weights * np.square(values))) / total) if total else math.nan
 
 
-def _solve(design: np.ndarray, target: np.ndarray, weights: np.ndarray) -> tuple:
-    """Weighted least squares with column scaling; return (coefficients, full rank)."""
-    root = np.sqrt(weights)[:, None]
-    scaled = design * root
-    norms = np.sqrt(np.sum(np.square(scaled), axis=0))
-    norms[norms == 0.0] = 1.0
-    solution, _, rank, _ = np.linalg.lstsq(scaled / norms, target * root[:, 0], rcond=None)
-    return solution / norms, rank == design.shape[1]
-
-
 def _solve_normal(gram: np.ndarray, moment: np.ndarray) -> tuple:
-    """Solve normal equations scaled to a unit diagonal; return (coefficients, full rank)."""
+    """
+    Solve normal equations scaled to a unit diagonal; return (coefficients, full rank).
+
+    A column that is zero on every row (a bias step after the training
+    blocks) gets coefficient 0 and does not count as rank loss: the past
+    has nothing to say about it yet.
+    """
     diagonal = np.sqrt(np.diag(gram))
+    present = np.count_nonzero(diagonal)
     diagonal[diagonal == 0.0] = 1.0
     scaled = gram / np.outer(diagonal, diagonal)
     solution, _, rank, _ = np.linalg.lstsq(scaled, moment / diagonal, rcond=RANK_RCOND)
-    return solution / diagonal, rank == gram.shape[0]
+    return solution / diagonal, rank == present
+
+
+class _Folds:
+    """The bins each fold of a `validation.Split` fits on and predicts."""
+
+    def __init__(self, split_, bin_block: np.ndarray, block_rows: np.ndarray):
+        self.split = split_
+        self.train = tuple(used[bin_block] for used in split_.training)
+        self.held = tuple(used[bin_block] for used in split_.held)
+        # The fold predicting each block, -1 for blocks no fold predicts.
+        self.block_fold = np.where(split_.predicted, np.argmax(split_.held, axis=0), -1)
+        self.scored = split_.predicted[bin_block]
+        # A fold's model runs from the record start to the end of its last held block.
+        self.stop = tuple(int(block_rows[np.flatnonzero(used)[-1] + 1])
+                          for used in split_.held)
 
 
 class _Problem:
@@ -308,9 +399,8 @@ class _Problem:
         self.temperature = head(recording.temperature_c)
         self.rate = head(recording.gyro_rad_s)
         self.reference = head(recording.reference_rad_s)
-        self.temperature_2 = head(recording.temperature_2_c)
-        self.acceleration = head(recording.acceleration_m_s2)
-        self.supply = head(recording.supply_voltage_v)
+        # The model inputs the record has (None: not recorded).
+        self.inputs = ModelInputs(**{name: head(getattr(recording, name)) for name in INPUTS})
         self.test_rows = total - self.rows
         self._check_size()
         low, high = float(np.min(self.temperature)), float(np.max(self.temperature))
@@ -327,8 +417,8 @@ class _Problem:
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
         self.target = self.mean(error)
-        self.secondary = _centre_and_half_span(self.temperature_2)
-        self.supply_reference = _centre_and_half_span(self.supply)
+        self.secondary = _centre_and_half_span(self.inputs.temperature_2_c)
+        self.supply_reference = _centre_and_half_span(self.inputs.supply_voltage_v)
         self.bounds = self._bounds()
         self._cache = {}
 
@@ -350,9 +440,8 @@ class _Problem:
     def _split(self) -> None:
         """Cut rows into blocks, bins inside blocks, and deal blocks to folds."""
         settings = self.settings
-        edges = np.linspace(0, self.rows, settings.blocks + 1).astype(np.int64)
+        edges = self.block_edges = block_bounds(self.rows, settings.blocks)
         block = np.repeat(np.arange(settings.blocks), np.diff(edges))
-        self.row_fold = (block % settings.folds).astype(np.int8)
         boundary = np.zeros(self.rows, dtype=bool)
         boundary[edges[:-1]] = True
         if settings.average_s > 0.0:
@@ -364,15 +453,21 @@ class _Problem:
         self.starts = np.flatnonzero(boundary)
         self.counts = np.diff(np.append(self.starts, self.rows)).astype(np.float64)
         self.bin_block = block[self.starts]
-        self.bin_fold = self.row_fold[self.starts]
-        self.held = tuple(self.bin_fold == fold for fold in range(settings.folds))
+        self.folds = self.folds_of(settings.validation)
+
+    def folds_of(self, scheme: str) -> _Folds:
+        """Return the folds of a validation scheme over this problem's bins."""
+        return _Folds(self.settings.split(scheme), self.bin_block, self.block_edges)
 
     def mean(self, values: np.ndarray) -> np.ndarray:
-        """Return the bin means of row values (rows,) or (rows, k)."""
-        sums = np.add.reduceat(values, self.starts, axis=0)
-        return sums / (self.counts if sums.ndim == 1 else self.counts[:, None])
+        """Return the bin means of row values (rows,) or (rows, k), or of their first rows."""
+        bins = np.searchsorted(self.starts, len(values))
+        sums = np.add.reduceat(values, self.starts[:bins], axis=0)
+        counts = self.counts[:bins]
+        return sums / (counts if sums.ndim == 1 else counts[:, None])
 
-    def _cached(self, key, build):
+    def cached(self, key, build):
+        """Give ``build()``, computed once per ``key``: the features the trials share."""
         if key not in self._cache:
             self._cache[key] = build()
         return self._cache[key]
@@ -388,7 +483,7 @@ class _Problem:
     def x(self, lag_s: float) -> np.ndarray:
         return (self.effective(lag_s) - self.centre_c) / self.half_span_c
 
-    def _powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
+    def powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
         columns = []
         power = values ** first
         for _ in range(first, last + 1):
@@ -397,113 +492,89 @@ class _Problem:
         return np.column_stack(columns)
 
     def _lag_features(self, lag_s: float) -> tuple:
-        """Return (bin means of x^0..x^max_order, lowest T_eff, highest T_eff) of a lag."""
+        """Return (bin means of x^0..x^max_order, lowest and highest T_eff per block) of a lag."""
         def build():
             effective = self.effective(lag_s)
             x = (effective - self.centre_c) / self.half_span_c
-            return (self._powers(x, 0, self.settings.max_order), float(np.min(effective)),
-                    float(np.max(effective)))
-        return self._cached(('lag', lag_s), build)
+            starts = self.block_edges[:-1]
+            return (self.powers(x, 0, self.settings.max_order),
+                    np.minimum.reduceat(effective, starts), np.maximum.reduceat(effective, starts))
+        return self.cached(('lag', lag_s), build)
 
     def polynomial(self, lag_s: float) -> np.ndarray:
         return self._lag_features(lag_s)[0]
 
-    def raw_cubic(self) -> np.ndarray:
-        return self._cached('cubic', lambda: self._powers(self.temperature, 0, PX4_ORDER))
-
-    def rate_of_change(self) -> np.ndarray:
-        return self._cached('rate', lambda: self.mean(self.slope)[:, None])
-
-    def gradient(self, time_constant_s: float) -> np.ndarray:
+    def predicted_polynomial(self, lag_s: float, folds: _Folds) -> np.ndarray:
+        """Return `polynomial` as the folds predict it: T_eff clamped at their training range."""
         def build():
-            lagged = FirstOrderLag(time_constant_s).batch(self.time, self.temperature)
-            return self.mean(self.temperature - lagged)
-        return self._cached(('gradient', time_constant_s), build)
-
-    def play(self, width_c: float) -> np.ndarray:
-        return self._cached(('play', width_c),
-                            lambda: self.mean(play_state(self.temperature, width_c))[:, None])
-
-    def supply_powers(self) -> np.ndarray:
-        reference, _ = self.supply_reference
-        return self._cached('supply', lambda: self._powers(self.supply - reference, 1,
-                                                           max(SUPPLY_ORDERS)))
-
-    def drift(self) -> np.ndarray:
-        return self._cached('drift', lambda: self.mean(
-            (self.time - self.time_reference_s) / self.duration_s)[:, None])
-
-    def step(self, time_s: float) -> np.ndarray:
-        return self._cached(('step', time_s), lambda: self.mean(
-            (self.time >= time_s).astype(np.float64))[:, None])
-
-    def secondary_powers(self) -> np.ndarray:
-        reference, scale = self.secondary
-        return self._cached('secondary', lambda: self._powers(
-            (self.temperature_2 - reference) / scale, 1, max(SECONDARY_ORDERS)))
+            powers, block_low, block_high = self._lag_features(lag_s)
+            predicted = powers
+            effective = None
+            for block, fold in enumerate(folds.block_fold):
+                if fold < 0:
+                    continue
+                used = folds.split.training[fold]
+                low, high = np.min(block_low[used]), np.max(block_high[used])
+                if low <= block_low[block] and block_high[block] <= high:
+                    continue
+                # Only the blocks that leave their past's range are computed again.
+                if effective is None:
+                    effective, predicted = self.effective(lag_s), powers.copy()
+                rows = slice(self.block_edges[block], self.block_edges[block + 1])
+                bins = self.bin_block == block
+                x = (np.clip(effective[rows], low, high) - self.centre_c) / self.half_span_c
+                starts = self.starts[bins] - rows.start
+                predicted[bins] = (np.add.reduceat(np.polynomial.polynomial.polyvander(
+                    x, self.settings.max_order), starts, axis=0) / self.counts[bins][:, None])
+            return predicted
+        return self.cached(('predicted', lag_s, folds.split.scheme), build)
 
     def acceleration_means(self) -> np.ndarray:
-        return self._cached('acceleration', lambda: self.mean(self.acceleration))
-
-    def scale(self, axis: int, lag_s: float) -> np.ndarray:
-        def build():
-            x = self.x(lag_s)
-            truth = self.reference[:, axis]
-            return np.column_stack([self.mean(truth * x ** k)
-                                    for k in range(max(SCALE_ORDERS) + 1)])
-        return self._cached(('scale', axis, lag_s), build)
-
-    def nonlinearity(self, axis: int) -> np.ndarray:
-        return self._cached(('nonlinearity', axis), lambda: self._powers(
-            self.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))
-
-    def cross(self, axis: int) -> np.ndarray:
-        others = [j for j in range(len(self.axes)) if j != axis]
-        return self._cached(('cross', axis), lambda: self.mean(self.reference[:, others]))
+        return self.cached('acceleration', lambda: self.mean(self.inputs.acceleration_m_s2))
 
     def design(self, axis: int, spec: _Spec) -> np.ndarray:
         """Return the bin-mean design matrix of an axis; columns in `_terms` order."""
         blocks = [self.polynomial(spec.thermal_lag_s)[:, :spec.order + 1]]
-        if spec.temperature_rate:
-            blocks.append(self.rate_of_change())
-        blocks.extend(self.gradient(tau)[:, None] for tau in spec.gradient_s)
-        if spec.hysteresis_half_width_c:
-            blocks.append(self.play(spec.hysteresis_half_width_c))
-        if spec.supply_order:
-            blocks.append(self.supply_powers()[:, :spec.supply_order])
-        if spec.secondary_order:
-            blocks.append(self.secondary_powers()[:, :spec.secondary_order])
-        if spec.acceleration:
-            blocks.append(self.acceleration_means())
-        if spec.scale_order >= 0:
-            blocks.append(self.scale(axis, spec.thermal_lag_s)[:, :spec.scale_order + 1])
-        if spec.nonlinearity_order:
-            blocks.append(self.nonlinearity(axis)[:, :spec.nonlinearity_order - 1])
-        if spec.cross_axis:
-            blocks.append(self.cross(axis))
-        if spec.time_drift:
-            blocks.append(self.drift())
-        if spec.bias_step_time_s is not None:
-            blocks.append(self.step(spec.bias_step_time_s))
+        for effect, choice in spec.choices:
+            columns = _FITS[effect].columns
+            if columns is not None:
+                blocks.append(columns(self, axis, spec, choice))
         return np.column_stack(blocks)
 
-    def score(self, design: np.ndarray, axis: int) -> _Score:
-        """Fit on the training bins of each fold, predict the held-out bins."""
+    def score_spec(self, axis: int, spec: _Spec, folds: Optional[_Folds] = None) -> _Score:
+        """Score the terms of ``spec`` on an axis, the polynomial clamped as the folds run it."""
+        folds = folds or self.folds
+        design = self.design(axis, spec)
+        predict = design.copy()
+        # The polynomial's columns come first (`design`).
+        width = spec.order + 1
+        predict[:, :width] = self.predicted_polynomial(spec.thermal_lag_s, folds)[:, :width]
+        return self.score(design, predict, axis, folds)
+
+    def score(self, design: np.ndarray, predict: np.ndarray, axis: int,
+              folds: _Folds) -> _Score:
+        """
+        Fit on the training bins of each fold, predict the held-out bins (NaN elsewhere).
+
+        ``predict`` is the design the held-out bins are predicted from.
+        """
         target = self.target[:, axis]
         weighted = design * self.counts[:, None]
-        grams = [(weighted[held].T @ design[held], weighted[held].T @ target[held])
-                 for held in self.held]
-        gram = sum(g for g, _ in grams)
-        moment = sum(m for _, m in grams)
-        residual = np.empty_like(target)
-        fold_rms = np.empty(self.settings.folds)
+        edges = np.searchsorted(self.bin_block, np.arange(self.settings.blocks + 1))
+        blocks = [slice(first, last) for first, last in zip(edges[:-1], edges[1:])]
+        grams = training_sums(folds.split, np.array([weighted[b].T @ design[b] for b in blocks]))
+        moments = training_sums(folds.split, np.array([weighted[b].T @ target[b]
+                                                       for b in blocks]))
+        residual = np.full_like(target, math.nan)
+        fold_rms = np.empty(folds.split.folds)
         rank_ok = True
-        for fold, held in enumerate(self.held):
-            solution, full_rank = _solve_normal(gram - grams[fold][0], moment - grams[fold][1])
+        for fold, held in enumerate(folds.held):
+            solution, full_rank = _solve_normal(grams[fold], moments[fold])
             rank_ok = rank_ok and full_rank
-            residual[held] = target[held] - design[held] @ solution
+            residual[held] = target[held] - predict[held] @ solution
             fold_rms[fold] = _rms(residual[held], self.counts[held])
-        return _Score(fold_rms, _rms(residual, self.counts), rank_ok, residual)
+        scored = folds.scored
+        return _Score(fold_rms, _rms(residual[scored], self.counts[scored]), rank_ok, residual)
 
     def fit_terms(self, axis: int, spec: _Spec, bins=None) -> AxisTerms:
         """Fit one axis on the given bins (all when None) and return its terms."""
@@ -512,7 +583,9 @@ class _Problem:
         if bins is not None:
             design, target = design[bins], target[bins]
         weights = self.counts if bins is None else self.counts[bins]
-        solution, _ = _solve(design, target, weights)
+        # The solver `score` uses: a fold's model is the one its score was judged on.
+        weighted = design * weights[:, None]
+        solution, _ = _solve_normal(weighted.T @ design, weighted.T @ target)
         return self._terms(axis, spec, solution)
 
     def _terms(self, axis: int, spec: _Spec, solution: np.ndarray) -> AxisTerms:
@@ -521,39 +594,18 @@ class _Problem:
         def take(count: int) -> tuple:
             return tuple(next(values) for _ in range(count))
 
-        terms = {'bias': take(spec.order + 1), 'thermal_lag_s': spec.thermal_lag_s}
-        if spec.temperature_rate:
-            terms['temperature_rate_rad_s_per_c_s'] = take(1)[0]
-        if spec.gradient_s:
-            terms.update(gradient_time_constants_s=spec.gradient_s,
-                         gradient_rad_s_per_c=take(len(spec.gradient_s)))
-        if spec.hysteresis_half_width_c:
-            terms.update(hysteresis_half_width_c=spec.hysteresis_half_width_c,
-                         hysteresis_rad_s=take(1)[0])
-        if spec.supply_order:
-            terms['supply_voltage'] = take(spec.supply_order)
-        if spec.secondary_order:
-            terms['secondary'] = take(spec.secondary_order)
-        if spec.acceleration:
-            terms['acceleration_rad_s_per_m_s2'] = take(3)
-        if spec.scale_order >= 0:
-            terms['scale'] = take(spec.scale_order + 1)
-        if spec.nonlinearity_order:
-            terms['nonlinearity'] = take(spec.nonlinearity_order - 1)
-        if spec.cross_axis:
-            others = iter(take(len(self.axes) - 1))
-            terms['cross_axis'] = tuple(0.0 if j == axis else next(others)
-                                        for j in range(len(self.axes)))
-        if spec.time_drift:
-            terms['time_drift_rad_s_per_s'] = take(1)[0] / self.duration_s
-        if spec.bias_step_time_s is not None:
-            terms['bias_steps'] = ((spec.bias_step_time_s, take(1)[0]),)
+        terms = {'bias': take(spec.order + 1)}
+        for effect, choice in spec.choices:
+            terms.update(_FITS[effect].terms(self, axis, choice, take))
         return AxisTerms(**terms)
 
-    def model(self, specs: tuple, fold: Optional[int] = None) -> EffectModel:
+    def model(self, specs: tuple, fold: Optional[int] = None,
+              folds: Optional[_Folds] = None) -> EffectModel:
         """Fit every axis on all bins, or on the training bins of ``fold``."""
-        bins = None if fold is None else self.bin_fold != fold
-        low, high = self.clamp_range(specs)
+        folds = folds or self.folds
+        bins = None if fold is None else folds.train[fold]
+        low, high = self.clamp_range(specs, None if fold is None else
+                                     folds.split.training[fold])
         secondary = self.secondary or (25.0, 1.0)
         supply = self.supply_reference or (EffectModel.supply_reference_v, 1.0)
         return EffectModel(
@@ -564,15 +616,12 @@ class _Problem:
             time_reference_s=self.time_reference_s, secondary_reference_c=secondary[0],
             secondary_scale_c=secondary[1], supply_reference_v=supply[0])
 
-    def clamp_range(self, specs: tuple) -> tuple:
-        """
-        Return the range of T_eff over all rows and axes, the clamp of every model.
-
-        Fold models clamp there too (not at their training range), so the
-        folds measure the fit where the deployed model applies.
-        """
+    def clamp_range(self, specs: tuple, blocks: Optional[np.ndarray] = None) -> tuple:
+        """Return the range of T_eff over the given blocks (all when None) and all axes."""
+        used = slice(None) if blocks is None else blocks
         ranges = [self._lag_features(spec.thermal_lag_s)[1:] for spec in specs]
-        return min(r[0] for r in ranges), max(r[1] for r in ranges)
+        return (float(min(np.min(low[used]) for low, _ in ranges)),
+                float(max(np.max(high[used]) for _, high in ranges)))
 
     def residual(self, model: EffectModel, axis: int, stop: Optional[int] = None) -> np.ndarray:
         """
@@ -590,44 +639,52 @@ class _Problem:
             rate = rate[:, axis:axis + 1]
             column = 0
 
-        def given(needed: bool, values):
-            return values[span] if needed else None
-
-        corrected = model.correct(
-            rate, source.temperature_c[span], time_s=given(model.needs_time, source.time_s),
-            temperature_2_c=given(model.needs_temperature_2, source.temperature_2_c),
-            acceleration_m_s2=given(model.needs_acceleration, source.acceleration_m_s2),
-            supply_voltage_v=given(model.needs_supply_voltage, source.supply_voltage_v),
-        ).rate_rad_s[:, column]
+        inputs = ModelInputs(**{name: getattr(source, name)[span] for name in model.inputs})
+        corrected = model.correct(rate, source.temperature_c[span],
+                                  inputs).rate_rad_s[:, column]
         if source.reference_rad_s is not None:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
 
-    def held_out(self, specs: tuple, label: str) -> tuple:
-        """Return (binned held-out residual (bins, axes), HeldOutError per axis)."""
-        residual = np.empty((len(self.starts), len(self.axes)))
-        folds = self.settings.folds
-        for fold in range(folds):
-            self.report(fold, folds, label)
-            model = self.model(specs, fold)
-            held = self.bin_fold == fold
-            for axis in range(len(self.axes)):
-                residual[held, axis] = self.mean(self.residual(model, axis, self.rows))[held]
-        self.report(folds, folds, label)
-        return residual, tuple(self.error(residual[:, axis]) for axis in range(len(self.axes)))
+    def held_out(self, specs: tuple, label: str, folds: Optional[_Folds] = None,
+                 axes: Optional[tuple] = None) -> tuple:
+        """
+        Return (binned held-out residual (bins, axes), HeldOutError per axis).
+
+        Only ``axes`` (default: all) are run; the others' columns stay NaN.
+        """
+        folds = folds or self.folds
+        axes = range(len(self.axes)) if axes is None else axes
+        residual = np.full((len(self.starts), len(self.axes)), math.nan)
+        count = folds.split.folds
+        for fold, held in enumerate(folds.held):
+            self.report(fold, count, label)
+            model = self.model(specs, fold, folds)
+            for axis in axes:
+                binned = self.mean(self.residual(model, axis, folds.stop[fold]))
+                residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
+        self.report(count, count, label)
+        return residual, tuple(self.error(residual[:, axis], folds) if axis in axes else None
+                               for axis in range(len(self.axes)))
 
     def block_rms(self, residual: np.ndarray) -> np.ndarray:
-        """RMS of binned residuals per block."""
-        weights = self.counts
-        totals = np.bincount(self.bin_block, weights=weights * np.square(residual),
+        """RMS of binned residuals per block, NaN for a block no fold predicts."""
+        known = np.isfinite(residual)
+        weights = np.where(known, self.counts, 0.0)
+        totals = np.bincount(self.bin_block, weights=weights * np.square(np.where(known,
+                                                                                  residual, 0.0)),
                              minlength=self.settings.blocks)
         counts = np.bincount(self.bin_block, weights=weights, minlength=self.settings.blocks)
-        return np.sqrt(totals / counts)
+        return np.sqrt(np.divide(totals, counts, out=np.full(totals.shape, math.nan),
+                                 where=counts > 0))
 
-    def error(self, residual: np.ndarray) -> HeldOutError:
-        folds = tuple(_rms(residual[self.bin_fold == k], self.counts[self.bin_fold == k])
-                      for k in range(self.settings.folds))
-        return HeldOutError(_rms(residual, self.counts), float(np.max(np.abs(residual))), folds,
+    def error(self, residual: np.ndarray, folds: Optional[_Folds] = None) -> HeldOutError:
+        """Return the `HeldOutError` of binned residuals on the bins the folds predict."""
+        folds = folds or self.folds
+        scored = folds.scored
+        per_fold = tuple(_rms(residual[held], self.counts[held]) for held in folds.held)
+        return HeldOutError(_rms(residual[scored], self.counts[scored]),
+                            float(np.max(np.abs(residual[scored]))), per_fold,
                             tuple(float(v) for v in self.block_rms(residual)))
 
     def motion(self) -> tuple:
@@ -671,23 +728,33 @@ def _order_scores(problem: _Problem, axis: int, spec: _Spec) -> tuple:
     """Score every polynomial order with the other terms of ``spec`` fitted alongside."""
     scores = []
     for order in range(problem.settings.max_order + 1):
-        score = problem.score(problem.design(axis, replace(spec, order=order)), axis)
-        folds = tuple(float(v) for v in score.fold_rms)
-        if not score.rank_ok:
-            scores.append(OrderScore(order, folds, math.inf, math.inf))
-            continue
-        error = float(np.std(score.fold_rms, ddof=1) / math.sqrt(score.fold_rms.size))
-        scores.append(OrderScore(order, folds, float(np.mean(score.fold_rms)), error))
+        score = problem.score_spec(axis, replace(spec, order=order))
+        scores.append(order_score(order, score.fold_rms if score.rank_ok else
+                                  np.full(score.fold_rms.shape, math.inf)))
     return tuple(scores)
 
 
 def _choose_order(axis_name: str, scores: tuple) -> int:
-    best = min(scores, key=lambda s: s.mean_rms_rad_s)
-    if not math.isfinite(best.mean_rms_rad_s):
-        msg = f'axis {axis_name}: the training folds cannot support any polynomial order'
-        raise CalibrationError(msg)
-    threshold = best.mean_rms_rad_s + best.standard_error_rad_s
-    return next(s.order for s in scores if s.mean_rms_rad_s <= threshold)
+    try:
+        return one_standard_error(scores)
+    except CalibrationError as err:
+        msg = f'axis {axis_name}: {err}'
+        raise CalibrationError(msg) from None
+
+
+def _rechosen_order(problem: _Problem, axis: int, trial: _Spec) -> _Spec:
+    """
+    Choose the polynomial order again beside an accepted effect.
+
+    The new term may take over what a higher order did, or free one up; the
+    order the effect was judged with stays when the rule's choice has a
+    higher held-out RMS (the rule allows one standard error of the mean fold
+    RMS, which forward folds make wide).
+    """
+    chosen = replace(trial, order=_choose_order(problem.axes[axis],
+                                                _order_scores(problem, axis, trial)))
+    better = problem.score_spec(axis, chosen).rms <= problem.score_spec(axis, trial).rms
+    return chosen if better else trial
 
 
 def _skipped(problem: _Problem) -> dict:
@@ -703,17 +770,16 @@ def _skipped(problem: _Problem) -> dict:
                                f'{TIME_CONSTANTS_PER_RECORD:g} times into it')
     if bounds['thermal_lag_s'][0] > bounds['thermal_lag_s'][1]:
         skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
-    if problem.supply is None:
-        skipped['supply_voltage'] = 'needs column supply_voltage'
-    elif problem.supply_reference is None:
+    for effect in EFFECTS:
+        lacking = [column for name in sorted(effect.inputs)
+                   if getattr(problem.inputs, name) is None for column in INPUTS[name].columns]
+        if lacking:
+            skipped[effect.name] = f'needs column{"s" * (len(lacking) > 1)} {", ".join(lacking)}'
+    if 'supply_voltage' not in skipped and problem.supply_reference is None:
         skipped['supply_voltage'] = 'supply_voltage is constant'
-    if problem.temperature_2 is None:
-        skipped['secondary_temperature'] = 'needs column temperature_2'
-    elif problem.secondary is None:
+    if 'secondary_temperature' not in skipped and problem.secondary is None:
         skipped['secondary_temperature'] = 'temperature_2 is constant'
-    if problem.acceleration is None:
-        skipped['acceleration_sensitivity'] = 'needs columns acc_x, acc_y, acc_z'
-    else:
+    if 'acceleration_sensitivity' not in skipped:
         turn_deg, change_m_s2 = problem.motion()
         if turn_deg < MOTION_DEG and change_m_s2 < MOTION_M_S2:
             skipped['acceleration_sensitivity'] = (
@@ -790,7 +856,7 @@ class _Search:
         self.problem, self.axis, self.best = problem, axis, None
 
     def __call__(self, spec: _Spec) -> float:
-        score = self.problem.score(self.problem.design(self.axis, spec), self.axis)
+        score = self.problem.score_spec(self.axis, spec)
         if self.best is None or score.rms < self.best[1].rms:
             self.best = (spec, score)
         return score.rms
@@ -806,59 +872,227 @@ def _available(effect: str, spec: _Spec) -> bool:
 def _best_trial(problem: _Problem, axis: int, spec: _Spec, effect: str) -> Optional[tuple]:
     """Return (best spec, its score) for one effect, None if none fits the search bounds."""
     search = _Search(problem, axis)
-    bounds = problem.bounds
-    if effect == 'thermal_lag':
-        low, high = bounds['thermal_lag_s']
-        for sign in (1.0, -1.0):
-            _grid_search(TIME_GRID_S, low, high,
-                         lambda tau: search(replace(spec, thermal_lag_s=sign * tau)))
-    elif effect == 'temperature_rate':
-        search(replace(spec, temperature_rate=True))
-    elif effect == 'thermal_gradient':
-        low, high = bounds['gradient_time_constant_s']
-        _grid_search(TIME_GRID_S, low, high, lambda tau: search(replace(spec, gradient_s=(tau,))))
-    elif effect == 'thermal_gradient_2':
-        _second_gradient(search, spec, bounds['gradient_time_constant_s'])
-    elif effect == 'hysteresis':
-        low, high = bounds['hysteresis_half_width_c']
-        _grid_search(WIDTH_GRID_C, low, high,
-                     lambda width: search(replace(spec, hysteresis_half_width_c=width)))
-    elif effect == 'supply_voltage':
-        for order in SUPPLY_ORDERS:
-            search(replace(spec, supply_order=order))
-    elif effect == 'secondary_temperature':
-        for order in SECONDARY_ORDERS:
-            search(replace(spec, secondary_order=order))
-    elif effect == 'acceleration_sensitivity':
-        search(replace(spec, acceleration=True))
-    elif effect == 'scale_factor_temperature':
-        for order in SCALE_ORDERS:
-            search(replace(spec, scale_order=order))
-    elif effect == 'rate_nonlinearity':
-        for order in NONLINEARITY_ORDERS:
-            search(replace(spec, nonlinearity_order=order))
-    elif effect == 'cross_axis':
-        search(replace(spec, cross_axis=True))
-    elif effect == 'time_drift':
-        search(replace(spec, time_drift=True))
-    elif effect == 'bias_step':
-        search(replace(spec, bias_step_time_s=_step_time(problem, axis, spec)))
+    _FITS[effect].trials(search, problem, axis, spec)
     return search.best
 
 
-def _second_gradient(search: _Search, spec: _Spec, bounds: tuple) -> None:
+@dataclass(frozen=True)
+class _Fit:
+    """
+    How the loop fits one effect on an axis.
+
+    ``trials(search, problem, axis, spec)`` scores each choice worth trying
+    with `_Search`; ``columns(problem, axis, spec, choice)`` gives the
+    effect's bin-mean design columns (None: it moves the polynomial's x);
+    ``terms(problem, axis, choice, take)`` its `AxisTerms` fields, ``take(n)``
+    giving its next n fitted coefficients (None: another effect holds its
+    choice); ``report(terms, problem)`` its fitted parameters in SI units.
+    """
+
+    trials: Callable
+    report: Callable
+    columns: Optional[Callable] = None
+    terms: Optional[Callable] = None
+
+
+def _flag(effect: str) -> Callable:
+    """Trials of an effect without a choice: one, the effect in."""
+    def trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+        search(spec.with_choice(effect, True))
+    return trials
+
+
+def _orders(effect: str, orders: tuple) -> Callable:
+    """Trials of an effect whose choice is a polynomial order: each of ``orders``."""
+    def trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+        for order in orders:
+            search(spec.with_choice(effect, order))
+    return trials
+
+
+def _lag_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['thermal_lag_s']
+    for sign in (1.0, -1.0):
+        _grid_search(TIME_GRID_S, low, high,
+                     lambda tau: search(spec.with_choice('thermal_lag', sign * tau)))
+
+
+def _lag_report(terms: AxisTerms, problem: _Problem) -> dict:
+    lag = terms.thermal_lag_s
+    return {'thermal_lag_s': lag,
+            'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
+                     'the element lags: T_eff = first-order lag of T'),
+            'temperature_rate_window_s': problem.settings.rate_window_s}
+
+
+def _rate_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    return problem.cached('rate', lambda: problem.mean(problem.slope)[:, None])
+
+
+def _gradient_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['gradient_time_constant_s']
+    _grid_search(TIME_GRID_S, low, high,
+                 lambda tau: search(spec.with_choice('thermal_gradient', (tau,))))
+
+
+def _second_gradient(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
     """Search a second gradient time constant, then the first again beside it."""
+    bounds = problem.bounds['gradient_time_constant_s']
     (first,) = spec.gradient_s
 
     def pair(kept: float, tau: float) -> float:
         if max(kept, tau) < MIN_GRADIENT_RATIO * min(kept, tau):
             return math.inf
-        return search(replace(spec, gradient_s=tuple(sorted((kept, tau)))))
+        return search(spec.with_choice('thermal_gradient', tuple(sorted((kept, tau)))))
 
     _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(first, tau))
     if search.best is not None:
         second = next(t for t in search.best[0].gradient_s if t != first)
         _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(second, tau))
+
+
+def _gradient_columns(problem: _Problem, axis: int, spec: _Spec, taus: tuple) -> np.ndarray:
+    def difference(tau: float) -> np.ndarray:
+        lagged = FirstOrderLag(tau).batch(problem.time, problem.temperature)
+        return problem.mean(problem.temperature - lagged)
+    return np.column_stack([problem.cached(('gradient', tau), functools.partial(difference, tau))
+                            for tau in taus])
+
+
+def _gradient_report(terms: AxisTerms, problem: _Problem) -> dict:
+    return {'time_constants_s': list(terms.gradient_time_constants_s),
+            'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
+
+
+def _hysteresis_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    low, high = problem.bounds['hysteresis_half_width_c']
+    _grid_search(WIDTH_GRID_C, low, high,
+                 lambda width: search(spec.with_choice('hysteresis', width)))
+
+
+def _play_columns(problem: _Problem, axis: int, spec: _Spec, width_c: float) -> np.ndarray:
+    return problem.cached(('play', width_c), lambda: problem.mean(
+        play_state(problem.temperature, width_c))[:, None])
+
+
+def _supply_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    reference, _ = problem.supply_reference
+    return problem.cached('supply', lambda: problem.powers(
+        problem.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
+
+
+def _secondary_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    reference, scale = problem.secondary
+    return problem.cached('secondary', lambda: problem.powers(
+        (problem.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
+
+
+def _scale_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    lag_s = spec.thermal_lag_s
+
+    def build():
+        x = problem.x(lag_s)
+        truth = problem.reference[:, axis]
+        return np.column_stack([problem.mean(truth * x ** k)
+                                for k in range(max(SCALE_ORDERS) + 1)])
+    return problem.cached(('scale', axis, lag_s), build)[:, :order + 1]
+
+
+def _nonlinearity_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
+    return problem.cached(('nonlinearity', axis), lambda: problem.powers(
+        problem.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))[:, :order - 1]
+
+
+def _cross_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    others = [j for j in range(len(problem.axes)) if j != axis]
+    return problem.cached(('cross', axis), lambda: problem.mean(problem.reference[:, others]))
+
+
+def _cross_terms(problem: _Problem, axis: int, choice, take) -> dict:
+    others = iter(take(len(problem.axes) - 1))
+    return {'cross_axis': tuple(0.0 if j == axis else next(others)
+                                for j in range(len(problem.axes)))}
+
+
+def _drift_columns(problem: _Problem, axis: int, spec: _Spec, choice) -> np.ndarray:
+    return problem.cached('drift', lambda: problem.mean(
+        (problem.time - problem.time_reference_s) / problem.duration_s)[:, None])
+
+
+def _step_trials(search: _Search, problem: _Problem, axis: int, spec: _Spec) -> None:
+    search(spec.with_choice('bias_step', _step_time(problem, axis, spec)))
+
+
+def _step_columns(problem: _Problem, axis: int, spec: _Spec, time_s: float) -> np.ndarray:
+    return problem.cached(('step', time_s), lambda: problem.mean(
+        (problem.time >= time_s).astype(np.float64))[:, None])
+
+
+def _step_report(terms: AxisTerms, problem: _Problem) -> dict:
+    (time_s, step_rad_s), = terms.bias_steps
+    return {'time_s': time_s, 'step_rad_s': step_rad_s,
+            'after_start_s': time_s - problem.time_reference_s}
+
+
+# Every effect but BASE_EFFECT; the design columns come in EFFECT_NAMES order.
+_FITS = {
+    'thermal_lag': _Fit(_lag_trials, _lag_report,
+                        terms=lambda problem, axis, lag_s, take: {'thermal_lag_s': lag_s}),
+    'temperature_rate': _Fit(
+        _flag('temperature_rate'),
+        lambda terms, problem: {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
+                                'temperature_rate_window_s': problem.settings.rate_window_s},
+        _rate_columns,
+        lambda problem, axis, choice, take: {'temperature_rate_rad_s_per_c_s': take(1)[0]}),
+    'thermal_gradient': _Fit(
+        _gradient_trials, _gradient_report, _gradient_columns,
+        lambda problem, axis, taus, take: {'gradient_time_constants_s': taus,
+                                           'gradient_rad_s_per_c': take(len(taus))}),
+    'thermal_gradient_2': _Fit(_second_gradient, _gradient_report),
+    'hysteresis': _Fit(
+        _hysteresis_trials,
+        lambda terms, problem: {'half_width_c': terms.hysteresis_half_width_c,
+                                'hysteresis_rad_s': terms.hysteresis_rad_s},
+        _play_columns,
+        lambda problem, axis, width_c, take: {'hysteresis_half_width_c': width_c,
+                                              'hysteresis_rad_s': take(1)[0]}),
+    'supply_voltage': _Fit(
+        _orders('supply_voltage', SUPPLY_ORDERS),
+        lambda terms, problem: {'rad_s_per_v_k': list(terms.supply_voltage),
+                                'supply_reference_v': problem.supply_reference[0]},
+        _supply_columns, lambda problem, axis, order, take: {'supply_voltage': take(order)}),
+    'secondary_temperature': _Fit(
+        _orders('secondary_temperature', SECONDARY_ORDERS),
+        lambda terms, problem: {'coefficients_rad_s': list(terms.secondary)},
+        _secondary_columns, lambda problem, axis, order, take: {'secondary': take(order)}),
+    'acceleration_sensitivity': _Fit(
+        _flag('acceleration_sensitivity'),
+        lambda terms, problem: {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)},
+        lambda problem, axis, spec, choice: problem.acceleration_means(),
+        lambda problem, axis, choice, take: {'acceleration_rad_s_per_m_s2': take(3)}),
+    'scale_factor_temperature': _Fit(
+        _orders('scale_factor_temperature', SCALE_ORDERS),
+        lambda terms, problem: {'relative_coefficients': list(terms.scale)},
+        _scale_columns, lambda problem, axis, order, take: {'scale': take(order + 1)}),
+    'rate_nonlinearity': _Fit(
+        _orders('rate_nonlinearity', NONLINEARITY_ORDERS),
+        lambda terms, problem: {'coefficients': list(terms.nonlinearity)},
+        _nonlinearity_columns,
+        lambda problem, axis, order, take: {'nonlinearity': take(order - 1)}),
+    'cross_axis': _Fit(_flag('cross_axis'),
+                       lambda terms, problem: {'coefficients': list(terms.cross_axis)},
+                       _cross_columns, _cross_terms),
+    'time_drift': _Fit(
+        _flag('time_drift'),
+        lambda terms, problem: {'rad_s_per_s': terms.time_drift_rad_s_per_s,
+                                'time_reference_s': problem.time_reference_s},
+        _drift_columns,
+        lambda problem, axis, choice, take: {
+            'time_drift_rad_s_per_s': take(1)[0] / problem.duration_s}),
+    'bias_step': _Fit(_step_trials, _step_report, _step_columns,
+                      lambda problem, axis, time_s, take: {
+                          'bias_steps': ((time_s, take(1)[0]),)}),
+}
 
 
 def _unbounded(problem: _Problem, effect: str, spec: _Spec) -> str:
@@ -888,39 +1122,7 @@ def _parameters(effect: str, terms: AxisTerms, problem: _Problem) -> dict:
         return {'order': len(terms.bias) - 1, 'bias_rad_s': list(terms.bias),
                 'reference_temperature_c': problem.centre_c,
                 'temperature_scale_c': problem.half_span_c}
-    if effect == 'thermal_lag':
-        lag = terms.thermal_lag_s
-        return {'thermal_lag_s': lag,
-                'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
-                         'the element lags: T_eff = first-order lag of T'),
-                'temperature_rate_window_s': problem.settings.rate_window_s}
-    if effect == 'temperature_rate':
-        return {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
-                'temperature_rate_window_s': problem.settings.rate_window_s}
-    if effect in ('thermal_gradient', 'thermal_gradient_2'):
-        return {'time_constants_s': list(terms.gradient_time_constants_s),
-                'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
-    if effect == 'hysteresis':
-        return {'half_width_c': terms.hysteresis_half_width_c,
-                'hysteresis_rad_s': terms.hysteresis_rad_s}
-    if effect == 'supply_voltage':
-        return {'rad_s_per_v_k': list(terms.supply_voltage),
-                'supply_reference_v': problem.supply_reference[0]}
-    if effect == 'time_drift':
-        return {'rad_s_per_s': terms.time_drift_rad_s_per_s,
-                'time_reference_s': problem.time_reference_s}
-    if effect == 'bias_step':
-        return {'time_s': terms.bias_steps[0][0], 'step_rad_s': terms.bias_steps[0][1],
-                'after_start_s': terms.bias_steps[0][0] - problem.time_reference_s}
-    if effect == 'secondary_temperature':
-        return {'coefficients_rad_s': list(terms.secondary)}
-    if effect == 'acceleration_sensitivity':
-        return {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)}
-    if effect == 'scale_factor_temperature':
-        return {'relative_coefficients': list(terms.scale)}
-    if effect == 'rate_nonlinearity':
-        return {'coefficients': list(terms.nonlinearity)}
-    return {'coefficients': list(terms.cross_axis)}
+    return _FITS[effect].report(terms, problem)
 
 
 def _judge(problem: _Problem, base: _Score, score: _Score) -> tuple:
@@ -939,9 +1141,13 @@ def _judge(problem: _Problem, base: _Score, score: _Score) -> tuple:
     # A block near zero cannot lose by a ratio: rises count against the axis's error too.
     # Block 0 is not judged: there every history state starts from an assumed equilibrium.
     change = (after - before) / np.maximum(before, base.rms)
+    change[~np.isfinite(change)] = -math.inf  # blocks no fold predicts
     change[0] = -math.inf
     worst = int(np.argmax(change))
-    if not math.isfinite(gain) or gain < settings.min_gain:
+    if not score.rank_ok:
+        reason = ('on the training blocks of some fold the term cannot be told from the '
+                  'others (rank loss)')
+    elif not math.isfinite(gain) or gain < settings.min_gain:
         reason = f'held-out gain {gain:.3f} below --min-gain {settings.min_gain:g}'
     elif not mean > settings.significance * error:
         reason = (f'mean fold improvement {mean:.3g} rad/s not above '
@@ -964,13 +1170,63 @@ def _candidate(problem: _Problem, axis: int, effect: str, trial: _Spec, judged: 
 
 def _findings(problem: _Problem, axis: int, spec: _Spec, number: int) -> tuple:
     """Test the record effects on top of the final model of an axis; report, do not add."""
-    current = problem.score(problem.design(axis, spec), axis)
+    current = problem.score_spec(axis, spec)
     findings = []
     for effect in RECORD_SEARCH:
         trial, score = _best_trial(problem, axis, spec, effect)  # always one trial
         judged = _judge(problem, current, score)
         findings.append(_candidate(problem, axis, effect, trial, judged, number, judged[4]))
     return tuple(findings)
+
+
+def _choose_model(settings: DiagnosisSettings, found: tuple, cubic: tuple) -> ModelChoice:
+    """
+    Write the found model if it beats the cubic by the margin and loses beside, else the cubic.
+
+    ``found`` and ``cubic`` are (deciding, beside) held-out errors.
+    """
+    margin = settings.baseline_margin
+    choice = ModelChoice('diagnosed', found[0], cubic[0], margin, found[1], cubic[1])
+    deciding, beside = (scheme.replace('_', '-') for scheme in (settings.validation,
+                                                                settings.other_validation))
+    if choice.ratio > 1.0 - margin:
+        reason = (f'the model found has {deciding} held-out RMS {choice.found.rms_rad_s:.3e} '
+                  f"rad/s, {choice.ratio:.2f}x the PX4-style cubic's "
+                  f'{choice.cubic.rms_rad_s:.3e} rad/s: not {margin:.0%} better')
+    elif choice.other_ratio > 1.0:
+        reason = (f'the model found has {beside} held-out RMS '
+                  f'{choice.other_found.rms_rad_s:.3e} rad/s, {choice.other_ratio:.2f}x the '
+                  f"PX4-style cubic's {choice.other_cubic.rms_rad_s:.3e} rad/s: worse there")
+    else:
+        return choice
+    return replace(choice, written='px4_cubic',
+                   reason=reason + ', so the simpler cubic is written')
+
+
+def _cubic_errors(problem: _Problem, folds: _Folds) -> tuple:
+    """
+    Return the held-out error of the PX4-style cubic per axis.
+
+    A cubic in raw T spans what a cubic in x does: the same least squares,
+    clamped as the node runs it.
+    """
+    return tuple(problem.error(problem.score_spec(a, _Spec(PX4_ORDER), folds).residual, folds)
+                 for a in range(len(problem.axes)))
+
+
+def _cause(record: tuple, tried: list) -> Optional[Candidate]:
+    """
+    Return the record effect that passes and gains more than every live effect that passes.
+
+    ``record`` holds the record effects' candidates (`_findings`), ``tried``
+    the live ones as (effect, trial, judged) of the same round.
+    """
+    passing = [candidate for candidate in record if not candidate.reason]
+    if not passing:
+        return None
+    best = max(passing, key=lambda candidate: candidate.held_out_gain)
+    live = max((judged[0] for _, _, judged in tried if not judged[4]), default=-math.inf)
+    return best if best.held_out_gain > live else None
 
 
 def _heating(problem: _Problem, rows: slice, starts: np.ndarray) -> np.ndarray:
@@ -1035,10 +1291,12 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     none_errors = tuple(problem.error(problem.target[:, a]) for a in range(len(axes)))
     residual, errors = problem.held_out(tuple(specs), 'held-out check of step 0')
     base_residual = residual
-    base_model = problem.model(tuple(specs))
+    base_specs = tuple(specs)
+    base_model = problem.model(base_specs)
     steps = [[Step(BASE_EFFECT, _parameters(BASE_EFFECT, base_model.terms[a], problem),
                    none_errors[a], errors[a], 0)] for a in range(len(axes))]
     rejected = [[] for _ in axes]
+    causes = [None for _ in axes]
     active = set(range(len(axes)))
     number = 0
     while active:
@@ -1047,7 +1305,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         work = sum(1 for a in active for e in searched if _available(e, specs[a]))
         done = 0
         for axis in sorted(active):
-            current = problem.score(problem.design(axis, specs[axis]), axis)
+            current = problem.score_spec(axis, specs[axis])
             tried = []
             for effect in searched:
                 if not _available(effect, specs[axis]):
@@ -1064,8 +1322,13 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                     judged = judged[:4] + (bound,)
                 tried.append((effect, trial, judged))
             tried.sort(key=lambda item: (bool(item[2][4]), -item[2][0]))
+            if not settings.record_effects:
+                causes[axis] = _cause(_findings(problem, axis, specs[axis], number), tried)
             for rank, (effect, trial, judged) in enumerate(tried):
                 reason = judged[4]
+                if not reason and causes[axis] is not None:
+                    reason = (f'the record-only {causes[axis].effect} explains more (held-out '
+                              f'gain {causes[axis].held_out_gain:.3f}): not a live stand-in')
                 if rank == 0 and not reason:
                     accepted[axis] = (effect, trial, judged[0])
                     continue
@@ -1075,9 +1338,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         if not accepted:
             break
         for axis, (effect, trial, gain) in accepted.items():
-            # The new term may take over what a higher order did, or free one up.
-            specs[axis] = replace(trial, order=_choose_order(
-                axes[axis], _order_scores(problem, axis, trial)))
+            specs[axis] = _rechosen_order(problem, axis, trial)
         new_residual, new_errors = problem.held_out(tuple(specs),
                                                     f'held-out check of round {number}')
         model = problem.model(tuple(specs))
@@ -1090,13 +1351,39 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
         active = set(accepted)
     findings = [() if settings.record_effects else _findings(problem, a, specs[a], number)
                 for a in range(len(axes))]
+    found = tuple(specs)
+    other = problem.folds_of(settings.other_validation)
+    cubic = _cubic_errors(problem, problem.folds)
+    other_cubic = _cubic_errors(problem, other)
+    other_errors = problem.held_out(found, 'the other validation', other)[1]
+    choices = tuple(_choose_model(settings, (errors[a], other_errors[a]),
+                                  (cubic[a], other_cubic[a])) for a in range(len(axes)))
+    cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
+    if cubic_axes:
+        specs = [_Spec(PX4_ORDER) if a in cubic_axes else spec for a, spec in enumerate(found)]
+        # The models clamp at the range of every axis's T_eff: with the same lags, the axes
+        # that keep their model keep their figures.
+        same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}
+        run = cubic_axes if same else None
+        new_residual, new_errors = problem.held_out(tuple(specs), 'held-out check of the cubic',
+                                                    axes=run)
+        new_other = problem.held_out(tuple(specs), 'the other validation', other, run)[1]
+        changed = list(run or range(len(axes)))
+        residual = residual.copy()  # step 0's may be the same array
+        residual[:, changed] = new_residual[:, changed]
+        errors = tuple(new_errors[a] if a in changed else errors[a] for a in range(len(axes)))
+        other_errors = tuple(new_other[a] if a in changed else other_errors[a]
+                             for a in range(len(axes)))
     model = problem.model(tuple(specs))
-    cubic = [problem.score(problem.raw_cubic(), a).residual for a in range(len(axes))]
-    comparison = {'cross_validation': {
-        'none': none_errors,
-        'px4_cubic': tuple(problem.error(r) for r in cubic),
+    comparison = {settings.validation: {
+        'none': none_errors, 'px4_cubic': cubic,
         'temperature_polynomial': tuple(axis_steps[0].after for axis_steps in steps),
-        'diagnosed': errors}}
+        'diagnosed': errors}, settings.other_validation: {
+        'none': tuple(problem.error(problem.target[:, a], other) for a in range(len(axes))),
+        'px4_cubic': other_cubic,
+        'temperature_polynomial': problem.held_out(base_specs, 'the other validation',
+                                                   other)[1],
+        'diagnosed': other_errors}}
     held_rows = slice(0, problem.rows)
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
@@ -1105,8 +1392,8 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     test = None
     if problem.test_rows:
         comparison['test'], test = _compare_test(problem, base_model, model)
-    per_axis = tuple(AxisDiagnosis(name, specs[a].order, scores[a], tuple(steps[a]),
-                                   tuple(rejected[a]), findings[a])
+    per_axis = tuple(AxisDiagnosis(name, found[a].order, scores[a], tuple(steps[a]),
+                                   tuple(rejected[a]), findings[a], choices[a], causes[a])
                      for a, name in enumerate(axes))
     return Diagnosis(axes=axes, settings=settings, model=model, base_model=base_model,
                      per_axis=per_axis, skipped=tuple(sorted(skipped.items())),

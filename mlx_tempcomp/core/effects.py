@@ -36,27 +36,24 @@ found in (RECORD_EFFECTS); every other effect runs causally on a live stream.
 The history operators (`TemperatureSlope`, `FirstOrderLag`, `PlayOperator`)
 start at the first sample a batch or stream sees: slope 0, lag and play at
 the first temperature (the device in equilibrium at power-up).
+
+Each effect is one `Effect` of the table `EFFECTS`: its coefficient fields,
+the descriptions of its node parameters, the inputs it needs, live or not,
+and its bias term; the model, the diagnosis and the node parameters read it.
 """
 
 import collections
 from dataclasses import dataclass, field, fields, replace
 import functools
 import math
-from typing import Mapping, Optional
+from typing import Callable, Mapping, Optional
 
 import numpy as np
 
 from .errors import ConfigError
-from .models import (CorrectedRate, finite_tuple, model_fingerprint, OffsetModel, one_row,
-                     rate_temperature_columns)
+from .model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
+from .models import finite_tuple, model_fingerprint, OffsetModel, one_row, rate_temperature_columns
 
-EFFECT_NAMES = ('temperature_polynomial', 'thermal_lag', 'temperature_rate', 'thermal_gradient',
-                'thermal_gradient_2', 'hysteresis', 'supply_voltage', 'secondary_temperature',
-                'acceleration_sensitivity', 'scale_factor_temperature', 'rate_nonlinearity',
-                'cross_axis', 'time_drift', 'bias_step')
-# Effects that need the clock of the record they were fitted on: not for a live node.
-RECORD_EFFECTS = frozenset({'time_drift', 'bias_step'})
-LIVE_EFFECTS = tuple(name for name in EFFECT_NAMES if name not in RECORD_EFFECTS)
 MAX_GRADIENT_TERMS = 2
 
 DEFAULT_RATE_WINDOW_S = 60.0
@@ -295,6 +292,167 @@ def _play_loop(temperature: np.ndarray, width: float, y: float, start: int,
     played[start:] = out
 
 
+@dataclass(frozen=True)
+class Effect:
+    """
+    One effect: its coefficients, their descriptions, the inputs it needs, its bias term.
+
+    ``fields`` are the `AxisTerms` fields it owns (node parameters
+    ``effects.<field>.<axis>``), ``model_fields`` the `EffectModel` fields
+    (``effects.<field>``); ``descriptions`` describe each of its node
+    parameters, ``{axis}`` standing for the axis. It is present on an axis
+    when its ``marker`` field is non-zero, or holds at least ``count``
+    values when ``count`` is given. ``inputs`` are the `ModelInputs` fields
+    it needs; ``live`` is False when it is tied to the clock of the record it
+    was found in. ``bias(term, model, inputs, history, total)`` adds its term
+    to the bias of an axis (None: the effect acts elsewhere in `_assemble`).
+    """
+
+    name: str
+    fields: tuple
+    descriptions: Mapping
+    marker: str
+    model_fields: tuple = ()
+    count: int = 0
+    inputs: frozenset = frozenset()
+    live: bool = True
+    bias: Optional[Callable] = None
+
+    def present(self, term: 'AxisTerms') -> bool:
+        value = getattr(term, self.marker)
+        if self.count:
+            return len(value) >= self.count
+        return any(value) if isinstance(value, tuple) else value != 0.0
+
+
+def _rate_bias(term, model, inputs, history, total):
+    return total + term.temperature_rate_rad_s_per_c_s * history.slope
+
+
+def _gradient_bias(term, model, inputs, history, total):
+    for gain, difference in zip(term.gradient_rad_s_per_c, history.gradients):
+        total = total + gain * difference
+    return total
+
+
+def _hysteresis_bias(term, model, inputs, history, total):
+    return total + term.hysteresis_rad_s * history.play
+
+
+def _supply_bias(term, model, inputs, history, total):
+    dv = inputs.supply_voltage_v - model.supply_reference_v
+    return total + dv * np.polynomial.polynomial.polyval(dv, term.supply_voltage)
+
+
+def _secondary_bias(term, model, inputs, history, total):
+    x2 = (inputs.temperature_2_c - model.secondary_reference_c) / model.secondary_scale_c
+    return total + x2 * np.polynomial.polynomial.polyval(x2, term.secondary)
+
+
+def _acceleration_bias(term, model, inputs, history, total):
+    for column, gain in enumerate(term.acceleration_rad_s_per_m_s2):
+        total = total + gain * inputs.acceleration_m_s2[:, column]
+    return total
+
+
+def _drift_bias(term, model, inputs, history, total):
+    return total + term.time_drift_rad_s_per_s * (inputs.time_s - model.time_reference_s)
+
+
+def _step_bias(term, model, inputs, history, total):
+    for when_s, step_rad_s in term.bias_steps:
+        total = total + np.where(inputs.time_s >= when_s, step_rad_s, 0.0)
+    return total
+
+
+_TIME = frozenset({'time_s'})
+# The effects in the order diagnose tries them and reports them; biases add up in it.
+EFFECTS = (
+    Effect('temperature_polynomial', fields=('bias',), marker='bias', count=1,
+           model_fields=('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
+                         'temperature_max_c'),
+           descriptions={
+               'bias': 'axis {axis}: bias polynomial in x, rad/s, lowest order first',
+               'reference_temperature_c': 'Tref of x = (T_eff - Tref) / scale',
+               'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
+               'temperature_min_c': 'effective temperatures below are clamped',
+               'temperature_max_c': 'effective temperatures above are clamped'}),
+    Effect('thermal_lag', fields=('thermal_lag_s',), marker='thermal_lag_s', inputs=_TIME,
+           model_fields=('temperature_rate_window_s',),
+           descriptions={
+               'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: '
+                                'T_eff = first-order lag of T with time constant |lag|',
+               'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the '
+                                            'slope over this window (s)'}),
+    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',),
+           marker='temperature_rate_rad_s_per_c_s', inputs=_TIME, bias=_rate_bias,
+           descriptions={'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'}),
+    Effect('thermal_gradient', fields=('gradient_time_constants_s', 'gradient_rad_s_per_c'),
+           marker='gradient_time_constants_s', count=1, inputs=_TIME, bias=_gradient_bias,
+           descriptions={
+               'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at '
+                                            'most 2)',
+               'gradient_rad_s_per_c': 'axis {axis}: bias + g_k x (T - lag_k(T)), one per time '
+                                       'constant'}),
+    # The second term in thermal_gradient's fields, summed there.
+    Effect('thermal_gradient_2', fields=(), marker='gradient_time_constants_s', count=2,
+           inputs=_TIME, descriptions={}),
+    Effect('hysteresis', fields=('hysteresis_half_width_c', 'hysteresis_rad_s'),
+           marker='hysteresis_rad_s', bias=_hysteresis_bias,
+           descriptions={
+               'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play '
+                                          'operator',
+               'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state'}),
+    Effect('supply_voltage', fields=('supply_voltage',), marker='supply_voltage',
+           model_fields=('supply_reference_v',), inputs=frozenset({'supply_voltage_v'}),
+           bias=_supply_bias,
+           descriptions={
+               'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power '
+                                 '1, rad/s',
+               'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k'}),
+    Effect('secondary_temperature', fields=('secondary',), marker='secondary',
+           model_fields=('secondary_reference_c', 'secondary_scale_c'),
+           inputs=frozenset({'temperature_2_c'}), bias=_secondary_bias,
+           descriptions={
+               'secondary': 'axis {axis}: second-temperature polynomial in x2 from power 1, '
+                            'rad/s',
+               'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
+               'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2'}),
+    Effect('acceleration_sensitivity', fields=('acceleration_rad_s_per_m_s2',),
+           marker='acceleration_rad_s_per_m_s2', inputs=frozenset({'acceleration_m_s2'}),
+           bias=_acceleration_bias,
+           descriptions={'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, '
+                                                        'z acceleration'}),
+    Effect('scale_factor_temperature', fields=('scale',), marker='scale',
+           descriptions={'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: '
+                                  'none)'}),
+    Effect('rate_nonlinearity', fields=('nonlinearity',), marker='nonlinearity',
+           descriptions={'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 '
+                                         'poly(u)'}),
+    Effect('cross_axis', fields=('cross_axis',), marker='cross_axis',
+           descriptions={'cross_axis': 'axis {axis}: cross-axis coefficients, one per model '
+                                       'axis (own: 0)'}),
+    Effect('time_drift', fields=('time_drift_rad_s_per_s',), marker='time_drift_rad_s_per_s',
+           model_fields=('time_reference_s',), inputs=_TIME, live=False, bias=_drift_bias,
+           descriptions={
+               'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since '
+                                         'time_reference_s',
+               'time_reference_s': 'time drift is zero at this stamp (s)'}),
+    Effect('bias_step', fields=('bias_steps',), marker='bias_steps', inputs=_TIME, live=False,
+           bias=_step_bias,
+           descriptions={
+               'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
+               'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s'}),
+)
+EFFECT_NAMES = tuple(effect.name for effect in EFFECTS)
+# Effects that need the clock of the record they were fitted on: not for a live node.
+RECORD_EFFECTS = frozenset(effect.name for effect in EFFECTS if not effect.live)
+LIVE_EFFECTS = tuple(effect.name for effect in EFFECTS if effect.live)
+# The description of every effects.* node parameter, by its name without the axis.
+PARAMETER_DESCRIPTIONS = {name: text for effect in EFFECTS
+                          for name, text in effect.descriptions.items()}
+
+
 def _polynomial(name: str, values) -> tuple:
     values = tuple(float(v) for v in values)
     if not all(math.isfinite(v) for v in values):
@@ -355,9 +513,7 @@ class AxisTerms:
         if any(len(pair) != 2 for pair in steps):
             raise ConfigError('bias_steps must be (time_s, rad_s) pairs')
         object.__setattr__(self, 'bias_steps', steps)
-        for name in ('gradient_time_constants_s', 'gradient_rad_s_per_c', 'supply_voltage',
-                     'secondary', 'scale', 'nonlinearity', 'cross_axis',
-                     'acceleration_rad_s_per_m_s2'):
+        for name in _AXIS_LISTS:
             object.__setattr__(self, name, _polynomial(name, getattr(self, name)))
         taus, gains = self.gradient_time_constants_s, self.gradient_rad_s_per_c
         if len(taus) != len(gains) or len(taus) > MAX_GRADIENT_TERMS:
@@ -375,23 +531,7 @@ class AxisTerms:
     @property
     def effects(self) -> tuple:
         """Names of the effects these terms hold, in EFFECT_NAMES order."""
-        present = {
-            'temperature_polynomial': True,
-            'thermal_lag': self.thermal_lag_s != 0.0,
-            'temperature_rate': self.temperature_rate_rad_s_per_c_s != 0.0,
-            'thermal_gradient': len(self.gradient_time_constants_s) >= 1,
-            'thermal_gradient_2': len(self.gradient_time_constants_s) >= 2,
-            'hysteresis': self.hysteresis_rad_s != 0.0,
-            'supply_voltage': any(self.supply_voltage),
-            'secondary_temperature': any(self.secondary),
-            'acceleration_sensitivity': any(self.acceleration_rad_s_per_m_s2),
-            'scale_factor_temperature': any(self.scale),
-            'rate_nonlinearity': any(self.nonlinearity),
-            'cross_axis': any(self.cross_axis),
-            'time_drift': self.time_drift_rad_s_per_s != 0.0,
-            'bias_step': bool(self.bias_steps),
-        }
-        return tuple(name for name in EFFECT_NAMES if present[name])
+        return tuple(effect.name for effect in EFFECTS if effect.present(self))
 
     @property
     def needs_slope(self) -> bool:
@@ -461,24 +601,17 @@ class EffectModel(OffsetModel):
     def axes(self) -> int:
         return len(self.terms)
 
-    # Cached (the model is frozen): the stream asks for these on every sample.
+    # Cached (the model is frozen): the stream asks for these on every block.
     @functools.cached_property
-    def needs_time(self) -> bool:
-        return any(t.thermal_lag_s or t.temperature_rate_rad_s_per_c_s or
-                   t.gradient_time_constants_s or t.time_drift_rad_s_per_s or t.bias_steps
-                   for t in self.terms)
+    def inputs(self) -> frozenset:
+        """Give the `ModelInputs` fields the effects of any axis need."""
+        return frozenset().union(*(effect.inputs for effect in EFFECTS for term in self.terms
+                                   if effect.present(term)))
 
     @functools.cached_property
-    def needs_temperature_2(self) -> bool:
-        return any(any(t.secondary) for t in self.terms)
-
-    @functools.cached_property
-    def needs_acceleration(self) -> bool:
-        return any(any(t.acceleration_rad_s_per_m_s2) for t in self.terms)
-
-    @functools.cached_property
-    def needs_supply_voltage(self) -> bool:
-        return any(any(t.supply_voltage) for t in self.terms)
+    def _biases(self) -> tuple:
+        """Give the effects with a bias term present on each axis."""
+        return tuple(tuple(e for e in _BIAS_EFFECTS if e.present(term)) for term in self.terms)
 
     @functools.cached_property
     def has_cross_axis(self) -> bool:
@@ -495,20 +628,16 @@ class EffectModel(OffsetModel):
         content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)} for t in self.terms]
         return model_fingerprint(self.name, content)
 
-    def correct(self, rate_rad_s, temperature_c, time_s=None, temperature_2_c=None,
-                acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
+    def correct(self, rate_rad_s, temperature_c,
+                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         """
         Correct a batch; stateful inputs start at its first sample.
 
         rate (samples, axes) rad/s; temperature (samples,) or (samples, axes)
-        degC; time (samples,) s, needed by the thermal history effects,
-        time_drift and bias_step; temperature_2 (samples,) by
-        secondary_temperature; acceleration (samples, 3) m/s^2 by
-        acceleration_sensitivity; supply_voltage (samples,) V by supply_voltage.
+        degC; ``inputs`` holds what the effects need (`Effect.inputs`).
         """
-        inputs = self._inputs(rate_rad_s, temperature_c, time_s, temperature_2_c,
-                              acceleration_m_s2, supply_voltage_v)
-        time, temperature = inputs[2], inputs[1]
+        rate, temperature, inputs = self._inputs(rate_rad_s, temperature_c, inputs)
+        time = inputs.time_s
         slope = TemperatureSlope(self.temperature_rate_window_s)
         histories = []
         for axis, term in enumerate(self.terms):
@@ -521,34 +650,29 @@ class EffectModel(OffsetModel):
                            for tau in term.gradient_time_constants_s],
                 play=play_state(measured, term.hysteresis_half_width_c)
                 if term.hysteresis_rad_s else None))
-        return self._assemble(inputs, histories)
+        return self._assemble(rate, temperature, inputs, histories)
 
-    def _inputs(self, rate_rad_s, temperature_c, time_s, temperature_2_c, acceleration_m_s2,
-                supply_voltage_v) -> tuple:
-        """Check and convert the inputs: (rate, temperature, time, T2, acceleration, V)."""
+    def _inputs(self, rate_rad_s, temperature_c, inputs: ModelInputs) -> tuple:
+        """Check and convert the inputs: (rate, temperature, `ModelInputs` of arrays)."""
         rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         samples = rate.shape[0]
-        return (rate, temperature,
-                self._input('time_s', time_s, (samples,), self.needs_time),
-                self._input('temperature_2_c', temperature_2_c, (samples,),
-                            self.needs_temperature_2),
-                self._input('acceleration_m_s2', acceleration_m_s2, (samples, 3),
-                            self.needs_acceleration),
-                self._input('supply_voltage_v', supply_voltage_v, (samples,),
-                            self.needs_supply_voltage))
+        return rate, temperature, ModelInputs(**{
+            name: self._input(name, getattr(inputs, name), (samples,) + spec.shape)
+            for name, spec in INPUTS.items()})
 
-    def _assemble(self, inputs: tuple, histories: list) -> CorrectedRate:
+    def _assemble(self, rate: np.ndarray, temperature: np.ndarray, inputs: ModelInputs,
+                  histories: list) -> CorrectedRate:
         """
         Correct rows from their inputs and the history operators' outputs per axis.
 
         Element by element only (no matrix products), so a block gives, bit for
         bit, what its rows give one at a time.
         """
-        rate, temperature, time, temperature_2, acceleration, supply = inputs
         bias = np.empty(rate.shape)
         x = np.empty(rate.shape)
         clamped = np.isnan(temperature)
-        for axis, (term, history) in enumerate(zip(self.terms, histories)):
+        for axis, (term, history, biases) in enumerate(zip(self.terms, histories,
+                                                           self._biases)):
             effective = temperature[:, axis]
             if term.thermal_lag_s > 0.0:
                 effective = effective + term.thermal_lag_s * history.slope
@@ -558,24 +682,8 @@ class EffectModel(OffsetModel):
             clamped[:, axis] |= limited != effective
             x[:, axis] = (limited - self.reference_temperature_c) / self.temperature_scale_c
             total = np.polynomial.polynomial.polyval(x[:, axis], term.bias)
-            if term.temperature_rate_rad_s_per_c_s:
-                total = total + term.temperature_rate_rad_s_per_c_s * history.slope
-            for gain, difference in zip(term.gradient_rad_s_per_c, history.gradients):
-                total = total + gain * difference
-            if term.hysteresis_rad_s:
-                total = total + term.hysteresis_rad_s * history.play
-            if any(term.supply_voltage):
-                dv = supply - self.supply_reference_v
-                total = total + dv * np.polynomial.polynomial.polyval(dv, term.supply_voltage)
-            if term.time_drift_rad_s_per_s:
-                total = total + term.time_drift_rad_s_per_s * (time - self.time_reference_s)
-            for when_s, step_rad_s in term.bias_steps:
-                total = total + np.where(time >= when_s, step_rad_s, 0.0)
-            if any(term.secondary):
-                x2 = (temperature_2 - self.secondary_reference_c) / self.secondary_scale_c
-                total = total + x2 * np.polynomial.polynomial.polyval(x2, term.secondary)
-            for column, gain in enumerate(term.acceleration_rad_s_per_m_s2):
-                total = total + gain * acceleration[:, column]
+            for effect in biases:
+                total = effect.bias(term, self, inputs, history, total)
             bias[:, axis] = total
         corrected = rate - bias
         for axis, term in enumerate(self.terms):
@@ -593,10 +701,9 @@ class EffectModel(OffsetModel):
                     corrected[:, axis] -= gain * before[:, other]
         return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s), clamped)
 
-    @staticmethod
-    def _input(name: str, value, shape: tuple, needed: bool) -> Optional[np.ndarray]:
+    def _input(self, name: str, value, shape: tuple) -> Optional[np.ndarray]:
         if value is None:
-            if needed:
+            if name in self.inputs:
                 msg = f'the effects model needs {name} for its effects'
                 raise ConfigError(msg)
             return None
@@ -670,20 +777,21 @@ class EffectModel(OffsetModel):
 
     def live(self) -> 'EffectModel':
         """Return the model without its RECORD_EFFECTS (time drift, bias steps)."""
-        return replace(self, terms=tuple(replace(t, time_drift_rad_s_per_s=0.0, bias_steps=())
-                                         for t in self.terms))
+        absent = {f.name: f.default for f in fields(AxisTerms)
+                  if any(f.name in e.fields for e in EFFECTS if not e.live)}
+        return replace(self, terms=tuple(replace(t, **absent) for t in self.terms))
 
 
-_SCALARS = ('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
-            'temperature_max_c', 'temperature_rate_window_s', 'time_reference_s',
-            'secondary_reference_c', 'secondary_scale_c', 'supply_reference_v')
+# The parameters of `to_parameters`, in field order: float fields are scalars, tuples
+# lists; bias_steps, (time, step) pairs, becomes two lists.
+_SCALARS = tuple(f.name for f in fields(EffectModel)
+                 if f.name not in ('terms', 'zro_offset_rad_s'))
 # Scalars a parameter file written before they existed may lack.
 _SCALAR_DEFAULTS = {'supply_reference_v': DEFAULT_SUPPLY_REFERENCE_V}
-_AXIS_SCALARS = ('thermal_lag_s', 'temperature_rate_rad_s_per_c_s', 'hysteresis_half_width_c',
-                 'hysteresis_rad_s', 'time_drift_rad_s_per_s')
-_AXIS_LISTS = ('bias', 'gradient_time_constants_s', 'gradient_rad_s_per_c', 'supply_voltage',
-               'secondary', 'acceleration_rad_s_per_m_s2', 'scale', 'nonlinearity',
-               'cross_axis')
+_AXIS_SCALARS = tuple(f.name for f in fields(AxisTerms) if f.type is float)
+_AXIS_LISTS = tuple(f.name for f in fields(AxisTerms)
+                    if f.type is tuple and f.name != 'bias_steps')
+_BIAS_EFFECTS = tuple(effect for effect in EFFECTS if effect.bias is not None)
 
 
 @dataclass(frozen=True)
@@ -736,20 +844,18 @@ class EffectStream:
         self.runners = [_AxisRunner(term, model.temperature_rate_window_s)
                         for term in model.terms]
 
-    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
+    def correct_block(self, rates_rad_s, temperatures_c,
+                      inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         """
         Correct the next rows of the stream; arguments as for `EffectModel.correct`.
 
         ``temperatures_c`` has one column, or one per axis.
         """
         model = self.model
-        inputs = model._inputs(rates_rad_s, temperatures_c, time_s, temperature_2_c,
-                               acceleration_m_s2, supply_voltage_v)
-        temperature, time = inputs[1], inputs[2]
-        histories = [runner.run(time, temperature[:, axis])
+        rate, temperature, inputs = model._inputs(rates_rad_s, temperatures_c, inputs)
+        histories = [runner.run(inputs.time_s, temperature[:, axis])
                      for axis, runner in enumerate(self.runners)]
-        return model._assemble(inputs, histories)
+        return model._assemble(rate, temperature, inputs, histories)
 
     def correct_one(self, *row) -> tuple:
         """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""

@@ -1,5 +1,5 @@
 """
-Least-squares bias models of temperature, the polynomial order chosen by cross-validation.
+Least-squares bias models of temperature, the polynomial order chosen by held-out blocks.
 
 PX4 and ArduPilot fit a fixed cubic with ``np.polyfit`` on the temperature as
 measured. Here the order is chosen from the data, and the fit runs in float64
@@ -20,24 +20,16 @@ import numpy as np
 
 from .errors import CalibrationError
 from .models import AXIS_NAMES, LinearBtcModel, PolynomialModel
+from .validation import (best_score, block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
+                         DEFAULT_MIN_PAST, FORWARD, ONE_SE_RULE, one_standard_error,
+                         order_score, split)
 
 MIN_SPAN_C = 1.0
 DISTINCT_DECIMALS = 2
-ONE_SE_RULE = 'one-standard-error'
 # Rows per chunk of the normal equations: 2^18 rows of an order-8 basis are 19 MB.
 CHUNK_ROWS = 1 << 18
 # Gram singular values this far below the largest are rounding, not data.
 GRAM_RCOND = 1e-13
-
-
-@dataclass(frozen=True)
-class OrderScore:
-    """Held-out RMS residual of one polynomial order, per block and summarised."""
-
-    order: int
-    block_rms_rad_s: tuple
-    mean_rms_rad_s: float
-    standard_error_rad_s: float
 
 
 @dataclass(frozen=True)
@@ -50,24 +42,9 @@ class OrderSelection:
     rule: str
 
 
-def _block_bounds(samples: int, count: int) -> np.ndarray:
-    """Return the count + 1 boundaries of `contiguous_blocks` (np.array_split's sizes)."""
-    samples = operator.index(samples)
-    count = operator.index(count)
-    if count < 2:
-        msg = f'cross-validation needs at least 2 blocks, got {count}'
-        raise CalibrationError(msg)
-    if samples < count:
-        msg = f'cannot split {samples} samples into {count} blocks'
-        raise CalibrationError(msg)
-    sizes = np.full(count, samples // count)
-    sizes[:samples % count] += 1
-    return np.concatenate(([0], np.cumsum(sizes)))
-
-
 def contiguous_blocks(samples: int, count: int) -> tuple:
     """Split indices 0..samples-1 into `count` contiguous, near-equal index arrays."""
-    bounds = _block_bounds(samples, count)
+    bounds = block_bounds(samples, count)
     return tuple(np.arange(first, last) for first, last in zip(bounds[:-1], bounds[1:]))
 
 
@@ -245,45 +222,33 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
                            temperature_min_c=low_c, temperature_max_c=high_c)
 
 
-def _fold_bounds(samples: int, blocks: int, folds: int) -> np.ndarray:
-    if not 2 <= folds <= blocks:
-        msg = f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, {blocks} blocks'
-        raise CalibrationError(msg)
-    return _block_bounds(samples, blocks)
-
-
-def fold_rows(samples: int, blocks: int, folds: int) -> tuple:
-    """
-    Give the held-out rows of each fold: contiguous blocks dealt round-robin to folds.
-
-    Fold k holds out blocks k, k + folds, k + 2 folds, ... With more blocks
-    than folds, training data surrounds every held-out block, so a single
-    thermal cycle's extremes are not extrapolated.
-    """
-    bounds = _fold_bounds(samples, blocks, folds)
+def fold_rows(samples: int, blocks: int, folds: int = DEFAULT_FOLDS, scheme: str = FORWARD,
+              min_past: float = DEFAULT_MIN_PAST) -> tuple:
+    """Give the held-out rows of each fold of `validation.split` over ``samples`` rows."""
+    bounds = block_bounds(samples, blocks)
     return tuple(np.concatenate([np.arange(bounds[block], bounds[block + 1])
-                                 for block in range(fold, blocks, folds)])
-                 for fold in range(folds))
+                                 for block in np.flatnonzero(held)])
+                 for held in split(blocks, scheme, folds, min_past).held)
 
 
-def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds: int) -> dict:
+def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     """
     Return per order the held-out RMS per fold (rows) and axis (columns), inf if unsupported.
 
-    Each fold's polynomial is the least-squares fit on its training rows,
-    clamped to their temperature range; it is evaluated, clamped so, in the
-    Legendre basis it was solved in (the same polynomial as
-    PolynomialModel.correct would evaluate in powers of the training x).
+    Each fold's polynomial is the least-squares fit on its training blocks
+    (the sum of their normal equations), clamped to their temperature range;
+    it is evaluated, clamped so, in the Legendre basis it was solved in (the
+    same polynomial as PolynomialModel.correct would evaluate in powers of
+    the training x).
     """
     highest = orders[-1]
     scaling = _scaling(float(np.min(temperature)), float(np.max(temperature)))
     parts = [_moments(temperature, rate, slice(first, last), scaling, highest)
              for first, last in zip(bounds[:-1], bounds[1:])]
-    rms = {order: np.full((folds, rate.shape[1]), math.inf) for order in orders}
-    for fold in range(folds):
-        held_out = range(fold, len(parts), folds)
-        training = _combined([part for index, part in enumerate(parts)
-                              if index % folds != fold])
+    rms = {order: np.full((folds.folds, rate.shape[1]), math.inf) for order in orders}
+    for fold in range(folds.folds):
+        held_out = np.flatnonzero(folds.held[fold])
+        training = _combined([part for part, used in zip(parts, folds.training[fold]) if used])
         solutions = {}
         for order in orders:
             if not _support_problem(training, order):
@@ -308,20 +273,21 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds: int) -> dict:
 
 
 def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),
-                  blocks: int = 20, folds: int = 5) -> tuple:
+                  blocks: int = DEFAULT_BLOCKS, folds: int = DEFAULT_FOLDS,
+                  validation: str = FORWARD, min_past: float = DEFAULT_MIN_PAST) -> tuple:
     """
-    Choose the bias polynomial order per axis by contiguous-block cross-validation.
+    Choose the bias polynomial order per axis on held-out contiguous blocks.
 
-    The record is cut into ``blocks`` contiguous blocks dealt round-robin to
-    ``folds`` folds (`fold_rows`). Each candidate order is fitted on all folds
-    but one and scored by the RMS of the corrected rate (clamped to the
-    training temperature range, as PolynomialModel.correct clamps in the
-    node) on the held-out fold. Blocks are contiguous because neighbouring
-    samples are correlated. The chosen order is the lowest whose mean
-    held-out RMS is within one standard error of the best; orders the
-    training data cannot support score inf and are never chosen. Each block
-    is summarised once (normal equations up to the highest order), so the
-    cost hardly grows with the number of orders and folds.
+    The record is cut into ``blocks`` contiguous blocks and dealt to folds by
+    ``validation`` (`validation.split`: forward in time by default, or
+    round-robin to ``folds`` folds). Each candidate order is fitted on a
+    fold's training blocks and scored by the RMS of the corrected rate on its
+    held-out blocks. Blocks are contiguous because neighbouring samples are
+    correlated. The chosen order is the lowest whose mean held-out RMS is
+    within one standard error of the best; orders the training data cannot
+    support score inf and are never chosen. Each block is summarised once
+    (normal equations up to the highest order), so the cost hardly grows with
+    the number of orders and folds.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     names = AXIS_NAMES[:rate.shape[1]] if axes is None else tuple(axes)
@@ -333,31 +299,23 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
         msg = 'no candidate orders given'
         raise CalibrationError(msg)
     orders = sorted(set(_axis_orders(candidates, len(candidates))))
-    bounds = _fold_bounds(temperature.size, blocks, folds)
-    block_rms = _held_out_rms_rad_s(temperature, rate, bounds, orders, folds)
+    dealt = split(blocks, validation, folds, min_past)
+    bounds = block_bounds(temperature.size, blocks)
+    fold_rms = _held_out_rms_rad_s(temperature, rate, bounds, orders, dealt)
     selections = []
     for axis, name in enumerate(names):
-        scores = tuple(_score(order, block_rms[order][:, axis]) for order in orders)
-        best = min(scores, key=lambda score: score.mean_rms_rad_s)
-        if not math.isfinite(best.mean_rms_rad_s):
+        scores = tuple(order_score(order, fold_rms[order][:, axis]) for order in orders)
+        try:
+            chosen = one_standard_error(scores)
+        except CalibrationError:
             msg = (f'axis {name}: the data cannot support any of the orders {orders} '
-                   f'in {folds}-fold cross-validation')
-            raise CalibrationError(msg)
-        threshold = best.mean_rms_rad_s + best.standard_error_rad_s
-        chosen = next(score.order for score in scores if score.mean_rms_rad_s <= threshold)
-        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS over {folds} '
-                f'folds of {blocks} contiguous blocks is within one standard error of the '
-                f'best (order {best.order})')
+                   f'({dealt.describe()})')
+            raise CalibrationError(msg) from None
+        best = best_score(scores)
+        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS ({dealt.describe()}) '
+                f'is within one standard error of the best (order {best.order})')
         selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
     return tuple(selections)
-
-
-def _score(order: int, block_rms_rad_s: np.ndarray) -> OrderScore:
-    if not np.all(np.isfinite(block_rms_rad_s)):
-        return OrderScore(order, tuple(float(v) for v in block_rms_rad_s), math.inf, math.inf)
-    standard_error = np.std(block_rms_rad_s, ddof=1) / math.sqrt(block_rms_rad_s.size)
-    return OrderScore(order, tuple(float(v) for v in block_rms_rad_s),
-                      float(np.mean(block_rms_rad_s)), float(standard_error))
 
 
 def format_order_table(selections) -> str:

@@ -21,16 +21,9 @@ import numpy as np
 from .compensation import TableCompensation
 from .conversion import Output, SensorTransfer
 from .errors import ConfigError
+from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
 
 AXIS_NAMES = ('x', 'y', 'z')
-
-
-@dataclass(frozen=True)
-class CorrectedRate:
-    """Corrected rate in rad/s and which samples had their temperature clamped."""
-
-    rate_rad_s: np.ndarray
-    temperature_clamped: np.ndarray
 
 
 def rate_temperature_columns(rate_rad_s, temperature_c, axes: int) -> tuple:
@@ -64,7 +57,13 @@ def finite_tuple(name: str, values, length: int) -> tuple:
 
 
 class _Streamed:
-    """A model without state: its stream is its batch correction."""
+    """
+    A model without state and without inputs beyond rate and temperature.
+
+    Its ``correct`` takes the ``inputs`` every model takes, and uses none.
+    """
+
+    inputs = frozenset()
 
     def stream(self) -> '_StatelessStream':
         """Return the block-by-block runner the node uses; this model keeps no state."""
@@ -73,7 +72,7 @@ class _Streamed:
 
 class _StatelessStream:
     """
-    The `EffectStream` interface for a model without state: extra inputs are unused.
+    The `ModelStream` of a model without state.
 
     Every operation of the models is element by element, so a block gives,
     bit for bit, what its rows give one at a time.
@@ -82,28 +81,22 @@ class _StatelessStream:
     def __init__(self, model: _Streamed):
         self.model = model
 
-    def correct_block(self, rates_rad_s, temperatures_c, time_s=None, temperature_2_c=None,
-                      acceleration_m_s2=None, supply_voltage_v=None) -> CorrectedRate:
+    def correct_block(self, rates_rad_s, temperatures_c,
+                      inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         return self.model.correct(rates_rad_s, temperatures_c)
 
-    def correct_one(self, rates_rad_s: list, temperatures_c: list, time_s=None,
-                    temperature_2_c=None, acceleration_m_s2=None,
-                    supply_voltage_v=None) -> tuple:
+    def correct_one(self, rates_rad_s: list, temperatures_c: list,
+                    inputs: ModelInputs = NO_INPUTS) -> tuple:
         """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""
         row = getattr(self.model, 'correct_row', None)
         result = None if row is None else row(rates_rad_s, temperatures_c)
         return one_row(self, rates_rad_s, temperatures_c) if result is None else result
 
 
-def one_row(stream, rates_rad_s: list, temperatures_c: list, time_s=None, temperature_2_c=None,
-            acceleration_m_s2=None, supply_voltage_v=None) -> tuple:
+def one_row(stream, rates_rad_s: list, temperatures_c: list,
+            inputs: ModelInputs = NO_INPUTS) -> tuple:
     """Correct one row through ``stream.correct_block``: (rad/s list, any clamped)."""
-    def column(value):
-        return None if value is None else [value]
-
-    result = stream.correct_block([rates_rad_s], [temperatures_c], column(time_s),
-                                  column(temperature_2_c), column(acceleration_m_s2),
-                                  column(supply_voltage_v))
+    result = stream.correct_block([rates_rad_s], [temperatures_c], inputs.rows())
     return result.rate_rad_s[0].tolist(), bool(result.temperature_clamped.any())
 
 
@@ -205,7 +198,8 @@ class PolynomialModel(OffsetModel):
             'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
             'range': [self.temperature_min_c, self.temperature_max_c]})
 
-    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+    def correct(self, rate_rad_s, temperature_c,
+                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         clamped_t = np.clip(temperature, self.temperature_min_c, self.temperature_max_c)
         x = (clamped_t - self.reference_temperature_c) / self.temperature_scale_c
@@ -259,7 +253,8 @@ class LinearBtcModel(OffsetModel):
         return model_fingerprint(self.name, {'pbc': self.pbc_rad_s,
                                              'btc': self.btc_rad_s_per_c, 't3': self.t3_c})
 
-    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+    def correct(self, rate_rad_s, temperature_c,
+                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         corrected = rate + np.asarray(self.pbc_rad_s) + \
             (temperature - self.t3_c) * np.asarray(self.btc_rad_s_per_c) - \
@@ -309,7 +304,8 @@ class EepromModel(_Streamed):
         mv = self.transfer.temperature_mv_from_c(temperature)
         return outar, self.transfer.temperature_to_output(mv, nominal.output)
 
-    def correct(self, rate_rad_s, temperature_c) -> CorrectedRate:
+    def correct(self, rate_rad_s, temperature_c,
+                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
         outar, tempout = self._to_output_units(rate_rad_s, temperature_c)
         result = self.compensation.compensate(outar, tempout)
         return CorrectedRate(np.deg2rad(result.rate_dps), result.temperature_clamped)

@@ -35,6 +35,7 @@ from .runner import run
 from .service_window import await_window, SampleWindow
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
+from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES
 from ..core.pairing import StampPairer, zero_order_hold
 from ..core.recalibration import check_window
@@ -48,13 +49,12 @@ from ..state_file import Field, load_state, reject_state, StateFileError, write_
 _MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
 _TEMPERATURE_2 = 'temperature_2'
 _SUPPLY = 'supply_voltage'
-# Inputs beyond rate and temperature, subscribed while the model needs them:
-# stream -> (model flag, message type, topic, value of a message).
+# Model inputs on topics of their own, subscribed while the model needs them:
+# stream -> (`ModelInputs` field, message type, topic, value of a message).
 _AUXILIARY = {
-    _TEMPERATURE_2: ('needs_temperature_2', Temperature, 'imu/temperature_2_raw',
+    _TEMPERATURE_2: ('temperature_2_c', Temperature, 'imu/temperature_2_raw',
                      lambda msg: msg.temperature),
-    _SUPPLY: ('needs_supply_voltage', BatteryState, 'imu/supply_voltage',
-              lambda msg: msg.voltage),
+    _SUPPLY: ('supply_voltage_v', BatteryState, 'imu/supply_voltage', lambda msg: msg.voltage),
 }
 _POLL_S = 0.05
 # Without sensor.full_scale_dps or the EEPROM's RANGE, a saved offset is held to the widest
@@ -247,9 +247,10 @@ class CompensationNode(Node):
             self.stream = None if model is None else model.stream()
         self.model = model
         # Read once here, not per sample: what the model needs besides rate and temperature.
-        self.needs_acceleration = getattr(model, 'needs_acceleration', False)
-        self.auxiliary = tuple(stream for stream, (flag, *_) in _AUXILIARY.items()
-                               if getattr(model, flag, False))
+        inputs = frozenset() if model is None else model.inputs
+        self.needs_acceleration = 'acceleration_m_s2' in inputs
+        self.auxiliary = tuple(stream for stream, (name, *_) in _AUXILIARY.items()
+                               if name in inputs)
         for stream in self.auxiliary:
             if stream not in self.input_subscriptions:
                 _, kind, topic, _ = _AUXILIARY[stream]
@@ -403,31 +404,25 @@ class CompensationNode(Node):
         raw = [messages.imu_rates(parts['imu'], self.indices) for _, parts in samples]
         temperatures = [[parts[s].temperature for s in self.temperature_streams]
                         for _, parts in samples]
-        extra = {name: [_AUXILIARY[name][3](parts[name]) for _, parts in samples]
+        # The model's inputs beyond rate and temperature: field of ModelInputs -> column.
+        extra = {_AUXILIARY[name][0]: [_AUXILIARY[name][3](parts[name]) for _, parts in samples]
                  for name in self.auxiliary if not self.held(name)}
         if held_supply is not None:
-            extra[_SUPPLY] = held_supply.tolist()
-        acceleration = None
+            extra[_AUXILIARY[_SUPPLY][0]] = held_supply.tolist()
         if self.needs_acceleration:
-            acceleration = [[parts['imu'].linear_acceleration.x,
-                             parts['imu'].linear_acceleration.y,
-                             parts['imu'].linear_acceleration.z] for _, parts in samples]
-        times = [stamp / 1e9 for stamp, _ in samples]
+            extra['acceleration_m_s2'] = [[parts['imu'].linear_acceleration.x,
+                                           parts['imu'].linear_acceleration.y,
+                                           parts['imu'].linear_acceleration.z]
+                                          for _, parts in samples]
+        extra['time_s'] = [stamp / 1e9 for stamp, _ in samples]
         if len(samples) == 1:
             # One sample, no numpy: the same numbers, bit for bit, as a block of one.
-            def first_of(column):
-                return None if column is None else column[0]
-            rate, clamped = stream.correct_one(raw[0], temperatures[0], times[0],
-                                               first_of(extra.get(_TEMPERATURE_2)),
-                                               first_of(acceleration),
-                                               first_of(extra.get(_SUPPLY)))
+            rate, clamped = stream.correct_one(raw[0], temperatures[0], ModelInputs(
+                **{name: column[0] for name, column in extra.items()}))
             rates, clamped = [rate], int(clamped)
         else:
-            def array(column):
-                return None if column is None else np.array(column)
-            result = stream.correct_block(raw, temperatures, np.array(times),
-                                          array(extra.get(_TEMPERATURE_2)), array(acceleration),
-                                          array(extra.get(_SUPPLY)))
+            result = stream.correct_block(raw, temperatures, ModelInputs(
+                **{name: np.array(column) for name, column in extra.items()}))
             rates = result.rate_rad_s.tolist()
             clamped = int(np.count_nonzero(result.temperature_clamped.any(axis=1)))
         if clamped:

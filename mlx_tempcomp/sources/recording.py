@@ -1,5 +1,5 @@
 """
-Recordings for the calibration toolkit: gyro rate and temperature from CSV files or rosbag2 bags.
+Recordings for the calibration toolkit: gyro rate and temperature from CSV, bags or FC logs.
 
 A `Recording` holds clean float64 columns: time strictly increasing, every
 value finite. Rows that cannot be used are dropped and counted by reason in
@@ -31,6 +31,10 @@ Bags (sqlite3 or mcap) are read with `RawBagReader`: ``sensor_msgs/Imu``
 and ``sensor_msgs/Temperature`` messages are paired by exact header stamp; a
 supply voltage (``sensor_msgs/BatteryState``), on stamps of its own, is held
 as the compensation node holds it.
+
+Flight-controller logs (``.ulg`` PX4 ULog, ``.bin`` ArduPilot DataFlash) are
+read by `sources.flightlog`: one IMU instance becomes a recording of its
+still samples (`load_flight_log`).
 """
 
 import csv
@@ -47,6 +51,7 @@ import numpy as np
 from .bag import (absolute_topic, BagError, ImuRecord, RawBagReader, RawTopics,
                   SupplyVoltageRecord, TemperatureRecord)
 from .errors import SourceError
+from .flightlog import FlightLogError, instance_columns, is_flight_log, read_flight_log
 from ..core.pairing import zero_order_hold
 
 AXES = ('x', 'y', 'z')
@@ -797,12 +802,30 @@ def load_bag(path: PathLike, imu_topic: str = '/imu/data',
                       _RowNames(f'{absolute_topic(imu_topic)} message', imu_numbers))
 
 
+def recording_from_columns(source: str, columns: Dict[str, np.ndarray],
+                           skipped: Mapping[str, int], noun: str) -> Recording:
+    """
+    Build a Recording from canonical columns of one row per sample, as the loaders do.
+
+    Rows with a non-finite or implausible value are dropped and counted on top
+    of ``skipped``; ``noun`` names a row in messages (e.g. 'IMU sample').
+    """
+    rows = len(columns['time'])
+    return _recording(source, dict(columns), np.zeros(rows, dtype=bool), dict(skipped),
+                      _RowNames(noun, np.arange(1, rows + 1)))
+
+
 def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = None,
                    preset: Optional[str] = None, imu_topic: str = '/imu/data',
                    temperature_topic: str = '/imu/temperature',
-                   supply_voltage_topic: str = '/imu/supply_voltage') -> Recording:
+                   supply_voltage_topic: str = '/imu/supply_voltage',
+                   instance: Optional[int] = None) -> Recording:
     """
-    Load a recording: a folder, ``.db3`` or ``.mcap`` as a bag, anything else as CSV.
+    Load a recording: a bag, a flight-controller log or a CSV file, by the path's extension.
+
+    A folder, ``.db3`` or ``.mcap`` is a bag; ``.ulg`` or ``.bin`` a
+    flight-controller log, of which IMU ``instance`` is read (default: the
+    first usable one, see `load_flight_log`); anything else is CSV.
 
     ``columns`` (a ColumnMap or its command-line form) or ``preset`` (a name
     in PRESETS) say how to read a CSV file; the default map reads the
@@ -810,6 +833,11 @@ def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = Non
     ``imu_topic``, ``temperature_topic`` and ``supply_voltage_topic``.
     """
     path = Path(path)
+    if is_flight_log(path) and not path.is_dir():
+        if columns is not None or preset is not None:
+            msg = f'{path} is a flight-controller log: a column map or preset applies to CSV'
+            raise RecordingError(msg)
+        return load_flight_log(path, instance)[0]
     if path.is_dir() or path.suffix.lower() in BAG_SUFFIXES:
         if columns is not None or preset is not None:
             msg = f'{path} is a rosbag2 bag: a column map or preset applies to CSV files only'
@@ -823,3 +851,24 @@ def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = Non
     elif isinstance(columns, str):
         columns = parse_column_map(columns)
     return load_csv(path, ColumnMap() if columns is None else columns)
+
+
+def load_flight_log(path: PathLike, instance: Optional[int] = None) -> tuple:
+    """
+    Load one IMU instance of a PX4 ULog or ArduPilot DataFlash log as a Recording.
+
+    Returns the Recording (the instance's still samples; moving ones and
+    those without a temperature counted in ``skipped``), the whole
+    `flightlog.FlightLog` and the `flightlog.ImuInstance` used. Raises
+    RecordingError when the log cannot be read or the instance cannot be used.
+    """
+    try:
+        log = read_flight_log(path)
+        used, data, skipped = instance_columns(log, instance)
+    except FlightLogError as err:
+        raise RecordingError(str(err)) from None
+    if not data['time'].size:
+        msg = f'{path}: {used.label}: no still sample with a temperature'
+        raise RecordingError(msg)
+    source = f'{path} [{used.label}]'
+    return recording_from_columns(source, data, skipped, f'{used.name} sample'), log, used

@@ -20,9 +20,14 @@ import os
 from pathlib import Path
 import sys
 
+import numpy as np
+
+from ..core.validation import DEFAULT_MIN_PAST, FORWARD, SCHEMES
 from ..errors import MlxTempCompError
 from ..model_params import parameter_file, write_parameter_file
-from ..sources.recording import load_recording, Recording, RecordingError
+from ..sources.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
+                                 read_flight_log)
+from ..sources.recording import load_flight_log, load_recording, Recording, RecordingError
 from ..state_file import atomic_write
 
 EXIT_USER_ERROR = 2
@@ -66,11 +71,42 @@ def float_type(accept, expected: str):
 finite_float = float_type(lambda value: True, 'a finite number')
 positive_float = float_type(lambda value: value > 0.0, 'a positive number')
 non_negative_float = float_type(lambda value: value >= 0.0, 'a number >= 0')
+fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
+# Validation schemes as the command line spells them.
+VALIDATION_OPTIONS = {scheme.replace('_', '-'): scheme for scheme in SCHEMES}
+
+
+def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> None:
+    """Add --validation and --min-past (core.validation); None when not given."""
+    default = FORWARD.replace('_', '-')
+    parser.add_argument('--validation', choices=tuple(VALIDATION_OPTIONS),
+                        help=f'{when}which held-out scheme decides: forward predicts each '
+                             'block from a fit on the blocks before it (as a node runs a model '
+                             'fitted on the past), round-robin deals blocks to --folds folds '
+                             f'(default: {default})')
+    parser.add_argument('--min-past', type=fraction, metavar='F',
+                        help=f'{when}forward: the first predicted block starts after this '
+                             f'fraction of the record (default: {DEFAULT_MIN_PAST})')
+
+
+def validation_settings(args: argparse.Namespace) -> dict:
+    """Return the validation and min_past the options ask for, defaults where not given."""
+    return {'validation': VALIDATION_OPTIONS[args.validation or FORWARD.replace('_', '-')],
+            'min_past': DEFAULT_MIN_PAST if args.min_past is None else args.min_past}
+
+
+def instance_option(text: str):
+    """Parse --instance: 'all' or an IMU instance number (argparse type)."""
+    return 'all' if text == 'all' else non_negative_int(text)
 
 
 def add_recording_options(parser: argparse.ArgumentParser) -> None:
-    """Add the input recording argument and how to read it (CSV columns, bag topics)."""
-    parser.add_argument('input', help='CSV file, or rosbag2 bag (folder, .db3 or .mcap)')
+    """Add the input recording argument and how to read it (CSV columns, bag topics, IMU)."""
+    parser.add_argument('input', help='CSV file, rosbag2 bag (folder, .db3 or .mcap), PX4 ULog '
+                                      '(.ulg) or ArduPilot DataFlash log (.bin)')
+    parser.add_argument('--instance', type=instance_option, metavar='N|all',
+                        help='IMU instance of a .ulg or .bin log (default: the first usable '
+                             'one; all: each usable one in turn, output names suffixed .imuN)')
     columns = parser.add_mutually_exclusive_group()
     columns.add_argument('--preset', metavar='NAME',
                          help='column map of a known data set (CSV only)')
@@ -131,23 +167,101 @@ def loading_summary(recording: Recording) -> str:
     return text
 
 
+def instance_line(instance: ImuInstance, used: bool = False) -> str:
+    """Say in one line what an IMU instance of a flight log holds and whether it is used."""
+    problem = instance.problem()
+    moving = int(instance.moving.sum())
+    text = f'  {instance.label}: {len(instance)} samples, {moving} moving'
+    finite = instance.temperature_c[np.isfinite(instance.temperature_c)]
+    if finite.size:
+        text += f', {finite.min():.2f} to {finite.max():.2f} C'
+    if used:
+        return text + '; used'
+    return text + (f'; not usable: {problem}' if problem else '; not used')
+
+
+def flight_log_summary(log: FlightLog, used: ImuInstance = None) -> str:
+    """Say what a flight log is, how it was read and each IMU instance it holds."""
+    lines = [f'{log.source}: {log.log_format}, {log.system}; {"; ".join(log.notes)}']
+    lines += [instance_line(i, used is not None and i.index == used.index)
+              for i in log.instances]
+    return '\n'.join(lines)
+
+
 def load(args: argparse.Namespace) -> Recording:
     """
     Load the recording named by the options `add_recording_options` defines.
 
-    Prints `loading_summary` on stdout, or on stderr when ``args.json`` keeps
-    stdout for JSON.
+    Prints `loading_summary` (for a flight log, after `flight_log_summary`)
+    on stdout, or on stderr when ``args.json`` keeps stdout for JSON.
     """
+    stream = sys.stderr if getattr(args, 'json', False) else sys.stdout
+    instance = getattr(args, 'instance', None)
     try:
-        recording = load_recording(args.input, columns=args.columns, preset=args.preset,
-                                   imu_topic=args.imu_topic,
-                                   temperature_topic=args.temperature_topic,
-                                   supply_voltage_topic=args.supply_voltage_topic)
+        if is_flight_log(args.input) and not Path(args.input).is_dir():
+            if args.columns is not None or args.preset is not None:
+                msg = f'{args.input} is a flight-controller log: --columns and --preset ' \
+                      'apply to CSV files'
+                raise UserError(msg)
+            recording, log, used = load_flight_log(args.input, instance)
+            print(flight_log_summary(log, used), file=stream)
+        else:
+            if instance is not None:
+                msg = f'--instance applies to .ulg and .bin logs, not {args.input}'
+                raise UserError(msg)
+            recording = load_recording(args.input, columns=args.columns, preset=args.preset,
+                                       imu_topic=args.imu_topic,
+                                       temperature_topic=args.temperature_topic,
+                                       supply_voltage_topic=args.supply_voltage_topic)
     except RecordingError as err:
         raise UserError(str(err)) from None
-    print(loading_summary(recording),
-          file=sys.stderr if getattr(args, 'json', False) else sys.stdout)
+    print(loading_summary(recording), file=stream)
     return recording
+
+
+# Output options a command run once per IMU instance (--instance all) suffixes with .imuN.
+_OUTPUT_OPTIONS = ('out', 'out_csv', 'px4_params', 'ardupilot_parm')
+
+
+def _suffixed(path, index: int) -> str:
+    path = Path(path)
+    return str(path.with_name(f'{path.stem}.imu{index}{path.suffix}'))
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """
+    Run the subcommand's handler.
+
+    With ``--instance all`` on a flight log, once per usable IMU instance,
+    each output path (--out, --out-csv, --px4-params, --ardupilot-parm)
+    suffixed with ``.imuN`` before its extension.
+    """
+    if getattr(args, 'instance', None) != 'all' or not getattr(args, 'per_instance', True):
+        return args.handler(args)
+    if getattr(args, 'json', False):
+        msg = '--json prints one document: give one --instance, not all'
+        raise UserError(msg)
+    if not is_flight_log(args.input):
+        msg = f'--instance applies to .ulg and .bin logs, not {args.input}'
+        raise UserError(msg)
+    try:
+        log = read_flight_log(args.input)
+        usable = [i.index for i in log.instances if not i.problem()]
+        if not usable:
+            log.instance()  # raises, naming each instance and its problem
+    except FlightLogError as err:
+        raise UserError(str(err)) from None
+    for index in usable:
+        print(f'== IMU instance {index}')
+        each = argparse.Namespace(**vars(args))
+        each.instance = index
+        for name in _OUTPUT_OPTIONS:
+            if getattr(each, name, None) is not None:
+                setattr(each, name, _suffixed(getattr(each, name), index))
+        status = args.handler(each)
+        if status:
+            return status
+    return 0
 
 
 def _check_writable_folder(folder: Path, option: str, path) -> None:

@@ -14,8 +14,10 @@ import argparse
 import math
 from pathlib import Path
 
-from .common import (add_recording_options, check_output_folder, float_type, load,
-                     non_negative_float, non_negative_int, UserError, write_json, write_result)
+from .common import (add_recording_options, add_validation_options, check_output_folder,
+                     fraction, load, non_negative_float, non_negative_int, UserError,
+                     validation_settings, write_json, write_result)
+from .exports import add_export_options, check_export_outputs, write_exports
 from .progress import add_progress_option, Progress
 from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
 from ..core.effects import RECORD_EFFECTS
@@ -30,12 +32,9 @@ METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bi
           'bias')
 
 
-_fraction = float_type(lambda value: 0.0 <= value < 1.0, 'a number in [0, 1)')
-
-
 def _test_part(text: str):
     """Parse --test: 'cycle' or a fraction in [0, 1) (argparse type)."""
-    return 'cycle' if text == 'cycle' else _fraction(text)
+    return 'cycle' if text == 'cycle' else fraction(text)
 
 
 def add_parser(commands) -> None:
@@ -43,19 +42,21 @@ def add_parser(commands) -> None:
     defaults = DiagnosisSettings()
     parser = commands.add_parser(
         'diagnose', help='find the effects a temperature polynomial misses, add them, report',
-        description='Fit a temperature polynomial (order by cross-validation), then test '
+        description='Fit a temperature polynomial (order by held-out blocks), then test '
                     'each effect it lacks (thermal lag, hysteresis, time drift, bias step, '
                     'second temperature, acceleration, scale factor, rate nonlinearity, '
                     'cross-axis) on held-out blocks and add the best significant one, until '
-                    'none helps. Writes report.md, report.json, PNG plots and params.yaml '
-                    'for the compensation node into --out.')
+                    'none helps. Blocks are judged forward in time by default (each predicted '
+                    'by a fit on the blocks before it). Writes report.md, report.json, PNG '
+                    'plots and params.yaml for the compensation node into --out.')
     add_recording_options(parser)
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='folder for the report, plots and parameter file (created)')
+    add_validation_options(parser)
     parser.add_argument('--folds', type=non_negative_int, default=defaults.folds, metavar='N',
-                        help='cross-validation folds (default: %(default)s)')
+                        help='round-robin folds (default: %(default)s)')
     parser.add_argument('--blocks', type=non_negative_int, default=defaults.blocks,
-                        metavar='N', help='contiguous blocks dealt round-robin to the folds '
+                        metavar='N', help='contiguous blocks the diagnosed part is cut into '
                                           '(default: %(default)s)')
     parser.add_argument('--average-s', type=non_negative_float, default=defaults.average_s,
                         metavar='S', help='bin length the residual is averaged over, 0 per '
@@ -63,9 +64,14 @@ def add_parser(commands) -> None:
     parser.add_argument('--max-order', type=non_negative_int, default=defaults.max_order,
                         metavar='N', help='highest polynomial order tried (default: '
                                           '%(default)s)')
-    parser.add_argument('--min-gain', type=_fraction, default=defaults.min_gain, metavar='F',
+    parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
+    parser.add_argument('--baseline-margin', type=fraction, default=defaults.baseline_margin,
+                        metavar='F', help='write the model found on an axis only when its '
+                                          'held-out RMS is at least F below the PX4-style '
+                                          "cubic's, else write the cubic (default: "
+                                          '%(default)s)')
     parser.add_argument('--block-tolerance', type=non_negative_float,
                         default=defaults.block_tolerance, metavar='F',
                         help='refuse an effect when a held-out block gets worse by more than F '
@@ -74,7 +80,7 @@ def add_parser(commands) -> None:
     test.add_argument('--test', type=_test_part, metavar='F|cycle',
                       help="keep a final test set: the last F of the record, or 'cycle' for "
                            'the last full heating/cooling cycle (the record needs two)')
-    test.add_argument('--test-fraction', type=_fraction, metavar='F',
+    test.add_argument('--test-fraction', type=fraction, metavar='F',
                       help='same as --test F')
     parser.add_argument('--record-effects', action='store_true',
                         help='also search time drift and bias steps, which are tied to the '
@@ -83,6 +89,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
                         help='node section of params.yaml (default: %(default)s)')
     add_progress_option(parser)
+    add_export_options(parser)
     parser.set_defaults(handler=diagnose_command)
 
 
@@ -110,6 +117,7 @@ class _Bars:
 
 def diagnose_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out')
+    check_export_outputs(args)
     recording = load(args)
     bars = _Bars(True if args.progress else None)
     try:
@@ -117,9 +125,10 @@ def diagnose_command(args: argparse.Namespace) -> int:
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
-            block_tolerance=args.block_tolerance, test_cycle=test == 'cycle',
+            block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
+            test_cycle=test == 'cycle',
             test_fraction=0.0 if test == 'cycle' else test,
-            record_effects=args.record_effects)
+            record_effects=args.record_effects, **validation_settings(args))
         diagnosis = run_diagnosis(recording, settings, progress=bars)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
@@ -146,6 +155,10 @@ def diagnose_command(args: argparse.Namespace) -> int:
         raise UserError(msg) from None
     print(_summary(report))
     print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
+    held = diagnosis.test_rows
+    write_exports(args, recording, lambda part: diagnosis.model,
+                  start=len(recording) - held if held else None, full_saw_held_out=not held)
+    print('\n'.join(_written_lines(report)))
     return 0
 
 
@@ -172,19 +185,43 @@ def _plain(value):
     return value
 
 
-def _finding_text(finding) -> str:
-    """One sentence on a record-only effect tested on top of the final model."""
+def _record_effect_text(finding) -> str:
+    """Say what a record-only effect is: its size and, for a step, when."""
     parameters = finding.parameters
     if finding.effect == 'bias_step':
-        what = (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
+        return (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
                 f'{parameters["after_start_s"]:.1f} s after the record start (stamp '
                 f'{parameters["time_s"]:.1f} s)')
-    else:
-        what = f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+    return f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+
+
+def _cause_text(cause) -> str:
+    """One sentence on the record effect that ended an axis's search."""
+    return (f'{cause.effect}, {_record_effect_text(cause)}, explains the residual better '
+            f'than any live effect (held-out gain {cause.held_out_gain:.3f}, round '
+            f'{cause.round_number}), so no live effect stands in for it; it is tied to '
+            "this record's clock: on a live node, recalibrate the ZRO at rest "
+            '(imu/recalibrate_zro) after such a change')
+
+
+def _finding_text(finding) -> str:
+    """One sentence on a record-only effect tested on top of the final model."""
+    what = _record_effect_text(finding)
     if finding.reason:
         return f'{what} would not pass: {finding.reason}'
     return (f'{what}, held-out gain {finding.held_out_gain:.3f}; ZRO recalibration at rest '
             '(imu/recalibrate_zro) covers it on a live node')
+
+
+def _written(axis, terms) -> dict:
+    """Return what an axis writes into params.yaml, with the figures it was chosen on."""
+    choice = axis.choice
+    return {'model': choice.written, 'effects': list(terms.effects),
+            'polynomial_order': len(terms.bias) - 1,
+            'held_out_rms': _number(choice.found.rms_rad_s),
+            'cubic_held_out_rms': _number(choice.cubic.rms_rad_s),
+            'ratio': _number(choice.ratio), 'margin': choice.margin,
+            'other_ratio': _number(choice.other_ratio), 'reason': choice.reason}
 
 
 def _report(source: str, recording, diagnosis) -> dict:
@@ -193,8 +230,14 @@ def _report(source: str, recording, diagnosis) -> dict:
     average = f'{settings.average_s:g} s' if settings.average_s else 'one sample'
     skipped = [{'effect': effect, 'reason': reason} for effect, reason in diagnosis.skipped]
     axes = {}
-    for axis in diagnosis.per_axis:
+    for axis, terms in zip(diagnosis.per_axis, diagnosis.model.terms):
         axes[axis.axis] = {
+            'written': _written(axis, terms),
+            'cause': None if axis.cause is None else {
+                'effect': axis.cause.effect, 'round': axis.cause.round_number,
+                'parameters': _plain(dict(axis.cause.parameters)),
+                'held_out_gain': _number(axis.cause.held_out_gain),
+                'text': _cause_text(axis.cause)},
             'steps': [{'effect': s.effect, 'live': s.effect not in RECORD_EFFECTS,
                        'parameters': _plain(dict(s.parameters)),
                        'rms_before': _number(s.before.rms_rad_s),
@@ -240,17 +283,23 @@ def _report(source: str, recording, diagnosis) -> dict:
                  'bins': diagnosis.bins,
                  'skipped_while_loading': dict(recording.skipped),
                  'sorted_while_loading': recording.sorted_rows},
-        'settings': {'folds': settings.folds, 'blocks': settings.blocks,
+        'settings': {'validation': settings.validation,
+                     'other_validation': settings.other_validation,
+                     'min_past': settings.min_past,
+                     'held_out_scheme': settings.split().describe(),
+                     'other_scheme': settings.split(settings.other_validation).describe(),
+                     'folds': settings.folds, 'blocks': settings.blocks,
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
                      'block_tolerance': settings.block_tolerance,
+                     'baseline_margin': settings.baseline_margin,
                      'test': 'cycle' if settings.test_cycle else settings.test_fraction,
                      'record_effects': settings.record_effects,
                      'temperature_rate_window_s': settings.rate_window_s},
         'effects': {'searched': list(settings.effects),
                     'record_only': sorted(RECORD_EFFECTS),
-                    'in_params_yaml': sorted({e for a in diagnosis.per_axis
-                                              for e in a.effects})},
+                    'in_params_yaml': sorted({e for t in diagnosis.model.terms
+                                              for e in t.effects})},
         'search_bounds': {name: [float(low), float(high)]
                           for name, (low, high) in diagnosis.bounds.items()},
         'axes': axes,
@@ -288,8 +337,12 @@ def _comparison_lines(report: dict) -> list:
     lines = []
     names = list(report['axes'])
     header = ('method', *(f'{a} RMS' for a in names), *(f'{a} peak' for a in names))
-    test = report['settings']['test']
-    scopes = {'cross_validation': 'Fold cross-validation over the diagnosed part',
+    settings = report['settings']
+    test = settings['test']
+    scopes = {settings['validation']: f'Held-out blocks, {settings["held_out_scheme"]} '
+                                      '(decides)',
+              settings['other_validation']: f'Held-out blocks, {settings["other_scheme"]} '
+                                            '(reported beside)',
               'test': 'Test set (' + ('the last full heating/cooling cycle' if test == 'cycle'
                                       else f'the last {test:g} of the record')
                       + ', never seen by the diagnosis)'}
@@ -302,14 +355,17 @@ def _comparison_lines(report: dict) -> list:
         lines += ['', 'Diagnosed / PX4-style cubic, RMS: ' + ', '.join(
             f'{a} {diagnosed[a]["rms"] / cubic[a]["rms"]:.2f}x' for a in names
             if cubic[a]['rms'])]
-    lines += ['', 'The cubic in cross-validation is least squares of T^0..T^3 (raw '
+    lines += ['', 'The cubic on held-out blocks is least squares of T^0..T^3 (raw '
                   'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
                   '3) on every row of the diagnosed part, as the PX4 script does.']
     return lines
 
 
 def _axis_lines(name: str, axis: dict) -> list:
-    lines = [f'## Axis {name}', '', '### Effects added', '']
+    lines = [f'## Axis {name}', '']
+    if axis['cause']:
+        lines += ['### Cause: a record-only effect', '', axis['cause']['text'] + '.', '']
+    lines += ['### Effects added', '']
     lines += _table(('round', 'effect', 'runs on', 'fitted constants', 'RMS before',
                      'RMS after', 'peak before', 'peak after'),
                     [(s['round'], s['effect'], 'live node' if s['live'] else 'this record',
@@ -319,11 +375,12 @@ def _axis_lines(name: str, axis: dict) -> list:
                       _e(s['peak_after'])) for s in axis['steps']])
     first, last = axis['steps'][0], axis['steps'][-1]
     lines += ['', '### Held-out RMS per block (step 0 -> final model)', '']
-    lines += _table(('block', 'fold', 'step 0', 'final', 'change'),
-                    [(k, k % len(first['fold_rms_after']), _e(before), _e(after),
+    lines += _table(('block', 'step 0', 'final', 'change'),
+                    [(k, _e(before), _e(after),
                       f'{(after - before) / before:+.0%}' if before else '-')
                      for k, (before, after) in enumerate(zip(first['block_rms_after'],
-                                                             last['block_rms_after']))])
+                                                             last['block_rms_after']))
+                     if before is not None])
     lines += ['', '### Candidates rejected', '']
     lines += _table(('round', 'effect', 'held-out gain', 'why'),
                     [(c['round'], c['effect'], f'{c["held_out_gain"]:.3f}'
@@ -340,6 +397,32 @@ def _axis_lines(name: str, axis: dict) -> list:
     return lines + ['']
 
 
+def _model_text(written: dict) -> str:
+    """Name a written model: the cubic, or the polynomial order and the effects beside it."""
+    if written['model'] == 'px4_cubic':
+        return 'the PX4-style cubic'
+    added = [e for e in written['effects'] if e != 'temperature_polynomial']
+    return (f'polynomial order {written["polynomial_order"]}'
+            + (' + ' + ', '.join(added) if added else ''))
+
+
+def _written_lines(report: dict) -> list:
+    """One line per axis: the model written, its held-out error and the cubic's."""
+    scheme = report['settings']['validation'].replace('_', '-')
+    lines = []
+    for name, axis in report['axes'].items():
+        written = axis['written']
+        cubic = f'{_e(written["cubic_held_out_rms"])} rad/s'
+        if written['model'] == 'px4_cubic':
+            lines.append(f'axis {name}: writes the PX4-style cubic, {scheme}-validated RMS '
+                         f'{cubic}; {written["reason"]}')
+        else:
+            lines.append(f'axis {name}: writes {_model_text(written)}, {scheme}-validated RMS '
+                         f'{_e(written["held_out_rms"])} rad/s; the cubic {cubic} '
+                         f'({written["ratio"]:.2f}x)')
+    return lines
+
+
 def _markdown(report: dict) -> str:
     rows = report['rows']
     settings = report['settings']
@@ -353,8 +436,8 @@ def _markdown(report: dict) -> str:
              + (f'; rows out of time order sorted into place: {rows["sorted_while_loading"]}'
                 if rows['sorted_while_loading'] else ''),
              f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
-             f'- held-out scheme: {settings["blocks"]} contiguous blocks dealt round-robin '
-             f'to {settings["folds"]} folds; stateful inputs (temperature slope over '
+             f'- held-out scheme (decides): {settings["held_out_scheme"]}; reported beside: '
+             f'{settings["other_scheme"]}; stateful inputs (temperature slope over '
              f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
              'over the whole record before rows are split.',
              f'- an effect is added when its relative held-out RMS reduction is at least '
@@ -372,6 +455,14 @@ def _markdown(report: dict) -> str:
                                              for name, (low, high) in bounds.items()),
              '- step errors come from EffectModel.correct (the code the node runs) on fold '
              'models; all values in rad/s.', '']
+    lines += ['## Model written (params.yaml)', '',
+              f'Each axis writes the model the loop found when its held-out RMS '
+              f'({settings["validation"].replace("_", "-")}) is at least '
+              f'{settings["baseline_margin"]:.0%} below the PX4-style cubic\'s and, '
+              f'{settings["other_validation"].replace("_", "-")}, not above it; else the '
+              'cubic.', '']
+    lines += [f'- {line}' for line in _written_lines(report)]
+    lines.append('')
     if report['skipped']:
         lines += ['## Skipped candidates', '']
         lines += [f'- {s["effect"]}: {s["reason"]}' for s in report['skipped']]
@@ -397,6 +488,8 @@ def _summary(report: dict) -> str:
         chain = ' -> '.join([_e(steps[0]['rms_before'])]
                             + [f'{s["effect"]} {_e(s["rms_after"])}' for s in steps])
         lines.append(f'axis {name}: held-out RMS {chain}')
+        if axis['cause']:
+            lines.append(f'axis {name}: cause: {axis["cause"]["text"]}')
         lines.extend(f'axis {name}: record-only finding {f["effect"]}: {f["text"]}'
                      for f in axis['findings'] if f['passes'])
     for scope, methods in report['comparison'].items():

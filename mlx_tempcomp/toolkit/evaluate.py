@@ -27,14 +27,10 @@ from .common import (add_recording_options, check_output_file, float_type, load,
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
+from ..core.model_interface import INPUTS, ModelInputs
 from ..core.table import sensor_tables
 from ..node_parameters import axes_of, build_model, node_values, ParameterError, transfer_of
 from ..sources.bag import BagError, RawBagReader, RawTopics
-
-_INPUTS = (('needs_time', 'time_s', 'time'),
-           ('needs_temperature_2', 'temperature_2_c', 'a temperature_2 column'),
-           ('needs_acceleration', 'acceleration_m_s2', 'acc_x, acc_y and acc_z columns'),
-           ('needs_supply_voltage', 'supply_voltage_v', 'a supply_voltage column'))
 
 
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')
@@ -162,16 +158,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
                f'compensates axes {", ".join(axes)}')
         raise UserError(msg)
     columns = [recording.axes.index(a) for a in axes]
-    inputs = {}
-    for flag, keyword, what in _INPUTS:
-        if getattr(model, flag, False):
-            value = recording.time_s if keyword == 'time_s' else \
-                getattr(recording, keyword)
-            if value is None:
-                msg = f'the {model.name} model of {args.params} needs {what}; {args.input} ' \
-                      'has none'
-                raise UserError(msg)
-            inputs[keyword] = value
+    for name in INPUTS:
+        if name in model.inputs and getattr(recording, name) is None:
+            *others, last = INPUTS[name].columns
+            what = f'{", ".join(others)} and {last} columns' if others else f'a {last} column'
+            msg = f'the {model.name} model of {args.params} needs {what}; {args.input} has none'
+            raise UserError(msg)
+    inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
     temperature_c = recording.temperature_c
     if model.name == 'eeprom' and len(axes) > 1:
         chips = _chip_temperatures(args, axes, recording.time_s)
@@ -182,7 +175,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         else:
             temperature_c = chips
     try:
-        result = model.correct(recording.gyro_rad_s[:, columns], temperature_c, **inputs)
+        result = model.correct(recording.gyro_rad_s[:, columns], temperature_c, inputs)
     except TempCompError as err:
         raise UserError(f'{args.params}: the {model.name} model cannot run: {err}') from None
     corrected = result.rate_rad_s

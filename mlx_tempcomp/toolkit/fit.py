@@ -8,23 +8,26 @@ node loads (atomically). docs/toolkit-fit.md describes the models.
 """
 
 import argparse
+import contextlib
+import io
 import math
 
 import numpy as np
 
-from .common import (add_parameter_file_options, add_recording_options, check_output_file,
-                     finite_float, load, non_negative_int, positive_float, UserError,
+from .common import (add_parameter_file_options, add_recording_options,
+                     add_validation_options, check_output_file, finite_float, load,
+                     non_negative_int, positive_float, UserError, validation_settings,
                      write_node_parameters)
+from .exports import add_export_options, check_export_outputs, node_model, write_exports
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
                             format_order_table, relative_polynomial, select_orders, table_step_c)
 from ..core.models import AXIS_NAMES
+from ..core.validation import DEFAULT_BLOCKS, DEFAULT_FOLDS, split
 from ..model_params import chain_parameters, linear_btc_parameters, polynomial_parameters
 
 DEFAULT_MAX_ORDER = 8
-DEFAULT_BLOCKS = 20
-DEFAULT_FOLDS = 5
 DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order
 BTC_TABLE_ROWS = 6
 # The documents the relative and chain models come from, as their output names them.
@@ -52,16 +55,18 @@ def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
     folds = DEFAULT_FOLDS if args.folds is None else args.folds
     if args.order is None:
         max_order = DEFAULT_MAX_ORDER if args.max_order is None else args.max_order
+        validation = validation_settings(args)
         selections = select_orders(recording.temperature_c, rate_rad_s, axes=recording.axes,
                                    candidate_orders=range(max_order + 1), blocks=blocks,
-                                   folds=folds)
+                                   folds=folds, **validation)
         orders = tuple(selection.order for selection in selections)
         print(format_order_table(selections))
+        dealt = split(blocks, validation['validation'], folds, validation['min_past'])
+        how = f'chosen on held-out blocks, {dealt.describe()}'
     else:
         orders = (args.order,) * len(recording.axes)
+        how = 'given by --order'
     model = fit_polynomial(recording.temperature_c, rate_rad_s, orders)
-    how = 'given by --order' if args.order is not None else \
-        f'chosen by {folds}-fold cross-validation over {blocks} blocks'
     chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
     print(f'orders ({how}): {chosen}')
     return model
@@ -228,9 +233,10 @@ def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
 
 
 _FIT_MODELS = {
-    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks', 'folds')),
-    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'folds',
-                                       'true_temperature')),
+    'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks', 'folds',
+                                           'validation', 'min_past')),
+    'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'folds', 'validation',
+                                       'min_past', 'true_temperature')),
     'linear_btc': (_fit_linear_btc_model, ('t3', 'table_step')),
     'chain': (_fit_chain_model, ('order', 'full_scale_dps', 'reference_temperature',
                                  'reference_temperature_2')),
@@ -265,10 +271,11 @@ def add_parser(commands) -> None:
     orders.add_argument('--max-order', type=non_negative_int, metavar='N',
                         help=f'highest order tried (default: {DEFAULT_MAX_ORDER})')
     fit.add_argument('--blocks', type=int, metavar='N',
-                     help='contiguous blocks, dealt round-robin to the folds (default: '
-                          f'{DEFAULT_BLOCKS})')
+                     help='polynomial, relative: contiguous blocks the record is cut into '
+                          f'(default: {DEFAULT_BLOCKS})')
     fit.add_argument('--folds', type=int, metavar='N',
-                     help=f'cross-validation folds (default: {DEFAULT_FOLDS})')
+                     help=f'polynomial, relative: round-robin folds (default: {DEFAULT_FOLDS})')
+    add_validation_options(fit, 'polynomial, relative: ')
     fit.add_argument('--true-temperature', type=finite_float, metavar='C',
                      help='relative: temperature at which no bias is introduced '
                           '(default: the mean temperature of the data)')
@@ -287,6 +294,7 @@ def add_parser(commands) -> None:
                      help='chain: second temperature of stages 1-3 (default: the mean '
                           'second temperature over the plateaus)')
     add_parameter_file_options(fit)
+    add_export_options(fit)
     fit.set_defaults(handler=fit_command)
 
 
@@ -299,12 +307,24 @@ def fit_command(args: argparse.Namespace) -> int:
         msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
         raise UserError(msg)
     check_output_file(args.out, '--out')
+    if args.model == 'chain' and (args.px4_params or args.ardupilot_parm):
+        msg = ('--px4-params and --ardupilot-parm export a bias cubic; --model chain corrects '
+               'rate-dependent errors no firmware cubic holds')
+        raise UserError(msg)
+    check_export_outputs(args)
     recording = load(args)
     try:
         parameters, header = fit(args, recording)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+    write_exports(args, recording, lambda part: _refit(args, fit, part))
     write_node_parameters(args, parameters, header)
     print(f'wrote {args.out} (model {parameters["model"]})')
     return 0
+
+
+def _refit(args: argparse.Namespace, fit, part):
+    """Fit the same model to a part of the recording, quietly, for the exports' comparison."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        return node_model(fit(args, part)[0])

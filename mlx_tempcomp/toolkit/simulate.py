@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (check_output_file, check_output_folder, non_negative_float,
-                     non_negative_int, positive_float, UserError, write_json)
+                     non_negative_int, positive_float, UserError, write_json, write_result)
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
@@ -41,6 +41,13 @@ DEFAULT_DURATION_S = 600.0
 _FACES_M_S2 = tuple(tuple(GRAVITY_M_S2 * sign * (np.arange(3) == axis))
                     for axis in (2, 0, 1) for sign in (1.0, -1.0))
 _CSV_FORMAT = '%.12g'
+# --fleet: effects given vary unit to unit by this relative spread; outliers get this much
+# ZRO slope on top (about ten sigma of the chips' own spread, 0.02 deg/s/C).
+FLEET_EFFECT_SPREAD = 0.2
+FLEET_VARIED_EFFECTS = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v')
+OUTLIER_ZRO_SLOPE_DPS_PER_C = 0.2
+FLEET_UNITS_PER_OUTLIER = 50
+FLEET_SEED_STRIDE = 100000
 
 
 def _parse_axes(text: str) -> tuple:
@@ -102,8 +109,14 @@ def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
     return [math.radians(c) for c in zro_dps.coef]
 
 
-def _device_recording(args, out: Path, progress_enabled) -> tuple:
-    """Run the simulated chips; give the recording, per-chip temperatures, images, truth."""
+def _device_recording(args, out: Path, progress_enabled,
+                      zro_slope_shift_dps_per_c=0.0) -> tuple:
+    """
+    Run the simulated chips; give the recording, per-chip temperatures, images, truth.
+
+    ``zro_slope_shift_dps_per_c`` is added to every chip's ZRO slope (an outlier
+    unit of `--fleet`), after the factory EEPROM was measured.
+    """
     supply_times, supply_v = _supply(args.supply_v)
     effects = Effects(thermal_lag_s=args.thermal_lag_s, hysteresis_dps=args.hysteresis_dps,
                       hysteresis_width_c=args.hysteresis_width_c,
@@ -134,6 +147,12 @@ def _device_recording(args, out: Path, progress_enabled) -> tuple:
         device.physics.scenario = dataclasses.replace(
             device.physics.scenario, supply_times_s=supply_times, supply_v=supply_v,
             acceleration_m_s2=faces[0])
+        if zro_slope_shift_dps_per_c:
+            zro = list(device.physics.truth.zro_dps_coefficients)
+            zro += [0.0] * (2 - len(zro))
+            zro[1] += zro_slope_shift_dps_per_c
+            device.physics.truth = dataclasses.replace(device.physics.truth,
+                                                       zro_dps_coefficients=tuple(zro))
     duration_s = args.duration_s
     if duration_s is None:
         duration_s = config.thermal_profile().duration_s if args.cycle_c else \
@@ -265,20 +284,33 @@ def _check_turntable_options(args: argparse.Namespace) -> None:
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    out, fmt, truth_path = _output_paths(args)
     args.rate_hz_given = args.rate_hz is not None
     args.supply_v_given = args.supply_v is not None
     if args.supply_v is None:
         args.supply_v = [str(NOMINAL_SUPPLY_V)]
     if args.rate_hz is None:
         args.rate_hz = 10.0
-    progress_enabled = args.progress or None
     if args.turntable:
         _check_turntable_options(args)
+    if args.fleet is not None:
+        if args.turntable or args.fleet == 0:
+            raise UserError('--fleet takes at least one unit, and simulates chips, not '
+                            '--turntable')
+        return _simulate_fleet(args)
+    out, fmt, truth_path = _output_paths(args)
+    for line in _simulate_one(args, out, fmt, truth_path, args.progress or None):
+        print(line)
+    return 0
+
+
+def _simulate_one(args, out: Path, fmt: str, truth_path: Path, progress_enabled,
+                  zro_slope_shift_dps_per_c=0.0) -> list:
+    """Simulate one recording and write it with its truth; give the lines to print."""
+    if args.turntable:
         recording, axis_temperatures_c, images, truth = _turntable_recording(args, out)
     else:
         recording, axis_temperatures_c, images, truth = _device_recording(
-            args, out, progress_enabled)
+            args, out, progress_enabled, zro_slope_shift_dps_per_c)
     if fmt == 'csv':
         _write_csv(out, recording)
         what = 'CSV'
@@ -306,11 +338,71 @@ def simulate_command(args: argparse.Namespace) -> int:
     low, high = float(recording.temperature_c.min()), float(recording.temperature_c.max())
     skipped = ', '.join(f'{reason} {count}' for reason, count in recording.skipped.items()
                         if count)
-    print(f'{len(recording)} samples over {recording.duration_s:.1f} s, axes '
-          f'{", ".join(recording.axes)}, temperature {low:.2f} to {high:.2f} C; '
-          f'skipped: {skipped or "none"}')
-    print(f'wrote {out} ({what})')
-    print(f'truth in {truth_path}')
+    return [f'{len(recording)} samples over {recording.duration_s:.1f} s, axes '
+            f'{", ".join(recording.axes)}, temperature {low:.2f} to {high:.2f} C; '
+            f'skipped: {skipped or "none"}',
+            f'wrote {out} ({what})',
+            f'truth in {truth_path}']
+
+
+def _fleet_units(args: argparse.Namespace) -> list:
+    """
+    Draw each unit of ``--fleet``: its seed, effect sizes and whether it is an outlier.
+
+    Every chip coefficient varies through the seed (`GyroTruth.random`); the
+    effects given vary by a factor 1 + 0.2 N(0, 1) (kept within 0.5 to 1.5).
+    """
+    rng = np.random.default_rng([args.seed, args.fleet])
+    count = max(1, args.fleet // FLEET_UNITS_PER_OUTLIER) if args.fleet_outliers is None \
+        else min(args.fleet_outliers, args.fleet)
+    outliers = set(rng.choice(args.fleet, size=count, replace=False).tolist())
+    units = []
+    for k in range(args.fleet):
+        factor = {name: float(np.clip(1.0 + FLEET_EFFECT_SPREAD * rng.standard_normal(), 0.5,
+                                      1.5)) for name in FLEET_VARIED_EFFECTS}
+        units.append({'unit': f'unit-{k:03d}', 'seed': args.seed * FLEET_SEED_STRIDE + k,
+                      'effects': {name: getattr(args, name) * factor[name]
+                                  for name in FLEET_VARIED_EFFECTS},
+                      'outlier': k in outliers,
+                      'zro_slope_shift_dps_per_c': OUTLIER_ZRO_SLOPE_DPS_PER_C
+                      if k in outliers else 0.0})
+    return units
+
+
+def _simulate_fleet(args: argparse.Namespace) -> int:
+    """Write ``--fleet`` unit recordings, their truths, a manifest and fleet_truth.json."""
+    folder = Path(args.out)
+    check_output_folder(folder, '--out', new=True)
+    fmt = args.format or 'csv'
+    folder.mkdir()
+    units = _fleet_units(args)
+    rows = ['unit,path']
+    with Progress(len(units), f'simulating {len(units)} units', args.progress or None) as bar:
+        for done, unit in enumerate(units):
+            unit_args = argparse.Namespace(**{**vars(args), 'seed': unit['seed'],
+                                              **unit['effects']})
+            name = unit['unit'] + ('.csv' if fmt == 'csv' else '')
+            out = folder / name
+            unit['path'] = name
+            unit['truth'] = unit['unit'] + '.truth.json'
+            _simulate_one(unit_args, out, fmt, folder / unit['truth'], False,
+                          unit['zro_slope_shift_dps_per_c'])
+            rows.append(f'{unit["unit"]},{name}')
+            bar.update(done + 1)
+    try:
+        write_result(folder / 'units.csv', '\n'.join(rows) + '\n')
+        write_json(folder / 'fleet_truth.json', {
+            'units': units, 'base_seed': args.seed,
+            'notes': 'each unit is mlx-tempcomp simulate with its seed (chip coefficients '
+                     'drawn by GyroTruth.random) and its effect sizes; an outlier unit has '
+                     f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C added to every chip ZRO slope. '
+                     'Per-unit truth in <unit>.truth.json.'})
+    except OSError as err:
+        msg = f'cannot write to {folder}: {err.strerror}'
+        raise UserError(msg) from None
+    outliers = ', '.join(u['unit'] for u in units if u['outlier']) or 'none'
+    print(f'wrote {len(units)} units into {folder} (manifest units.csv, fleet_truth.json); '
+          f'outliers: {outliers}')
     return 0
 
 
@@ -383,5 +475,14 @@ def add_parser(commands) -> None:
                           help='rate plateaus on each axis at several chamber temperatures '
                                'with a reference rate and a second temperature, for fit --model '
                                'chain')
+    fleet = simulate.add_argument_group('fleet')
+    fleet.add_argument('--fleet', type=non_negative_int, metavar='N',
+                       help='simulate N units into the new folder --out: unit-to-unit '
+                            'variation of every coefficient, a few outlier units, a manifest '
+                            'units.csv for mlx-tempcomp fleet and fleet_truth.json')
+    fleet.add_argument('--fleet-outliers', type=non_negative_int, metavar='K',
+                       help=f'units of --fleet whose ZRO slope is off by '
+                            f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C (default: one in '
+                            f'{FLEET_UNITS_PER_OUTLIER}, at least one)')
     add_progress_option(simulate)
     simulate.set_defaults(handler=simulate_command)

@@ -1,0 +1,328 @@
+"""
+The fleet report: one row per unit, each coefficient over the fleet, the outlier units.
+
+Read from what ``OUT/units/`` holds (each unit's unit.json, params.yaml and,
+from diagnose, report.json), so ``fleet report`` can write it again at any
+time. Per record: the effects the diagnosis added per axis, the held-out RMS
+of the diagnosed model (the test set when one was kept, else the fold
+cross-validation) and its gain over the PX4-style cubic (cubic RMS /
+diagnosed RMS). The bias polynomials of units differ in order and reference,
+so they are compared as the bias and its slope at one fleet temperature (the
+median of the records' mid-range temperatures). Outliers: the robust z-score
+0.6745 (x - median) / MAD of the bias, slope, held-out RMS and number of
+effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and Hoaglin's 3.5);
+when the MAD is zero, the mean absolute deviation times 1.2533 stands in.
+A unit of several records has one row per record: one model over several
+records of a unit arrives with issue 15 item 3.
+"""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .unit import UNIT_FILE
+from ..toolkit.common import write_json, write_result
+
+OUTLIER_Z = 3.5
+# MAD and mean absolute deviation scaled to the standard deviation of a normal sample.
+_MAD_Z = 0.6745
+_MEAN_AD_SCALE = 1.253314
+MIN_UNITS_FOR_OUTLIERS = 5
+PLOT = 'fleet_coefficients.png'
+METRICS = ('bias_rad_s', 'slope_rad_s_per_c', 'held_out_rms_rad_s', 'effects')
+
+
+def _flatten(tree, prefix: str = '') -> dict:
+    flat = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _model_values(params_path: Path) -> tuple:
+    """Give (model name, axes, flattened section of the model) of a parameter file."""
+    content = yaml.safe_load(params_path.read_text(encoding='utf-8'))
+    values = next(iter(content.values()))['ros__parameters']
+    model = values['model']
+    return model, list(values['axes']), _flatten(values.get(model, {}))
+
+
+def _bias_and_slope(section: dict, axis: str, temperature_c: float) -> tuple:
+    """Give the bias polynomial's value and slope at ``temperature_c`` (None without one)."""
+    coefficients = section.get(f'bias.{axis}')
+    if coefficients is None or 'temperature_scale_c' not in section:
+        return None, None
+    scale_c = section['temperature_scale_c']
+    low, high = section.get('temperature_min_c', -math.inf), section.get('temperature_max_c',
+                                                                         math.inf)
+    x = (min(max(temperature_c, low), high) - section['reference_temperature_c']) / scale_c
+    polynomial = np.polynomial.Polynomial(coefficients)
+    return float(polynomial(x)), float(polynomial.deriv()(x) / scale_c)
+
+
+def _coefficients(section: dict, axis: str) -> dict:
+    """Give the per-axis numbers of a model besides its bias polynomial, lists by index."""
+    found = {}
+    for key, value in section.items():
+        name, _, key_axis = key.rpartition('.')
+        if key_axis != axis or name in ('bias', 'bias_step_time_s', 'bias_step_rad_s'):
+            continue
+        if isinstance(value, list):
+            found.update({f'{name}[{k}]': float(v) for k, v in enumerate(value)})
+        elif isinstance(value, (int, float)):
+            found[name] = float(value)
+    return found
+
+
+def _record_row(unit: str, folder: Path, record: dict) -> dict:
+    """Read one record's results: effects, held-out error, gain, model section."""
+    row = {'unit': unit, 'record': record['folder'], 'path': record['path']}
+    model, axes, section = _model_values(folder / 'params.yaml')
+    row.update(model=model, axes=axes, section=section)
+    report_path = folder / 'report.json'
+    row['report'] = None
+    if report_path.exists():
+        report = json.loads(report_path.read_text(encoding='utf-8'))
+        # The test part when held out, else the validation scheme that decided.
+        scope = 'test' if 'test' in report['comparison'] else report['settings']['validation']
+        methods = report['comparison'][scope]
+        row['report'] = {
+            'scope': scope,
+            'effects': {a: [s['effect'] for s in report['axes'][a]['steps'][1:]]
+                        for a in axes},
+            'held_out_rms_rad_s': {a: methods['diagnosed'][a]['rms'] for a in axes},
+            'cubic_rms_rad_s': {a: methods['px4_cubic'][a]['rms'] for a in axes}}
+    return row
+
+
+def robust_z(values) -> np.ndarray:
+    """Give 0.6745 (x - median) / MAD of each value (mean absolute deviation if MAD is 0)."""
+    values = np.asarray(values, dtype=float)
+    median = np.median(values)
+    deviation = np.abs(values - median)
+    mad = np.median(deviation)
+    if mad > 0.0:
+        return _MAD_Z * (values - median) / mad
+    spread = _MEAN_AD_SCALE * np.mean(deviation)
+    return (values - median) / spread if spread > 0.0 else np.zeros_like(values)
+
+
+def _metric_values(row: dict, axis: str) -> dict:
+    report = row['report']
+    values = {'bias_rad_s': row['bias'].get(axis), 'slope_rad_s_per_c': row['slope'].get(axis)}
+    if report is not None:
+        values['held_out_rms_rad_s'] = report['held_out_rms_rad_s'][axis]
+        values['effects'] = float(len(report['effects'][axis]))
+    return values
+
+
+def _outliers(rows: list, axes: list) -> list:
+    """Flag rows whose robust z-score of a metric on an axis exceeds OUTLIER_Z."""
+    flagged = []
+    for axis in axes:
+        for metric in METRICS:
+            pairs = [(row, _metric_values(row, axis).get(metric)) for row in rows
+                     if axis in row['axes']]
+            pairs = [(row, value) for row, value in pairs if value is not None]
+            if len(pairs) < MIN_UNITS_FOR_OUTLIERS:
+                continue
+            values = [value for _, value in pairs]
+            median = float(np.median(values))
+            for (row, value), z in zip(pairs, robust_z(values)):
+                if abs(z) > OUTLIER_Z:
+                    flagged.append({'unit': row['unit'], 'record': row['record'],
+                                    'axis': axis, 'metric': metric, 'value': value,
+                                    'fleet_median': median, 'robust_z': float(z),
+                                    'reason': f'axis {axis} {metric} {value:.3g} against a '
+                                              f'fleet median of {median:.3g} (robust z '
+                                              f'{z:+.1f})'})
+    return flagged
+
+
+def _distribution(values) -> dict:
+    values = np.asarray(values, dtype=float)
+    median = float(np.median(values))
+    return {'units': int(values.size), 'nonzero': int(np.count_nonzero(values)),
+            'median': median, 'mad': float(np.median(np.abs(values - median))),
+            'p05': float(np.percentile(values, 5)), 'p95': float(np.percentile(values, 95)),
+            'min': float(values.min()), 'max': float(values.max())}
+
+
+def _distributions(rows: list, axes: list) -> dict:
+    """Give each coefficient's distribution over the records that have it, per axis."""
+    found = {}
+    for axis in axes:
+        names = {}
+        for row in rows:
+            if axis not in row['axes']:
+                continue
+            numbers = {'bias_rad_s': row['bias'].get(axis),
+                       'slope_rad_s_per_c': row['slope'].get(axis),
+                       **_coefficients(row['section'], axis)}
+            for name, value in numbers.items():
+                if value is not None:
+                    names.setdefault(name, []).append(value)
+        found[axis] = {name: _distribution(values) for name, values in names.items()
+                       if any(values)}
+    return found
+
+
+def _unit_entries(units: Path) -> list:
+    entries = []
+    for path in sorted(units.glob(f'*/{UNIT_FILE}')):
+        try:
+            entries.append(json.loads(path.read_text(encoding='utf-8')))
+        except (OSError, ValueError):
+            continue
+    return entries
+
+
+def _ratio(numerator, denominator):
+    return numerator / denominator if numerator is not None and denominator else None
+
+
+def fleet_summary(out: Path) -> dict:
+    """Give the content of fleet.json from the units ``out`` holds."""
+    entries = _unit_entries(out / 'units')
+    rows = []
+    for entry in entries:
+        if entry['status'] == 'ok':
+            for record in entry['records']:
+                rows.append(_record_row(entry['unit'], out / 'units' / entry['unit']
+                                        / record['folder'], record))
+    mid_c = [(row['section']['temperature_min_c'] + row['section']['temperature_max_c']) / 2
+             for row in rows if math.isfinite(row['section'].get('temperature_min_c', math.nan))
+             and math.isfinite(row['section'].get('temperature_max_c', math.nan))]
+    reference_c = float(np.median(mid_c)) if mid_c else 25.0
+    axes = sorted({axis for row in rows for axis in row['axes']})
+    for row in rows:
+        pairs = {a: _bias_and_slope(row['section'], a, reference_c) for a in row['axes']}
+        row['bias'] = {a: pair[0] for a, pair in pairs.items()}
+        row['slope'] = {a: pair[1] for a, pair in pairs.items()}
+    outliers = _outliers(rows, axes)
+    table = []
+    for row in rows:
+        report = row['report']
+        item = {'unit': row['unit'], 'record': row['record'], 'path': row['path'],
+                'model': row['model'], 'axes': row['axes'],
+                'bias_rad_s': row['bias'], 'slope_rad_s_per_c': row['slope'],
+                'outlier': [o['reason'] for o in outliers
+                            if (o['unit'], o['record']) == (row['unit'], row['record'])]}
+        if report is not None:
+            item.update(held_out=report['scope'], effects=report['effects'],
+                        held_out_rms_rad_s=report['held_out_rms_rad_s'],
+                        gain_over_cubic={a: _ratio(report['cubic_rms_rad_s'][a],
+                                                   report['held_out_rms_rad_s'][a])
+                                         for a in row['axes']})
+        table.append(item)
+    return {
+        'units': len(entries),
+        'finished': sum(e['status'] == 'ok' for e in entries),
+        'failed': [{'unit': e['unit'], 'error': e['error']} for e in entries
+                   if e['status'] != 'ok'],
+        'reference_temperature_c': reference_c,
+        'outlier_rule': f'|robust z| > {OUTLIER_Z} over at least {MIN_UNITS_FOR_OUTLIERS} '
+                        'records, robust z = 0.6745 (x - median) / MAD',
+        'several_records': 'a unit of several records has one row per record; one model over '
+                           'several records of a unit arrives with issue 15 item 3',
+        'records': table,
+        'coefficients': _distributions(rows, axes),
+        'outliers': outliers,
+        'plot': PLOT,
+    }
+
+
+def _e(value) -> str:
+    return '-' if value is None else f'{value:.3e}'
+
+
+def _per_axis(values: dict, show) -> str:
+    return ', '.join(f'{a} {show(v)}' for a, v in values.items())
+
+
+def _markdown(summary: dict) -> str:
+    lines = ['# Fleet report', '',
+             f'- units: {summary["units"]}, finished {summary["finished"]}, failed '
+             f'{len(summary["failed"])}.',
+             f'- bias and slope compared at {summary["reference_temperature_c"]:.2f} C (the '
+             "median of the records' mid-range temperatures); errors in rad/s.",
+             '- held-out RMS: of the diagnosed model on the test set when one was kept, else '
+             'in fold cross-validation; gain over the cubic: PX4-style cubic RMS / diagnosed '
+             'RMS on the same rows.',
+             f'- outliers: {summary["outlier_rule"]}.',
+             f'- {summary["several_records"]}.', '', '## Units', '',
+             '| unit | record | model | effects found | held-out RMS | gain over cubic | '
+             'bias | slope (rad/s/C) | outlier |', '|---|---|---|---|---|---|---|---|---|']
+    for row in summary['records']:
+        effects = _per_axis(row['effects'], lambda v: '+'.join(v) or 'none') \
+            if 'effects' in row else '-'
+        rms = _per_axis(row['held_out_rms_rad_s'], _e) if 'effects' in row else '-'
+        gain = _per_axis(row['gain_over_cubic'], lambda v: '-' if v is None else f'{v:.2f}x') \
+            if 'effects' in row else '-'
+        lines.append(f'| {row["unit"]} | {row["record"] or "-"} | {row["model"]} | {effects} '
+                     f'| {rms} | {gain} | {_per_axis(row["bias_rad_s"], _e)} | '
+                     f'{_per_axis(row["slope_rad_s_per_c"], _e)} | '
+                     f'{"yes" if row["outlier"] else ""} |')
+    lines += ['', '## Coefficients over the fleet', '',
+              '| axis | coefficient | records | nonzero | median | MAD | 5 % | 95 % | min | '
+              'max |', '|---|---|---|---|---|---|---|---|---|---|']
+    for axis, names in summary['coefficients'].items():
+        for name, d in names.items():
+            lines.append(f'| {axis} | {name} | {d["units"]} | {d["nonzero"]} | '
+                         f'{_e(d["median"])} | {_e(d["mad"])} | {_e(d["p05"])} | '
+                         f'{_e(d["p95"])} | {_e(d["min"])} | {_e(d["max"])} |')
+    lines += ['', '## Outlier units', '']
+    lines += [f'- {o["unit"]}{"/" + o["record"] if o["record"] else ""}: {o["reason"]}'
+              for o in summary['outliers']] or ['none']
+    if summary['failed']:
+        lines += ['', '## Failed units', '']
+        lines += [f'- {f["unit"]}: {f["error"]}' for f in summary['failed']]
+    lines += ['', '## Plots', '', f'- ![{PLOT}]({PLOT})']
+    return '\n'.join(lines) + '\n'
+
+
+def _plot(path: Path, summary: dict) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot
+
+    axes = list(summary['coefficients'])
+    metrics = ('bias_rad_s', 'slope_rad_s_per_c', 'held_out_rms_rad_s')
+    figure, grid = pyplot.subplots(max(len(axes), 1), len(metrics),
+                                   figsize=(12.0, 3.0 * max(len(axes), 1)), squeeze=False)
+    flagged = {(o['unit'], o['record'], o['axis'], o['metric']) for o in summary['outliers']}
+    for row, axis in enumerate(axes):
+        for column, metric in enumerate(metrics):
+            plot = grid[row][column]
+            pairs = [(r[metric][axis], (r['unit'], r['record'], axis, metric) in flagged)
+                     for r in summary['records'] if metric in r and axis in r[metric]
+                     and r[metric][axis] is not None]
+            if pairs:
+                plot.hist([v for v, _ in pairs], bins=min(30, max(5, len(pairs) // 3)),
+                          color='tab:blue')
+                for value in (v for v, out in pairs if out):
+                    plot.axvline(value, color='tab:red', linewidth=1.0)
+            plot.set_title(f'{axis}: {metric}', fontsize='small')
+            plot.set_ylabel('records')
+    figure.suptitle('Fleet distribution (red: outlier units)')
+    try:
+        figure.tight_layout()
+        figure.savefig(path, dpi=90)
+    finally:
+        pyplot.close(figure)
+
+
+def write_fleet_report(out: Path) -> Path:
+    """Write fleet.json, fleet.md and the plot into ``out``; give the path of fleet.md."""
+    summary = fleet_summary(out)
+    write_json(out / 'fleet.json', summary)
+    write_result(out / 'fleet.md', _markdown(summary))
+    _plot(out / PLOT, summary)
+    return out / 'fleet.md'

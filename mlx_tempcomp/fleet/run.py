@@ -1,0 +1,164 @@
+"""
+A fleet job on a Dask cluster: one task per unit, results stored as they arrive.
+
+The cluster is an in-process `LocalCluster` (one single-threaded worker
+process per core by default), or an existing one named by ``--scheduler`` or
+``DASK_SCHEDULER_ADDRESS``. Only unit names and options are sent; each worker
+opens its records itself and returns the unit's files, which the client
+stores in ``OUT/units/<unit>/`` by renaming a complete temporary folder into
+place, so a unit folder is whole or absent. A unit whose ``unit.json`` says
+it finished with the same command, records and options is skipped (unless
+``force``): a rerun, or a run after Ctrl-C, picks up where the last stopped.
+A worker lost mid-task costs nothing but time: the scheduler runs the task
+again elsewhere (up to ``distributed.scheduler.allowed-failures``). Dask is
+imported inside the functions, so importing this module loads none of it.
+"""
+
+from dataclasses import asdict, dataclass
+import json
+import logging
+import os
+from pathlib import Path
+import shutil
+import tempfile
+import uuid
+
+from .unit import LOG_FILE, one_line, run_unit, UNIT_FILE, UnitJob
+from ..toolkit.common import UserError, write_json
+from ..toolkit.progress import Progress
+
+UNITS_FOLDER = 'units'
+SCHEDULER_VARIABLE = 'DASK_SCHEDULER_ADDRESS'
+
+
+@dataclass(frozen=True)
+class FleetRun:
+    """What a run did: units done now, skipped as finished before, failed (unit, reason)."""
+
+    done: tuple
+    skipped: tuple
+    failed: tuple
+    interrupted: bool
+
+
+def unit_entry(job: UnitJob, status: str, error=None) -> dict:
+    """Give the content of a unit's unit.json."""
+    return {'unit': job.unit.unit, 'status': status, 'error': error, 'command': job.command,
+            'options': list(job.options),
+            'records': [{**asdict(record), 'folder': job.record_folder(k)}
+                        for k, record in enumerate(job.unit.records)],
+            'log': LOG_FILE}
+
+
+def finished(job: UnitJob) -> bool:
+    """Say whether the unit's folder holds a finished run of this very job."""
+    try:
+        entry = json.loads((Path(job.folder) / UNIT_FILE).read_text(encoding='utf-8'))
+    except (OSError, ValueError):
+        return False
+    return entry == unit_entry(job, 'ok')
+
+
+def store_unit(job: UnitJob, outcome: dict) -> None:
+    """Put a unit's files (or its error entry) in its folder: a whole folder, renamed in."""
+    folder = Path(job.folder)
+    staging = Path(tempfile.mkdtemp(prefix=f'.{folder.name}.', dir=folder.parent))
+    try:
+        for name, data in outcome['files'].items():
+            target = staging / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(data)
+        write_json(staging / UNIT_FILE, unit_entry(job, outcome['status'], outcome['error']))
+        os.chmod(staging, 0o755)
+        if folder.exists():
+            retired = folder.with_name(f'.{folder.name}.old-{uuid.uuid4().hex[:8]}')
+            folder.rename(retired)
+            staging.rename(folder)
+            shutil.rmtree(retired)
+        else:
+            staging.rename(folder)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+
+
+def _clear_leftovers(units: Path) -> None:
+    """Remove staging folders a killed client left behind (names starting with a dot)."""
+    for path in units.glob('.*'):
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _client(scheduler, workers):
+    """Connect to ``scheduler`` or start a LocalCluster; give (client, cluster or None)."""
+    from dask.distributed import Client, LocalCluster
+    address = scheduler or os.environ.get(SCHEDULER_VARIABLE)
+    if address:
+        try:
+            return Client(address), None
+        except (OSError, ValueError) as err:  # refused, timed out, or not an address
+            msg = f'scheduler {address}: cannot connect: {one_line(err)}'
+            raise UserError(msg) from None
+    # One thread per worker process: the commands are numpy and Python, and a worker
+    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME).
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                           processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
+              progress=None) -> FleetRun:
+    """
+    Run ``jobs`` (UnitJobs) on a Dask cluster; store each unit as it completes.
+
+    ``progress`` None shows the progress line when stderr is a terminal.
+    Ctrl-C stops the run: what finished is kept, the rest is marked
+    interrupted (rerun to resume).
+    """
+    from dask.distributed import as_completed
+    if jobs:
+        Path(jobs[0].folder).parent.mkdir(parents=True, exist_ok=True)
+        _clear_leftovers(Path(jobs[0].folder).parent)
+    skipped = tuple(job.unit.unit for job in jobs if not force and finished(job))
+    pending = {job.unit.unit: job for job in jobs if job.unit.unit not in skipped}
+    done, failed = [], []
+    label = 'fleet {command}: {done} done, {failed} failed, {remaining} remaining'
+    command = jobs[0].command if jobs else ''
+    interrupted = False
+    with Progress(len(pending), '', progress) as bar:
+        def show() -> None:
+            bar.label = label.format(command=command, done=len(done), failed=len(failed),
+                                     remaining=len(pending) - len(done) - len(failed))
+            bar.update(len(done) + len(failed))
+        show()
+        if not pending:
+            return FleetRun((), skipped, (), False)
+        client = cluster = None
+        run_id = uuid.uuid4().hex[:8]
+        try:
+            client, cluster = _client(scheduler, workers)
+            futures = {client.submit(run_unit, job, key=f'fleet-{run_id}-{unit}', pure=False):
+                       unit for unit, job in pending.items()}
+            for future in as_completed(futures):
+                unit = futures.pop(future)
+                try:
+                    outcome = future.result()
+                except Exception as err:  # a task Dask gave up on (KilledWorker): this unit's
+                    outcome = {'unit': unit, 'status': 'error', 'files': {},
+                               'error': f'{type(err).__name__}: {one_line(err)}'}
+                future.release()
+                store_unit(pending[unit], outcome)
+                if outcome['status'] == 'ok':
+                    done.append(unit)
+                else:
+                    failed.append((unit, outcome['error']))
+                show()
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+    return FleetRun(tuple(done), skipped, tuple(failed), interrupted)
