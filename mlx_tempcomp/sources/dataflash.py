@@ -9,6 +9,12 @@ Units come from the log's FMTU/UNIT/MULT messages when it has them (rad/s
 or deg/s, m/s/s, degC); without them, those LogStructure.h documents (rad/s,
 m/s/s, degC) are assumed and a note says so. Time is ``TimeUS``
 (microseconds since boot). Motion is found on each instance's own samples.
+
+The ``IMU`` rates and accelerations are in the vehicle's frame: ArduPilot
+rotates each sample by ``AHRS_ORIENTATION`` after its offsets and thermal
+corrections (``AP_InertialSensor_Backend::_rotate_and_correct_gyro``), so the
+INS_TCAL coefficients act in the sensor frame before that rotation.
+`board_rotation` gives that rotation from ArduPilot's table.
 """
 
 import contextlib
@@ -36,6 +42,39 @@ UNIT_FACTORS = {
 _KIND = {'GyrX': 'gyro', 'GyrY': 'gyro', 'GyrZ': 'gyro', 'AccX': 'acceleration',
          'AccY': 'acceleration', 'AccZ': 'acceleration', 'T': 'temperature'}
 _FIRMWARE = re.compile(r'^(Ardu\w+|APM:\w+)\s+V\S+')
+# AHRS_ORIENTATION values as (roll, pitch, yaw) in degrees, AP_Math/rotations.h order:
+# the rotation is Matrix3::from_euler(roll, pitch, yaw). 38 (ROLL_90_PITCH_68_YAW_293) is
+# the matrix vector3.cpp spells out, which is from_euler(90, 68.8, 293.3). Values 42 on
+# (ROLL_45, ROLL_315, the custom ones) are past tempcal_IMU.py's table (pymavlink rotmat).
+BOARD_ROTATIONS_DEG = (
+    (0, 0, 0), (0, 0, 45), (0, 0, 90), (0, 0, 135), (0, 0, 180), (0, 0, 225), (0, 0, 270),
+    (0, 0, 315), (180, 0, 0), (180, 0, 45), (180, 0, 90), (180, 0, 135), (0, 180, 0),
+    (180, 0, 225), (180, 0, 270), (180, 0, 315), (90, 0, 0), (90, 0, 45), (90, 0, 90),
+    (90, 0, 135), (270, 0, 0), (270, 0, 45), (270, 0, 90), (270, 0, 135), (0, 90, 0),
+    (0, 270, 0), (0, 180, 90), (0, 180, 270), (90, 90, 0), (180, 90, 0), (270, 90, 0),
+    (90, 180, 0), (270, 180, 0), (90, 270, 0), (180, 270, 0), (270, 270, 0), (90, 180, 90),
+    (90, 0, 270), (90, 68.8, 293.3), (0, 315, 0), (90, 315, 0), (0, 7, 0),
+)
+
+
+def board_rotation(orientation: int) -> np.ndarray:
+    """
+    Give the matrix ArduPilot rotates IMU samples by for ``AHRS_ORIENTATION`` = orientation.
+
+    A logged sample is R @ v with v in the sensor frame, so R.T @ logged is v.
+    Raise FlightLogError for a value tempcal_IMU.py cannot undo (42 on, custom).
+    """
+    if not 0 <= orientation < len(BOARD_ROTATIONS_DEG):
+        msg = (f'AHRS_ORIENTATION {orientation} is not one that tempcal_IMU.py (ArduPilot) can '
+               f'undo (it knows 0 to {len(BOARD_ROTATIONS_DEG) - 1}; custom rotations and '
+               'ROLL_45/ROLL_315 are beyond its table)')
+        raise FlightLogError(msg)
+    roll, pitch, yaw = np.radians(BOARD_ROTATIONS_DEG[orientation])
+    cr, sr, cp, sp, cy, sy = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
+                              np.cos(yaw), np.sin(yaw))
+    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+                     [-sp, sr * cp, cr * cp]])
 
 
 def device_id_parameter(kind: str, index: int) -> str:
