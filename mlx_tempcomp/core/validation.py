@@ -114,7 +114,7 @@ def record_block_bounds(record_rows, count: int) -> tuple:
     Cut records of the given rows into ``count`` blocks in all, none spanning two records.
 
     Each record gets blocks in proportion to its rows (largest remainders),
-    at least 2, so a block is never its record's only one. Return (the
+    but at least 2, so a block is never its record's only one. Return (the
     count + 1 row boundaries, the first block of each record).
     """
     rows = np.array([operator.index(r) for r in record_rows], dtype=np.int64)
@@ -125,8 +125,10 @@ def record_block_bounds(record_rows, count: int) -> tuple:
         msg = (f'{rows.size} records need at least {2 * rows.size} blocks (2 each), got '
                f'{count}')
         raise CalibrationError(msg)
-    share = 2 + (count - 2 * rows.size) * rows / rows.sum()
-    dealt = np.floor(share).astype(np.int64)
+    share = count * rows / rows.sum()
+    dealt = np.maximum(np.floor(share).astype(np.int64), 2)
+    while dealt.sum() > count:  # the floor of 2 took blocks: give back the most over share
+        dealt[np.argmax(np.where(dealt > 2, dealt - share, -np.inf))] -= 1
     order = np.argsort(-(share - dealt), kind='stable')
     dealt[order[:count - int(dealt.sum())]] += 1
     edges = [np.asarray(block_bounds(int(r), int(d))[:-1]) + offset
