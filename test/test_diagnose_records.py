@@ -7,7 +7,9 @@ test_diagnose.py, with a bias offset of its own (a re-mount between runs)
 and noise of its own.
 """
 
+import contextlib
 import functools
+import io
 import json
 import math
 
@@ -18,6 +20,7 @@ from mlx_tempcomp.core.effects import EffectModel
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.records import join_records
 from mlx_tempcomp.core.validation import record_block_bounds, split
+from mlx_tempcomp.fleet.unit import parse_command
 from mlx_tempcomp.simulation.physics import Effects, GyroPhysics, GyroTruth, Scenario
 from mlx_tempcomp.sources.recording import Recording
 import numpy as np
@@ -299,3 +302,16 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
     for kind in ('gain_as_written', 'gain_after_rezero'):
         for axis, gain in held[kind].items():
             assert gain >= 1.0 / 1.05, (kind, axis)
+
+
+def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
+    """A fleet worker parses the command with diagnose's own parser and calls its handler."""
+    out = tmp_path / 'out'
+    args = parse_command(['diagnose', *runs_csv, '--out', str(out), '--test', 'record',
+                          '--rezero-s', str(REZERO_S)])
+    assert args.records == runs_csv and args.input == runs_csv[0]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert args.handler(args) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert [r['record'] for r in report['records']] == runs_csv
+    assert report['held_out_records'][0]['record'] == runs_csv[-1]

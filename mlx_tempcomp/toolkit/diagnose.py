@@ -61,8 +61,10 @@ def add_parser(commands) -> None:
                     'second temperature, acceleration, scale factor, rate nonlinearity, '
                     'cross-axis) on held-out blocks and add the best significant one, until '
                     'none helps. Blocks are judged forward in time by default (each predicted '
-                    'by a fit on the blocks before it). Writes report.md, report.json, PNG '
-                    'plots and params.yaml for the compensation node into --out.')
+                    'by a fit on the blocks before it). Several records of one unit are '
+                    'fitted as one, each with its own history and bias offset (params.yaml '
+                    "carries the last record's). Writes report.md, report.json, PNG plots and "
+                    'params.yaml for the compensation node into --out.')
     add_recording_options(parser, several=True)
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='folder for the report, plots and parameter file (created)')
