@@ -21,12 +21,12 @@ from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.records import join_records
 from mlx_tempcomp.core.validation import record_block_bounds, split
 from mlx_tempcomp.fleet.unit import parse_command
-from mlx_tempcomp.simulation.physics import Effects, GyroPhysics, GyroTruth, Scenario
+from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.sources.recording import Recording
 import numpy as np
 import pytest
-from test_diagnose import (chamber, flat_parameters, NOISE_DPS, parameters_of, QUIET, run_cli,
-                           TEMPERATURE_NOISE_C)
+from test_diagnose import (chamber, device_run, flat_parameters, NOISE_DPS, parameters_of,
+                           QUIET, run_cli, TEMPERATURE_NOISE_C)
 
 LAG_S = 200.0
 REZERO_S = 10.0  # 11 samples at 1 Hz: imu/recalibrate_zro takes no fewer than 10
@@ -44,17 +44,8 @@ JUMP_LEGS = {'first': ((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0)),
 def run(legs: tuple, start_c: float, offset_dps: float, seed: int,
         effects: Effects = Effects()) -> tuple:
     """Return (time s, temperature C, rate rad/s) of one run of the unit."""
-    profile = chamber(legs, start_c=start_c)
-    truth = GyroTruth(zro_dps_coefficients=(0.5, 0.02, 2e-4, -2e-6), effects=effects,
-                      noise=QUIET)
-    physics = GyroPhysics(truth, Scenario(thermal=profile), seed=seed)
-    time_s = np.arange(1.0, float(int(profile.duration_s)) + 1.0)
-    temperature_c = np.empty(time_s.size)
-    zro_dps = np.empty(time_s.size)
-    for i, t in enumerate(time_s):
-        physics.advance(float(t))
-        temperature_c[i] = physics.state.sensor_c
-        zro_dps[i] = physics.zro_offset_dps()
+    time_s, temperature_c, zro_dps = device_run(
+        effects, QUIET, Scenario(thermal=chamber(legs, start_c=start_c)), seed)
     rng = np.random.default_rng(seed + 100)
     return (time_s, temperature_c + rng.normal(0.0, TEMPERATURE_NOISE_C, time_s.size),
             np.radians(zro_dps + offset_dps + rng.normal(0.0, NOISE_DPS, time_s.size)))
