@@ -71,21 +71,27 @@ SUPPLY_TIMES_S = tuple(float(t) for t in np.arange(0.0, PROFILE.duration_s + 400
 SUPPLY_V = tuple(float(v) for v in 5.0 + 0.25 * np.sin(2.1 * np.arange(len(SUPPLY_TIMES_S))))
 
 
-@functools.lru_cache(maxsize=None)
-def simulated(name: str, seed: int = 0) -> tuple:
-    """Return (time s, sensor temperature C, rate rad/s, supply V) of the simulated device."""
-    effects, noise = EFFECTS[name]
+def device_run(effects: Effects, noise: Noise, scenario: Scenario, seed: int) -> tuple:
+    """Return (time s, sensor temperature C, ZRO deg/s) of the device at 1 Hz, noiseless."""
     truth = GyroTruth(zro_dps_coefficients=(0.5, 0.02, 2e-4, -2e-6), effects=effects,
                       noise=noise)
-    scenario = Scenario(thermal=PROFILE, supply_times_s=SUPPLY_TIMES_S, supply_v=SUPPLY_V)
     physics = GyroPhysics(truth, scenario, seed=seed)
-    time_s = np.arange(1.0, float(int(PROFILE.duration_s)) + 1.0)
+    time_s = np.arange(1.0, float(int(scenario.thermal.duration_s)) + 1.0)
     temperature_c = np.empty(time_s.size)
     zro_dps = np.empty(time_s.size)
     for i, t in enumerate(time_s):
         physics.advance(float(t))
         temperature_c[i] = physics.state.sensor_c
         zro_dps[i] = physics.zro_offset_dps()
+    return time_s, temperature_c, zro_dps
+
+
+@functools.lru_cache(maxsize=None)
+def simulated(name: str, seed: int = 0) -> tuple:
+    """Return (time s, sensor temperature C, rate rad/s, supply V) of the simulated device."""
+    effects, noise = EFFECTS[name]
+    scenario = Scenario(thermal=PROFILE, supply_times_s=SUPPLY_TIMES_S, supply_v=SUPPLY_V)
+    time_s, temperature_c, zro_dps = device_run(effects, noise, scenario, seed)
     rng = np.random.default_rng(seed + 1)
     rate_rad_s = np.radians(zro_dps + rng.normal(0.0, NOISE_DPS, time_s.size))
     supply_v = np.interp(time_s, SUPPLY_TIMES_S, SUPPLY_V) + rng.normal(0.0, 0.002, time_s.size)

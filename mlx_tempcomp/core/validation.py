@@ -12,6 +12,13 @@ The record is cut into contiguous blocks. Two schemes deal them to folds:
   A model can interpolate between its neighbours in time there, which a
   node never does; the figure is reported beside the forward one.
 
+Several records of one unit (`records.Records`) are cut into blocks each
+(`record_block_bounds`), so no block spans two records. Each record may
+have its own bias offset, learnt from its own rows, so a block is predicted
+only when its record has rows on the training side: forward, the first
+block of every record only trains (a fold never predicts a record from its
+own future, nor from nothing of it).
+
 Each fold's held-out RMS is one score; an order (or effect) is summarised
 by the mean over the folds and its standard error, and the order is chosen
 by the one-standard-error rule. Least squares on the folds adds up the
@@ -48,11 +55,16 @@ class OrderScore:
 
 @dataclass(frozen=True)
 class Split:
-    """Which blocks train (training) and which are predicted (held) in each fold."""
+    """
+    Which blocks train (training) and which are predicted (held) in each fold.
+
+    ``record_starts`` holds the first block of each record.
+    """
 
     scheme: str
     training: np.ndarray
     held: np.ndarray
+    record_starts: tuple = (0,)
 
     @property
     def folds(self) -> int:
@@ -69,11 +81,17 @@ class Split:
 
     def describe(self) -> str:
         """Say in words how the blocks are dealt."""
+        records = len(self.record_starts)
         if self.scheme == FORWARD:
             first = int(np.argmax(self.predicted))
-            return (f'forward over {self.blocks} blocks: blocks {first} to {self.blocks - 1} '
+            text = (f'forward over {self.blocks} blocks: blocks {first} to {self.blocks - 1} '
                     'each predicted from the blocks before it')
-        return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds'
+            if records > 1:
+                text += (f' (in {records} records, whose first blocks only train: blocks '
+                         + ', '.join(str(b) for b in self.record_starts) + ')')
+            return text
+        return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds' + (
+            f' (in {records} records)' if records > 1 else '')
 
 
 def block_bounds(samples: int, count: int) -> np.ndarray:
@@ -91,14 +109,46 @@ def block_bounds(samples: int, count: int) -> np.ndarray:
     return np.concatenate(([0], np.cumsum(sizes)))
 
 
+def record_block_bounds(record_rows, count: int) -> tuple:
+    """
+    Cut records of the given rows into ``count`` blocks in all, none spanning two records.
+
+    Each record gets blocks in proportion to its rows (largest remainders),
+    but at least 2, so a block is never its record's only one. Return (the
+    count + 1 row boundaries, the first block of each record).
+    """
+    rows = np.array([operator.index(r) for r in record_rows], dtype=np.int64)
+    if rows.size == 1:
+        return block_bounds(int(rows[0]), count), (0,)
+    count = operator.index(count)
+    if count < 2 * rows.size:
+        msg = (f'{rows.size} records need at least {2 * rows.size} blocks (2 each), got '
+               f'{count}')
+        raise CalibrationError(msg)
+    share = count * rows / rows.sum()
+    dealt = np.maximum(np.floor(share).astype(np.int64), 2)
+    while dealt.sum() > count:  # the floor of 2 took blocks: give back the most over share
+        dealt[np.argmax(np.where(dealt > 2, dealt - share, -np.inf))] -= 1
+    order = np.argsort(-(share - dealt), kind='stable')
+    dealt[order[:count - int(dealt.sum())]] += 1
+    edges = [np.asarray(block_bounds(int(r), int(d))[:-1]) + offset
+             for r, d, offset in zip(rows, dealt, np.concatenate(([0], np.cumsum(rows))))]
+    return (np.concatenate(edges + [[int(rows.sum())]]),
+            tuple(int(v) for v in np.concatenate(([0], np.cumsum(dealt)[:-1]))))
+
+
 def first_forward_block(blocks: int, min_past: float) -> int:
     """Return the first block the forward scheme predicts (at least 1)."""
     return max(1, math.ceil(min_past * blocks - 1e-9))
 
 
 def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
-          min_past: float = DEFAULT_MIN_PAST) -> Split:
-    """Deal ``blocks`` contiguous blocks to folds by ``scheme``; see the module docstring."""
+          min_past: float = DEFAULT_MIN_PAST, record_starts: tuple = (0,)) -> Split:
+    """
+    Deal ``blocks`` contiguous blocks to folds by ``scheme``; see the module docstring.
+
+    ``record_starts`` gives the first block of each record (`record_block_bounds`).
+    """
     if scheme not in SCHEMES:
         msg = f'validation must be one of {", ".join(SCHEMES)}, got {scheme!r}'
         raise CalibrationError(msg)
@@ -108,11 +158,13 @@ def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
     index = np.arange(blocks)
     if scheme == FORWARD:
         first = first_forward_block(blocks, min_past)
-        if blocks - first < 2:
+        predicted = np.setdiff1d(index[first:], record_starts)
+        if predicted.size < 2:
             msg = (f'forward validation needs at least 2 blocks to predict: of {blocks} '
                    f'blocks the first {first} (--min-past {min_past:g}) only train')
+            if len(record_starts) > 1:
+                msg += ', and so does the first block of each record'
             raise CalibrationError(msg)
-        predicted = index[first:]
         held = predicted[:, None] == index[None, :]
         training = index[None, :] < predicted[:, None]
     else:
@@ -122,7 +174,7 @@ def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
             raise CalibrationError(msg)
         held = index[None, :] % folds == np.arange(folds)[:, None]
         training = ~held
-    return Split(scheme, training, held)
+    return Split(scheme, training, held, tuple(record_starts))
 
 
 def training_sums(split_: Split, per_block: np.ndarray) -> np.ndarray:
