@@ -49,6 +49,14 @@ to that axis (a live term would only stand in for it), the search of the
 axis ends and the record effect is named its ``cause``. After the loop
 they are tested on top of the final model and reported as findings. Unless
 ``record_effects`` puts them into the search, they are never added.
+
+Last, what the figures rest on: `OutsideFittedRange` says how much of the
+test part and of each forward held-out block lies outside the temperature
+range the model predicting it was fitted on (where it ran clamped), and
+`ErrorByTemperature` bins the written model's held-out residuals (and the
+test part's) into ``error_bins`` temperature bins (`validation.
+error_by_temperature`): the validated error as a function of T, which the
+node can add to its covariance.
 """
 
 from dataclasses import dataclass, field, replace
@@ -64,8 +72,11 @@ from .errors import CalibrationError, ConfigError
 from .fitting import MIN_SPAN_C
 from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 from .model_interface import INPUTS, ModelInputs
-from .validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD,
-                         one_standard_error, order_score, ROUND_ROBIN, split, training_sums)
+from .validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
+                         error_by_temperature, FORWARD, held_out_outside_range,
+                         one_standard_error, order_score, outside_range, OutsideRange,
+                         ROUND_ROBIN, split, temperature_bin_edges, TemperatureErrors,
+                         training_sums)
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -95,6 +106,9 @@ SECONDARY_ORDERS = (1, 2, 3)
 SCALE_ORDERS = (0, 1, 2)
 NONLINEARITY_ORDERS = (2, 3)
 
+# Temperature bins of the error-by-temperature table (equal width over the diagnosed part).
+DEFAULT_ERROR_BINS = 8
+
 Progress = Optional[Callable[[int, int, str], None]]
 
 
@@ -116,6 +130,7 @@ class DiagnosisSettings:
     validation: str = FORWARD
     min_past: float = DEFAULT_MIN_PAST
     baseline_margin: float = 0.05
+    error_bins: int = DEFAULT_ERROR_BINS
 
     def __post_init__(self) -> None:
         checks = (
@@ -139,6 +154,7 @@ class DiagnosisSettings:
              f'rate_window_s must be positive, got {self.rate_window_s}'),
             (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
              f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
+            (self.error_bins >= 1, f'error_bins must be at least 1, got {self.error_bins}'),
         )
         for ok, msg in checks:
             if not ok:
@@ -264,13 +280,47 @@ class AxisDiagnosis:
 
 @dataclass(frozen=True)
 class BinnedResidual:
-    """Binned residuals (bins, axes) of the base and diagnosed models, for plots."""
+    """Binned residuals (bins, axes) of the base and diagnosed models; rows per bin."""
 
     time_s: np.ndarray
     temperature_c: np.ndarray
     heating: np.ndarray
     before_rad_s: np.ndarray
     after_rad_s: np.ndarray
+    rows: Optional[np.ndarray] = None
+
+
+@dataclass(frozen=True)
+class OutsideFittedRange:
+    """
+    Where the model runs outside the temperature range it was fitted on: it clamps there.
+
+    Temperatures are the effective ones each axis's model clamps (T, or
+    T_eff with a thermal lag), one column per axis; ``per_axis`` says whether
+    they differ. ``blocks`` holds per block of the forward scheme the
+    `OutsideRange` of its rows against the blocks before it (None: not
+    predicted), ``test`` the test part's against the written model's range.
+    """
+
+    per_axis: bool
+    blocks: tuple
+    test: Optional[OutsideRange] = None
+
+
+@dataclass(frozen=True)
+class ErrorByTemperature:
+    """
+    The written model's held-out error per temperature bin (`TemperatureErrors`).
+
+    ``held_out``: the residuals of the deciding validation's folds (the
+    figure the node takes); ``test``: the written model on the test part.
+    ``rows_per_bin`` is the mean number of samples per averaging bin.
+    """
+
+    validation: str
+    held_out: TemperatureErrors
+    rows_per_bin: float
+    test: Optional[TemperatureErrors] = None
 
 
 @dataclass(frozen=True)
@@ -282,7 +332,8 @@ class Diagnosis:
     'test' with a test part), to a mapping of each of METHODS to one
     `HeldOutError` per axis.
     ``skipped`` lists (effect, reason) for effects the data cannot support
-    or the settings leave out.
+    or the settings leave out. ``outside_range`` and ``error_by_temperature``
+    are the module docstring's last paragraph.
     """
 
     axes: tuple
@@ -299,6 +350,8 @@ class Diagnosis:
     held_out: BinnedResidual
     test: Optional[BinnedResidual] = None
     bounds: Mapping = field(default_factory=dict)
+    outside_range: Optional[OutsideFittedRange] = None
+    error_by_temperature: Optional[ErrorByTemperature] = None
 
 
 @dataclass(frozen=True)
@@ -474,11 +527,7 @@ class _Problem:
 
     def effective(self, lag_s: float) -> np.ndarray:
         """T_eff of a thermal lag (`EffectModel`), row by row."""
-        if lag_s > 0.0:
-            return self.temperature + lag_s * self.slope
-        if lag_s < 0.0:
-            return FirstOrderLag(-lag_s).batch(self.time, self.temperature)
-        return self.temperature
+        return _effective(self.time, self.temperature, self.slope, lag_s)
 
     def x(self, lag_s: float) -> np.ndarray:
         return (self.effective(lag_s) - self.centre_c) / self.half_span_c
@@ -704,6 +753,16 @@ class _Problem:
     def report(self, done: int, total: int, label: str) -> None:
         if self.progress is not None:
             self.progress(done, total, label)
+
+
+def _effective(time_s: np.ndarray, temperature_c: np.ndarray, slope_c_s: np.ndarray,
+               lag_s: float) -> np.ndarray:
+    """T_eff of a thermal lag (`EffectModel`), row by row; ``slope_c_s`` the windowed dT/dt."""
+    if lag_s > 0.0:
+        return temperature_c + lag_s * slope_c_s
+    if lag_s < 0.0:
+        return FirstOrderLag(-lag_s).batch(time_s, temperature_c)
+    return temperature_c
 
 
 def _centre_and_half_span(values) -> Optional[tuple]:
@@ -1267,8 +1326,41 @@ def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel
     binned = BinnedResidual(
         time_s=np.add.reduceat(full.time_s[test], starts) / counts,
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
-        heating=_heating(problem, test, starts), before_rad_s=before, after_rad_s=after)
+        heating=_heating(problem, test, starts), before_rad_s=before, after_rad_s=after,
+        rows=counts)
     return comparison, binned
+
+
+def _outside_range(problem: _Problem, specs: tuple, model: EffectModel) -> OutsideFittedRange:
+    """
+    Measure which rows the written model and the forward folds' models run clamped.
+
+    Each axis's effective temperature over the whole record (history states
+    from its start, as the node runs them), against the range of the blocks
+    before each forward block and against the written model's range.
+    """
+    full = problem.full
+    slope = temperature_rate_c_s(full.time_s, full.temperature_c, problem.settings.rate_window_s)
+    lags = [spec.thermal_lag_s for spec in specs]
+    effective = np.column_stack([_effective(full.time_s, full.temperature_c, slope, lag)
+                                 for lag in lags])
+    blocks = held_out_outside_range(effective[:problem.rows], problem.block_edges,
+                                    problem.settings.split(FORWARD))
+    test = outside_range(effective[problem.rows:], model.temperature_min_c,
+                         model.temperature_max_c) if problem.test_rows else None
+    return OutsideFittedRange(len(set(lags)) > 1, blocks, test)
+
+
+def _error_by_temperature(problem: _Problem, held_out: BinnedResidual,
+                          test: Optional[BinnedResidual]) -> ErrorByTemperature:
+    """Bin the written model's held-out (and test) residuals by temperature."""
+    temperature = problem.temperature
+    edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
+                                  problem.settings.error_bins)
+    tables = [None if part is None else error_by_temperature(
+        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test)]
+    return ErrorByTemperature(problem.settings.validation, tables[0],
+                              float(np.mean(problem.counts)), tables[1])
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
@@ -1388,7 +1480,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
         heating=_heating(problem, held_rows, problem.starts), before_rad_s=base_residual,
-        after_rad_s=residual)
+        after_rad_s=residual, rows=problem.counts)
     test = None
     if problem.test_rows:
         comparison['test'], test = _compare_test(problem, base_model, model)
@@ -1400,4 +1492,6 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                      comparison=comparison, rows=problem.rows, test_rows=problem.test_rows,
                      bins=len(problem.starts),
                      truth='reference' if problem.truth_is_reference else 'zero (at rest)',
-                     held_out=held_out, test=test, bounds=problem.bounds)
+                     held_out=held_out, test=test, bounds=problem.bounds,
+                     outside_range=_outside_range(problem, tuple(specs), model),
+                     error_by_temperature=_error_by_temperature(problem, held_out, test))
