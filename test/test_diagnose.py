@@ -17,16 +17,17 @@ import math
 from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
+from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings, OutsideFittedRange
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.validation import block_bounds
+from mlx_tempcomp.core.validation import block_bounds, OutsideRange
 from mlx_tempcomp.node_parameters import model_error_of, node_values
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
 from mlx_tempcomp.sources.recording import Recording
-from mlx_tempcomp.toolkit.uncertainty import params_model_error
+from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
+                                              params_model_error)
 import numpy as np
 import pytest
 import yaml
@@ -624,6 +625,21 @@ def test_cli_model_error_round_trips_into_the_node_s_table(cli_run):
                                [noise ** 2 + bins[2]['rms'][a] ** 2 for a in 'xyz'],
                                rtol=1e-12)
     assert 'model_error: held-out RMS by temperature' in (out / 'params.yaml').read_text()
+
+
+def test_shares_outside_the_range_are_per_axis_when_the_axes_clamp_differently():
+    per_axis = OutsideFittedRange(True, (None, OutsideRange(10, 0.0, 40.0, (0.5, 0.0),
+                                                            (2.0, 0.0))),
+                                  OutsideRange(4, -1.0, 45.0, (0.25, 0.0), (1.5, 0.0)))
+    section = outside_range_json(per_axis, ('x', 'z'), 'forward')
+    assert section['forward_all'] == {'rows': 10, 'fraction': {'x': 0.5, 'z': 0.0}}
+    lines = outside_lines(section)
+    assert '- test set: x 25%, z 0% of 4 rows outside the fitted range -1.00 .. 45.00 C, at ' \
+        'most 1.50 C beyond' in lines
+    assert '| 1 | 0.00 .. 40.00 | 10 | x 50%, z 0% | 2.00 |' in lines
+    same = outside_range_json(replace(per_axis, per_axis=False), ('x', 'z'), 'forward')
+    assert '- forward held-out blocks: 50% of 10 rows outside the range of the blocks before ' \
+        'them' in outside_lines(same)
 
 
 def test_single_sample_residuals_write_no_model_error():

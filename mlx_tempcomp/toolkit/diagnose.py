@@ -292,8 +292,6 @@ def _report(source: str, recording, diagnosis) -> dict:
                                    zip(diagnosis.axes, errors)}
                           for method, errors in methods.items()}
                   for scope, methods in diagnosis.comparison.items()}
-    model_error, not_written = params_model_error(diagnosis.error_by_temperature,
-                                                  diagnosis.axes, settings.average_s)
     return {
         'source': source,
         'unit': 'rad/s',
@@ -327,10 +325,8 @@ def _report(source: str, recording, diagnosis) -> dict:
         'comparison': comparison,
         'outside_fitted_range': outside_range_json(diagnosis.outside_range, diagnosis.axes,
                                                    settings.split(FORWARD).describe()),
-        'error_by_temperature': {
-            **error_by_temperature_json(diagnosis.error_by_temperature, diagnosis.axes,
-                                        bool(model_error)),
-            'not_written': not_written},
+        'error_by_temperature': error_by_temperature_json(diagnosis.error_by_temperature,
+                                                          diagnosis.axes, settings.average_s),
     }
 
 

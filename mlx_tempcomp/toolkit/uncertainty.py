@@ -56,12 +56,13 @@ def _bins(errors, axes) -> list:
             for k in errors.filled()]
 
 
-def error_by_temperature_json(errors, axes, in_params: bool) -> dict:
-    """Return report.json's ``error_by_temperature``."""
+def error_by_temperature_json(errors, axes, average_s: float) -> dict:
+    """Return report.json's ``error_by_temperature``; whether params.yaml has it, and why not."""
+    written, not_written = params_model_error(errors, axes, average_s)
     return {'meaning': ERROR_MEANING, 'validation': errors.validation,
             'rows_per_bin': errors.rows_per_bin, 'bins': _bins(errors.held_out, axes),
             'test_bins': None if errors.test is None else _bins(errors.test, axes),
-            'in_params_yaml': in_params}
+            'in_params_yaml': bool(written), 'not_written': not_written}
 
 
 def model_error_table(errors) -> ModelErrorTable:
@@ -89,8 +90,12 @@ def params_model_error(errors, axes, average_s: float) -> tuple:
 
 
 def percent(fraction: float) -> str:
-    return f'{100.0 * fraction:.0f}%' if fraction in (0.0, 1.0) or fraction >= 0.01 else \
-        f'{100.0 * fraction:.2g}%'
+    """Give a share in per cent; a share near but not at 0 or 1 never rounds to it."""
+    if 0.0 < fraction < 0.01:
+        return f'{100.0 * fraction:.2g}%'
+    if 0.99 < fraction < 1.0:
+        return f'{math.floor(1000.0 * fraction) / 10.0:g}%'
+    return f'{100.0 * fraction:.0f}%'
 
 
 def fraction_text(fraction: dict, per_axis: bool) -> str:
