@@ -8,6 +8,7 @@ voltage recorded alongside, and one effect the diagnosis is not told about.
 """
 
 import contextlib
+from dataclasses import replace
 import functools
 import io
 import json
@@ -16,14 +17,17 @@ import math
 from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
+from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings, OutsideFittedRange
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.validation import block_bounds
+from mlx_tempcomp.core.validation import block_bounds, OutsideRange
+from mlx_tempcomp.node_parameters import model_error_of, node_values
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
 from mlx_tempcomp.sources.recording import load_recording, Recording
+from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
+                                              params_model_error)
 import numpy as np
 import pytest
 import yaml
@@ -212,6 +216,57 @@ def test_on_the_measured_cycle_no_axis_is_worse_than_the_cubic(tmp_path):
     assert y['written']['model'] == 'px4_cubic' and y['written']['other_ratio'] > 1.0
     assert 'axis y: writes the PX4-style cubic, forward-validated RMS' in stdout
     assert 'round-robin held-out RMS' in stdout and 'worse there' in stdout
+    # The test part (the last cooling, 73 -> 34 C) lies inside the fitted -17.6 .. 74 C; the
+    # forward blocks of the cold end (5 to 7) and of the hot end (17 to 19) lie wholly
+    # beyond everything before them, which a fold's model meets at the edge.
+    outside = report['outside_fitted_range']
+    assert set(outside['test']['fraction'].values()) == {0.0}
+    beyond = {b['block'] for b in outside['forward_blocks'] if b['fraction']['x'] == 1.0}
+    assert beyond == {5, 6, 7, 17, 18, 19}
+    errors = report['error_by_temperature']
+    assert len(errors['bins']) == 8 and errors['in_params_yaml']
+    assert parameters_of(out)['model_error']['temperature_c'] == [
+        b['temperature_c'] for b in errors['bins']]
+
+
+def test_the_error_by_temperature_splits_the_held_out_error_of_the_written_model():
+    result = diagnosed('thermal_lag')
+    table = result.error_by_temperature
+    assert table.validation == 'forward' and len(table.held_out.count) == 8
+    weight = np.array(table.held_out.weight)
+    filled = list(table.held_out.filled())
+    rms = np.array(table.held_out.rms_rad_s)[filled, 0]
+    # Every held-out residual falls in one bin: the bins' mean squares add up to the
+    # held-out RMS the comparison reports for the written model.
+    written = result.comparison['forward']['diagnosed'][0].rms_rad_s
+    assert math.sqrt(np.sum(weight[filled] * rms ** 2) / np.sum(weight)) == \
+        pytest.approx(written, rel=1e-9)
+    assert sum(table.held_out.count) == np.count_nonzero(
+        np.isfinite(result.held_out.after_rad_s[:, 0]))
+    assert table.test is not None and sum(table.test.count) > 0
+
+
+def test_the_rows_reported_outside_the_range_are_the_rows_a_model_clamps():
+    """The written model (with its thermal lag) run as the node runs it flags the same rows."""
+    result = diagnosed('thermal_lag')
+    model = result.model
+    assert model.terms[0].thermal_lag_s != 0.0
+    time_s, temperature_c, rate_rad_s, _ = simulated('thermal_lag')
+    inputs = ModelInputs(time_s=time_s)
+    outside = result.outside_range
+    clamped = model.correct(rate_rad_s[:, None], temperature_c, inputs).temperature_clamped
+    assert outside.test.fraction[0] == np.mean(clamped[result.rows:, 0])
+    bounds = block_bounds(result.rows, result.settings.blocks)
+    predicted = [k for k, part in enumerate(outside.blocks) if part is not None]
+    assert predicted == list(range(5, 20))
+    assert any(outside.blocks[k].fraction[0] > 0.0 for k in predicted)
+    for k in predicted:
+        part = outside.blocks[k]
+        fold = replace(model, temperature_min_c=part.low_c, temperature_max_c=part.high_c)
+        flags = fold.correct(rate_rad_s[:bounds[k + 1], None], temperature_c[:bounds[k + 1]],
+                             ModelInputs(time_s=time_s[:bounds[k + 1]])).temperature_clamped
+        assert part.rows == bounds[k + 1] - bounds[k]
+        assert part.fraction[0] == np.mean(flags[bounds[k]:, 0]), k
 
 
 def test_forward_blocks_refute_a_hysteresis_on_the_measured_y_axis():
@@ -493,9 +548,13 @@ def parameters_of(out) -> dict:
 def test_cli_writes_report_plots_and_parameters(cli_run):
     _, out, stdout, stderr = cli_run
     for name in ('report.md', 'report.json', 'params.yaml', 'residual_vs_temperature.png',
-                 'residual_vs_time.png', 'error_per_step.png'):
+                 'residual_vs_time.png', 'error_per_step.png', 'error_by_temperature.png'):
         assert (out / name).stat().st_size > 0, name
-    assert (out / 'error_per_step.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    for name in ('error_per_step.png', 'error_by_temperature.png'):
+        assert (out / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert ('outside the fitted temperature range (clamped): forward held-out blocks '
+            in stdout) and '; test set ' in stdout
+    assert 'axis z: forward error by temperature (rad/s): ' in stdout
     assert 'axis x: held-out RMS' in stdout and 'hysteresis' in stdout
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
     assert 'axis y: record-only finding bias_step: a step of' in stdout
@@ -514,6 +573,10 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert 'ZRO recalibration at rest (imu/recalibrate_zro) covers it' in report_md
     assert report_md.count('### Cause: a record-only effect') == 1
     assert 'recalibrate the ZRO at rest (imu/recalibrate_zro)' in report_md
+    assert '## Outside the fitted temperature range' in report_md
+    assert '- test set: ' in report_md and '| block | range of the blocks before (C) |' in \
+        report_md
+    assert '## Error by temperature' in report_md and '| x test RMS |' in report_md
 
 
 def test_cli_report_json_schema(cli_run):
@@ -590,6 +653,72 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     report = json.loads((out / 'report.json').read_text())
     reported = report['comparison']['test']['diagnosed']
     assert rms == pytest.approx([reported[a]['rms'] for a in 'xyz'], rel=1e-9)
+
+
+def test_cli_report_json_says_what_lies_outside_the_range_and_the_error_by_temperature(cli_run):
+    _, out, _, _ = cli_run
+    report = json.loads((out / 'report.json').read_text())
+    outside = report['outside_fitted_range']
+    assert outside['per_axis'] is False and 'clamps the temperature' in outside['meaning']
+    assert outside['test']['rows'] == report['rows']['test']
+    assert [b['block'] for b in outside['forward_blocks']] == list(range(5, 20))
+    for part in [outside['test'], outside['forward_all'], *outside['forward_blocks']]:
+        assert set(part['fraction']) == {'x', 'y', 'z'}
+        assert all(0.0 <= f <= 1.0 for f in part['fraction'].values())
+    rows = sum(b['rows'] for b in outside['forward_blocks'])
+    assert outside['forward_all']['rows'] == rows
+    assert outside['forward_all']['fraction']['x'] == pytest.approx(
+        sum(b['rows'] * b['fraction']['x'] for b in outside['forward_blocks']) / rows)
+    errors = report['error_by_temperature']
+    assert errors['validation'] == 'forward' and errors['in_params_yaml'] is True
+    assert errors['not_written'] == '' and 'not white noise' in errors['meaning']
+    temperatures = [b['temperature_c'] for b in errors['bins']]
+    assert temperatures == sorted(temperatures) and len(temperatures) == 8
+    for part in errors['bins'] + errors['test_bins']:
+        assert part['low_c'] <= part['temperature_c'] <= part['high_c']
+        assert part['count'] > 0 and part['rows'] >= part['count']
+        assert all(value > 0.0 for value in part['rms'].values())
+
+
+def test_cli_model_error_round_trips_into_the_node_s_table(cli_run):
+    _, out, _, _ = cli_run
+    report = json.loads((out / 'report.json').read_text())
+    bins = report['error_by_temperature']['bins']
+    values = node_values(str(out / 'params.yaml'), 'compensation_node')
+    table = model_error_of(values)
+    assert table.temperature_c == tuple(b['temperature_c'] for b in bins)
+    for axis, errors in zip('xyz', table.error_rad_s):
+        assert errors == tuple(b['rms'][axis] for b in bins)
+    # The node's variance at a bin's temperature: the sensor noise plus that bin's error.
+    noise = values['rate_noise_rad_s']
+    np.testing.assert_allclose(table.variance(noise, [bins[2]['temperature_c']])[0],
+                               [noise ** 2 + bins[2]['rms'][a] ** 2 for a in 'xyz'],
+                               rtol=1e-12)
+    assert 'model_error: held-out RMS by temperature' in (out / 'params.yaml').read_text()
+
+
+def test_shares_outside_the_range_are_per_axis_when_the_axes_clamp_differently():
+    per_axis = OutsideFittedRange(True, (None, OutsideRange(10, 0.0, 40.0, (0.5, 0.0),
+                                                            (2.0, 0.0))),
+                                  OutsideRange(4, -1.0, 45.0, (0.25, 0.0), (1.5, 0.0)))
+    section = outside_range_json(per_axis, ('x', 'z'), 'forward')
+    assert section['forward_all'] == {'rows': 10, 'fraction': {'x': 0.5, 'z': 0.0}}
+    lines = outside_lines(section)
+    assert '- test set: x 25%, z 0% of 4 rows outside the fitted range -1.00 .. 45.00 C, at ' \
+        'most 1.50 C beyond' in lines
+    assert '| 1 | 0.00 .. 40.00 | 10 | x 50%, z 0% | 2.00 |' in lines
+    same = outside_range_json(replace(per_axis, per_axis=False), ('x', 'z'), 'forward')
+    assert '- forward held-out blocks: 50% of 10 rows outside the range of the blocks before ' \
+        'them' in outside_lines(same)
+
+
+def test_single_sample_residuals_write_no_model_error():
+    """With --average-s 0 the residuals hold the white noise, which rate_noise_rad_s counts."""
+    errors = diagnosed('clean').error_by_temperature
+    written, why = params_model_error(errors, ('z',), average_s=1.0)
+    assert set(written['model_error']) == {'temperature_c', 'z_rad_s'} and why == ''
+    written, why = params_model_error(errors, ('z',), average_s=0.0)
+    assert written == {} and 'white noise' in why
 
 
 def test_cli_record_effects_puts_the_step_into_the_parameter_file(tmp_path):

@@ -62,6 +62,14 @@ to that axis (a live term would only stand in for it), the search of the
 axis ends and the record effect is named its ``cause``. After the loop
 they are tested on top of the final model and reported as findings. Unless
 ``record_effects`` puts them into the search, they are never added.
+
+Last, what the figures rest on: `OutsideFittedRange` says how much of the
+test part and of each forward held-out block lies outside the temperature
+range the model predicting it was fitted on (where it ran clamped), and
+`ErrorByTemperature` bins the written model's held-out residuals (and the
+test part's) into ``error_bins`` temperature bins (`validation.
+error_by_temperature`): the validated error as a function of T, which the
+node can add to its covariance.
 """
 
 from dataclasses import dataclass, field, replace
@@ -79,8 +87,10 @@ from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 from .model_interface import INPUTS, ModelInputs
 from .recalibration import RecalibrationLimits
 from .records import join_records
-from .validation import (DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD,
-                         one_standard_error, order_score, record_block_bounds, ROUND_ROBIN, split,
+from .validation import (DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, error_by_temperature,
+                         FORWARD, held_out_outside_range, one_standard_error, order_score,
+                         outside_range, OutsideRange, record_block_bounds, ROUND_ROBIN, split,
+                         temperature_bin_edges, TemperatureErrors,
                          training_sums)
 
 BASE_EFFECT = 'temperature_polynomial'
@@ -115,6 +125,9 @@ NONLINEARITY_ORDERS = (2, 3)
 DEFAULT_REZERO_S = 5.0
 REZERO_MIN_SAMPLES = RecalibrationLimits.min_samples
 
+# Temperature bins of the error-by-temperature table (equal width over the diagnosed part).
+DEFAULT_ERROR_BINS = 8
+
 Progress = Optional[Callable[[int, int, str], None]]
 
 
@@ -138,6 +151,7 @@ class DiagnosisSettings:
     validation: str = FORWARD
     min_past: float = DEFAULT_MIN_PAST
     baseline_margin: float = 0.05
+    error_bins: int = DEFAULT_ERROR_BINS
 
     def __post_init__(self) -> None:
         checks = (
@@ -163,6 +177,7 @@ class DiagnosisSettings:
              f'rate_window_s must be positive, got {self.rate_window_s}'),
             (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
              f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
+            (self.error_bins >= 1, f'error_bins must be at least 1, got {self.error_bins}'),
         )
         for ok, msg in checks:
             if not ok:
@@ -288,13 +303,47 @@ class AxisDiagnosis:
 
 @dataclass(frozen=True)
 class BinnedResidual:
-    """Binned residuals (bins, axes) of the base and diagnosed models, for plots."""
+    """Binned residuals (bins, axes) of the base and diagnosed models; rows per bin."""
 
     time_s: np.ndarray
     temperature_c: np.ndarray
     heating: np.ndarray
     before_rad_s: np.ndarray
     after_rad_s: np.ndarray
+    rows: Optional[np.ndarray] = None
+
+
+@dataclass(frozen=True)
+class OutsideFittedRange:
+    """
+    Where the model runs outside the temperature range it was fitted on: it clamps there.
+
+    Temperatures are the effective ones each axis's model clamps (T, or
+    T_eff with a thermal lag), one column per axis; ``per_axis`` says whether
+    they differ. ``blocks`` holds per block of the forward scheme the
+    `OutsideRange` of its rows against the blocks before it (None: not
+    predicted), ``test`` the test part's against the written model's range.
+    """
+
+    per_axis: bool
+    blocks: tuple
+    test: Optional[OutsideRange] = None
+
+
+@dataclass(frozen=True)
+class ErrorByTemperature:
+    """
+    The written model's held-out error per temperature bin (`TemperatureErrors`).
+
+    ``held_out``: the residuals of the deciding validation's folds (the
+    figure the node takes); ``test``: the written model on the test part.
+    ``rows_per_bin`` is the mean number of samples per averaging bin.
+    """
+
+    validation: str
+    held_out: TemperatureErrors
+    rows_per_bin: float
+    test: Optional[TemperatureErrors] = None
 
 
 @dataclass(frozen=True)
@@ -324,7 +373,8 @@ class Diagnosis:
     or the settings leave out. ``records`` describes each record
     (`RecordFit`); with a held-out record, 'test_rezeroed' in ``comparison``
     holds the errors after its re-zero, and ``rezero_rad_s`` maps each of
-    METHODS to what the re-zero took off per axis.
+    METHODS to what the re-zero took off per axis. ``outside_range`` and
+    ``error_by_temperature`` are the module docstring's last paragraph.
     """
 
     axes: tuple
@@ -344,6 +394,8 @@ class Diagnosis:
     records: tuple = ()
     rezero_rad_s: Mapping = field(default_factory=dict)
     first_blocks: tuple = (0,)
+    outside_range: Optional[OutsideFittedRange] = None
+    error_by_temperature: Optional[ErrorByTemperature] = None
 
     def split(self, scheme: Optional[str] = None):
         """Give the blocks as a scheme (default: the deciding one) dealt them, records and all."""
@@ -540,11 +592,7 @@ class _Problem:
 
     def effective(self, lag_s: float) -> np.ndarray:
         """T_eff of a thermal lag (`EffectModel`), row by row."""
-        if lag_s > 0.0:
-            return self.temperature + lag_s * self.slope
-        if lag_s < 0.0:
-            return self.each(FirstOrderLag(-lag_s).batch, self.time, self.temperature)
-        return self.temperature
+        return _effective(self.records, self.time, self.temperature, self.slope, lag_s)
 
     def x(self, lag_s: float) -> np.ndarray:
         return (self.effective(lag_s) - self.centre_c) / self.half_span_c
@@ -840,6 +888,20 @@ def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
     if not offset_rad_s:
         return terms
     return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
+
+
+def _effective(records, time_s: np.ndarray, temperature_c: np.ndarray, slope_c_s: np.ndarray,
+               lag_s: float) -> np.ndarray:
+    """
+    T_eff of a thermal lag (`EffectModel`), row by row; ``slope_c_s`` the windowed dT/dt.
+
+    A lag filter starts afresh at each record's first row (`Records.each`).
+    """
+    if lag_s > 0.0:
+        return temperature_c + lag_s * slope_c_s
+    if lag_s < 0.0:
+        return records.each(FirstOrderLag(-lag_s).batch, time_s, temperature_c)
+    return temperature_c
 
 
 def _centre_and_half_span(values) -> Optional[tuple]:
@@ -1467,7 +1529,8 @@ def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel
         time_s=np.add.reduceat(full.time_s[test], starts) / counts,
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
         heating=_heating(problem, test, starts),
-        before_rad_s=binned['temperature_polynomial'][0], after_rad_s=binned['diagnosed'][0])
+        before_rad_s=binned['temperature_polynomial'][0], after_rad_s=binned['diagnosed'][0],
+        rows=counts)
     return scopes, part, {method: tuple(float(v) for v in offset)
                           for method, offset in rezero.items()}
 
@@ -1500,6 +1563,40 @@ def rezero_window_rows(records, record: int, window_s: float) -> int:
                're-zero needs the sensor at rest there')
         raise CalibrationError(msg)
     return count
+
+
+def _outside_range(problem: _Problem, specs: tuple, model: EffectModel) -> OutsideFittedRange:
+    """
+    Measure which rows the written model and the forward folds' models run clamped.
+
+    Each axis's effective temperature over the whole record (history states
+    from its start, as the node runs them), against the range of the blocks
+    before each forward block and against the written model's range.
+    """
+    full = problem.full
+    slope = problem.each(functools.partial(temperature_rate_c_s,
+                                           window_s=problem.settings.rate_window_s),
+                         full.time_s, full.temperature_c)
+    lags = [spec.thermal_lag_s for spec in specs]
+    effective = np.column_stack([_effective(problem.records, full.time_s, full.temperature_c,
+                                            slope, lag) for lag in lags])
+    blocks = held_out_outside_range(effective[:problem.rows], problem.block_edges,
+                                    problem.folds_of(FORWARD).split)
+    test = outside_range(effective[problem.rows:], model.temperature_min_c,
+                         model.temperature_max_c) if problem.test_rows else None
+    return OutsideFittedRange(len(set(lags)) > 1, blocks, test)
+
+
+def _error_by_temperature(problem: _Problem, held_out: BinnedResidual,
+                          test: Optional[BinnedResidual]) -> ErrorByTemperature:
+    """Bin the written model's held-out (and test) residuals by temperature."""
+    temperature = problem.temperature
+    edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
+                                  problem.settings.error_bins)
+    tables = [None if part is None else error_by_temperature(
+        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test)]
+    return ErrorByTemperature(problem.settings.validation, tables[0],
+                              float(np.mean(problem.counts)), tables[1])
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
@@ -1619,7 +1716,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
         heating=_heating(problem, held_rows, problem.starts), before_rad_s=base_residual,
-        after_rad_s=residual)
+        after_rad_s=residual, rows=problem.counts)
     test, rezero = None, {}
     if problem.test_rows:
         scopes, test, rezero = _compare_test(problem, base_model, model)
@@ -1634,7 +1731,9 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                      truth='reference' if problem.truth_is_reference else 'zero (at rest)',
                      held_out=held_out, test=test, bounds=problem.bounds,
                      records=_record_fits(problem, tuple(specs)), rezero_rad_s=rezero,
-                     first_blocks=problem.first_blocks)
+                     first_blocks=problem.first_blocks,
+                     outside_range=_outside_range(problem, tuple(specs), model),
+                     error_by_temperature=_error_by_temperature(problem, held_out, test))
 
 
 def _record_fits(problem: _Problem, specs: tuple) -> tuple:

@@ -7,9 +7,13 @@ report.md, report.json (per axis the ordered steps with their held-out error
 before and after, per fold and per block, the rejected and skipped
 candidates, the findings of the record-only effects; each record's offset;
 a held-out record's errors as written and after a re-zero),
-residual_vs_temperature.png, residual_vs_time.png, error_per_step.png and
-params.yaml, which compensation_node loads: live-runnable effects only,
-unless --record-effects put time drift and bias steps into the search.
+residual_vs_temperature.png, residual_vs_time.png, error_per_step.png,
+error_by_temperature.png and params.yaml, which compensation_node loads:
+live-runnable effects only, unless --record-effects put time drift and bias
+steps into the search, and the held-out error by temperature
+(``model_error.*``, for the Imu covariance). The report says how much of the
+test set and of each forward held-out block lies outside the temperature
+range the model predicting it was fitted on (`uncertainty`).
 ``--test each`` diagnoses once per record with that record held out, then
 once over all records for params.yaml.
 """
@@ -24,14 +28,19 @@ from .common import (add_recording_options, add_validation_options, check_output
                      positive_float, UserError, validation_settings, write_json, write_result)
 from .exports import add_export_options, check_export_outputs, write_exports
 from .progress import add_progress_option, Progress
+from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
+                          outside_lines, outside_range_json, params_model_error,
+                          plot_error_by_temperature)
 from ..core.diagnosis import (DEFAULT_REZERO_S, diagnose as run_diagnosis, DiagnosisSettings,
                               METHODS, rezero_window_rows)
 from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..core.records import join_records
+from ..core.validation import FORWARD
 from ..model_params import effect_parameters, parameter_file, write_parameter_file
 
-PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png')
+PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png',
+         'error_by_temperature.png')
 # Plots draw at most this many bins per axis (every k-th bin beyond).
 MAX_PLOT_POINTS = 20000
 METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
@@ -106,6 +115,10 @@ def add_parser(commands) -> None:
                                           'seconds taken off, as imu/recalibrate_zro '
                                           '(recalibration.duration_s) does (default: '
                                           '%(default)s)')
+    parser.add_argument('--error-bins', type=non_negative_int, default=defaults.error_bins,
+                        metavar='N', help='temperature bins of the error-by-temperature table '
+                                          '(equal width over the diagnosed part; params.yaml '
+                                          'model_error.*) (default: %(default)s)')
     parser.add_argument('--record-effects', action='store_true',
                         help='also search time drift and bias steps, which are tied to the '
                              "record's clock, and write them into params.yaml (default: "
@@ -203,6 +216,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
             block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
+            error_bins=args.error_bins,
             test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
             test_fraction=test if isinstance(test, float) else 0.0, rezero_s=args.rezero_s,
             record_effects=args.record_effects, **validation_settings(args))
@@ -219,8 +233,10 @@ def diagnose_command(args: argparse.Namespace) -> int:
         write_json(out / 'report.json', report)
         write_result(out / 'report.md', _markdown(report))
         _plots(out, diagnosis)
-        content = parameter_file(args.node_name, effect_parameters(diagnosis.model,
-                                                                   diagnosis.axes))
+        model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
+                                            diagnosis.settings.average_s)
+        content = parameter_file(args.node_name, {
+            **effect_parameters(diagnosis.model, diagnosis.axes), **model_error})
         record = diagnosis.model.record_effects
         header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {source}\n'
                   + (f'Holds record-only effects ({", ".join(record)}): they use the stamps '
@@ -228,6 +244,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
                   + (f'Bias offset of {report["written_offset"]["record"]}, '
                      + WRITTEN_OFFSET.replace(': ', ':\n', 1) + '\n'
                      if len(recordings) > 1 else '')
+                  + ('model_error: held-out RMS by temperature (a bias error), added to the '
+                     'Imu covariance\n' if model_error else '')
                   + f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
         write_parameter_file(out / 'params.yaml', content, header)
     except OSError as err:
@@ -439,6 +457,10 @@ def _report(source: str, recordings: list, diagnosis, held_out: tuple = ()) -> d
         'skipped': skipped,
         'comparison': comparison,
         **_records(recordings, diagnosis, held_out),
+        'outside_fitted_range': outside_range_json(diagnosis.outside_range, diagnosis.axes,
+                                                   diagnosis.split(FORWARD).describe()),
+        'error_by_temperature': error_by_temperature_json(diagnosis.error_by_temperature,
+                                                          diagnosis.axes, settings.average_s),
     }
 
 
@@ -686,6 +708,8 @@ def _markdown(report: dict) -> str:
         lines.append('')
     for name, axis in report['axes'].items():
         lines += _axis_lines(name, axis)
+    lines += outside_lines(report['outside_fitted_range'])
+    lines += error_lines(report['error_by_temperature'], list(report['axes']))
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
@@ -717,6 +741,10 @@ def _summary(report: dict) -> str:
         for method in METHODS:
             values = ', '.join(f'{a} {_e(e["rms"])}' for a, e in methods[method].items())
             lines.append(f'{scope:<16} {method:<22} {values}')
+    lines += console_lines(report)
+    not_written = report['error_by_temperature']['not_written']
+    if not_written:
+        lines.append(not_written)
     return '\n'.join(lines)
 
 
@@ -789,6 +817,7 @@ def _plots(out: Path, diagnosis) -> None:
     plot.grid(True, which='both', alpha=0.3)
     plot.legend()
     _save(pyplot, figure, out / PLOTS[2])
+    plot_error_by_temperature(out / PLOTS[3], diagnosis, _save)
 
 
 def _save(pyplot, figure, path: Path) -> None:
