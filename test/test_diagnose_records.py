@@ -254,7 +254,7 @@ def test_cli_refuses_records_it_cannot_join_or_hold_out(tmp_path, capsys):
             'export the cubic of one record')
     refused([cold, hot, '--instance', 'all'], '--instance all runs one record per IMU instance')
     # The node's re-zero needs 10 samples in its window, and the record must be that long.
-    refused([cold, hot, '--test', 'record'],
+    refused([cold, hot, '--test', 'record', '--rezero-s', '5'],
             f'{hot}: its first 5 s hold 6 samples, and imu/recalibrate_zro refuses fewer '
             'than 10: give --rezero-s 9 or more')
     refused([cold, hot, '--test', 'each', '--rezero-s', '1e5'],
@@ -277,7 +277,8 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
 
     Simulated MLX90609 chips at rest (the same seed: one unit), each period one ramp up
     and most of one down (the record has three of each per period). At 1 Hz the node's 5 s
-    re-zero window holds 6 samples, which imu/recalibrate_zro refuses: --rezero-s 9.
+    re-zero window holds 6 samples, which imu/recalibrate_zro refuses: without --rezero-s
+    the judgement widens it to the 9 s that hold 10, as a node at 1 Hz would be set.
     """
     paths = []
     for index, (start_c, cycle_c, offset_dps) in enumerate(PERIODS):
@@ -287,9 +288,12 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
                  '--bias-step', f'0:{offset_dps}'])
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *paths, '--test', 'record', '--average-s', 60,
-                         '--rezero-s', 9, '--out', out])
+                         '--out', out])
     print(stdout)
-    (held,) = json.loads((out / 'report.json').read_text())['held_out_records']
+    report = json.loads((out / 'report.json').read_text())
+    assert report['settings']['rezero_s'] == 9.0
+    assert 'recalibration.duration_s: 9' in stdout
+    (held,) = report['held_out_records']
     for kind in ('gain_as_written', 'gain_after_rezero'):
         for axis, gain in held[kind].items():
             assert gain >= 1.0 / 1.05, (kind, axis)

@@ -1535,6 +1535,24 @@ def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel
                           for method, offset in rezero.items()}
 
 
+def default_rezero_s(records, held_out) -> float:
+    """
+    Give the re-zero window a node needs on the ``held_out`` records (indices).
+
+    The node's default (DEFAULT_REZERO_S, its recalibration.duration_s), or,
+    where the samples come slower, as long as it takes to hold the
+    REZERO_MIN_SAMPLES the service needs (9 s at 1 Hz): a user at that rate
+    sets recalibration.duration_s so, and the judgement should run as that node.
+    """
+    window_s = DEFAULT_REZERO_S
+    for record in held_out:
+        rows = records.rows(record)
+        since = records.time_s[rows] - records.time_s[rows.start]
+        if since.size >= REZERO_MIN_SAMPLES:
+            window_s = max(window_s, float(since[REZERO_MIN_SAMPLES - 1]))
+    return window_s
+
+
 def rezero_window_rows(records, record: int, window_s: float) -> int:
     """
     Return how many first rows of a record the node's ZRO recalibration would average.

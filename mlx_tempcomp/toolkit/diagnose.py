@@ -31,8 +31,8 @@ from .progress import add_progress_option, Progress
 from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
                           outside_lines, outside_range_json, params_model_error,
                           plot_error_by_temperature)
-from ..core.diagnosis import (DEFAULT_REZERO_S, diagnose as run_diagnosis, DiagnosisSettings,
-                              METHODS, rezero_window_rows)
+from ..core.diagnosis import (DEFAULT_REZERO_S, default_rezero_s, diagnose as run_diagnosis,
+                              DiagnosisSettings, METHODS, rezero_window_rows)
 from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..core.records import join_records
@@ -109,12 +109,12 @@ def add_parser(commands) -> None:
                            'turn (leave one record out)')
     test.add_argument('--test-fraction', type=fraction, metavar='F',
                       help='same as --test F')
-    parser.add_argument('--rezero-s', type=positive_float, default=DEFAULT_REZERO_S,
-                        metavar='S', help='a held-out record is judged as written and after a '
-                                          're-zero: its mean residual over its first S '
-                                          'seconds taken off, as imu/recalibrate_zro '
-                                          '(recalibration.duration_s) does (default: '
-                                          '%(default)s)')
+    parser.add_argument('--rezero-s', type=positive_float, metavar='S',
+                        help='a held-out record is judged as written and after a re-zero: its '
+                             'mean residual over its first S seconds taken off, as '
+                             'imu/recalibrate_zro (recalibration.duration_s) does (default: the '
+                             f"node's {DEFAULT_REZERO_S:g} s, longer where that holds fewer "
+                             'samples than the service needs)')
     parser.add_argument('--error-bins', type=non_negative_int, default=defaults.error_bins,
                         metavar='N', help='temperature bins of the error-by-temperature table '
                                           '(equal width over the diagnosed part; params.yaml '
@@ -204,6 +204,19 @@ def _diagnoses(args: argparse.Namespace, recordings: list, settings: DiagnosisSe
     return diagnosis, (diagnosis,) if settings.test_record else ()
 
 
+def _rezero_s(args: argparse.Namespace, recordings: list, test) -> float:
+    """Give --rezero-s, or the window a node needs on the records held out (`default_rezero_s`)."""
+    if args.rezero_s is not None:
+        return args.rezero_s
+    if test == TEST_EACH:
+        held_out = range(len(recordings))
+    elif test == TEST_RECORD:
+        held_out = (len(recordings) - 1,)
+    else:
+        return DEFAULT_REZERO_S
+    return default_rezero_s(join_records(recordings), held_out)
+
+
 def diagnose_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out')
     test = args.test if args.test is not None else args.test_fraction or 0.0
@@ -218,7 +231,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
             block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
             error_bins=args.error_bins,
             test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
-            test_fraction=test if isinstance(test, float) else 0.0, rezero_s=args.rezero_s,
+            test_fraction=test if isinstance(test, float) else 0.0,
+            rezero_s=_rezero_s(args, recordings, test),
             record_effects=args.record_effects, **validation_settings(args))
         diagnosis, held_out = _diagnoses(args, recordings, settings, bars)
     except TempCompError as err:
@@ -553,6 +567,10 @@ def _held_out_lines(report: dict) -> list:
                      f'{_ratio_text(record["gain_as_written"])}; '
                      f'after a re-zero over its first {rezero:g} s '
                      f'{_ratio_text(record["gain_after_rezero"])}')
+    if rezero != DEFAULT_REZERO_S:
+        lines.append(f'the re-zero judged here averages the first {rezero:g} s of a record; '
+                     'a node re-zeroes so with recalibration.duration_s: '
+                     f'{rezero:g} (its default {DEFAULT_REZERO_S:g} s)')
     summary = report['held_out_summary']
     if summary and len(report['held_out_records']) > 1:
         lines.append('leave one record out, geometric mean of the gains over the cubic: as '
