@@ -20,6 +20,7 @@ import time
 
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
+from mlx_tempcomp.fleet.report import COUNT_METRICS, OUTLIER_Z, robust_z
 from mlx_tempcomp.fleet.unit import MOMENTS_FILE
 from mlx_tempcomp.node_parameters import build_model, node_values
 import numpy as np
@@ -193,6 +194,21 @@ def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tm
     assert (out / FLEET_PARAMS).read_text() == params
 
 
+def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():
+    # The simulated fleet of docs/fleet.md: 189 of 200 units with no effect, 11 with one.
+    counts = [0.0] * 189 + [1.0] * 11 + [2.0, 3.0, 5.0]
+    z = robust_z(counts, COUNT_METRICS['effects'])
+    flagged = sorted({value for value, score in zip(counts, z) if abs(score) > OUTLIER_Z})
+    assert flagged == [3.0, 5.0]
+    assert robust_z([2.0] * 6 + [1.0, 3.0], 1.0).tolist() == \
+        pytest.approx([0.0] * 6 + [-1.349, 1.349], abs=1e-3)
+    # A count whose MAD is not 0 keeps the plain robust z.
+    spread = [0.0, 1.0, 1.0, 2.0, 2.0, 3.0, 9.0]
+    assert robust_z(spread, 1.0).tolist() == pytest.approx(robust_z(spread).tolist())
+    # A measured value with MAD 0 still takes the mean absolute deviation.
+    assert robust_z([0.0] * 9 + [1.0])[-1] == pytest.approx(1.0 / (1.253314 * 0.1))
+
+
 def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     out = fleet_run[0]
     manifest = records / 'units.csv'
@@ -258,13 +274,16 @@ def test_simulate_fleet_writes_units_a_manifest_and_the_truth(tmp_path):
     out = tmp_path / 'fleet'
     code, stdout, _ = run_cli(['simulate', '--fleet', 4, '--fleet-outliers', 1, '--out', out,
                                '--duration-s', 20, '--rate-hz', 2, '--axes', 'z',
-                               '--thermal-lag-s', 60])
+                               '--thermal-lag-s', 60, '--acceleration-dps-per-m-s2', 0, 0, 0.01])
     assert code == 0 and 'wrote 4 units' in stdout
     truth = json.loads((out / 'fleet_truth.json').read_text())
     assert [u['unit'] for u in truth['units']] == [f'unit-00{k}' for k in range(4)]
     assert sum(u['outlier'] for u in truth['units']) == 1
     lags = [u['effects']['thermal_lag_s'] for u in truth['units']]
     assert len(set(lags)) == 4 and all(30.0 <= lag <= 90.0 for lag in lags)
+    g_z = [json.loads((out / u['truth']).read_text())['config']['effects']
+           ['acceleration_dps_per_m_s2'][2] for u in truth['units']]
+    assert len(set(g_z)) == 4 and all(0.005 <= g <= 0.015 for g in g_z)
     slopes = [json.loads((out / u['truth']).read_text())['devices']['z']
               ['zro_dps_coefficients'][1] for u in truth['units']]
     outlier = [s for s, u in zip(slopes, truth['units']) if u['outlier']][0]
