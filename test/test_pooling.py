@@ -127,12 +127,23 @@ def test_a_long_record_keeps_its_own_fit():
 def test_the_design_is_what_the_fleet_shows():
     moments, _ = fleet(3, 10, set())
     result = pool(moments)
+    assert all(m.rate_varies for m in moments.values())
     assert result.design.rate, 'every unit carries c x dT/dt'
     assert 2 <= result.design.order <= 3
     assert [t.column for t in result.tests if t.significant][0] == \
         f'bias[{result.design.order}] beside the rate'
     assert result.kappa > 1.0, 'the slow noise shows on the stretches'
     assert result.population.converged
+
+
+def test_one_ramp_does_not_test_the_temperature_rate():
+    units = 8
+    moments, _ = fleet(9, units, {f'u{k:02d}' for k in range(units)})
+    assert not any(m.rate_varies for m in moments.values())
+    result = pool(moments)
+    assert not result.design.rate, 'c x dT/dt at one rate is one more constant'
+    rate = [t for t in result.tests if t.column == 'temperature_rate_rad_s_per_c_s']
+    assert len(rate) == 1 and rate[0].dof == 0 and not rate[0].significant
 
 
 def test_outliers_do_not_drag_the_prior_and_are_not_pulled():

@@ -53,6 +53,9 @@ MAX_BLOCKS = 256
 # kappa merges blocks into stretches this long: slow noise shows over minutes.
 KAPPA_STRETCH_S = 4.0 * BLOCK_S
 T_DEGREES_OF_FREEDOM = 4.0
+# A record tests the temperature rate when, after its first rate window, dT/dt varies: its
+# standard deviation at least this fraction of its RMS (one ramp at one rate does not).
+RATE_VARIATION = 0.25
 # A column enters the fleet design when the units show it at this level (chi^2, one-sided).
 SIGNIFICANCE = 0.001
 _SIGNIFICANCE_Z = 3.0902  # the standard normal's 1 - SIGNIFICANCE quantile
@@ -74,7 +77,8 @@ class DesignMoments:
     ``gram`` and ``moment`` are X'X and X'y over every row, ``sum_y2`` y'y;
     per block, ``block_rows`` rows, ``block_sum_y`` the sum of y and
     ``block_sum_x`` the column sums of X; ``block_record`` numbers the record
-    of each block (blocks of two records are never merged).
+    of each block (blocks of two records are never merged); ``rate_varies``
+    whether a record's dT/dt varies after its first rate window (`RATE_VARIATION`).
     """
 
     rows: int
@@ -88,6 +92,7 @@ class DesignMoments:
     block_record: np.ndarray
     temperature_min_c: float
     temperature_max_c: float
+    rate_varies: bool
 
     def __add__(self, other: 'DesignMoments') -> 'DesignMoments':
         return DesignMoments(
@@ -100,7 +105,8 @@ class DesignMoments:
             block_record=np.concatenate([self.block_record,
                                          other.block_record + self.block_record.max() + 1]),
             temperature_min_c=min(self.temperature_min_c, other.temperature_min_c),
-            temperature_max_c=max(self.temperature_max_c, other.temperature_max_c))
+            temperature_max_c=max(self.temperature_max_c, other.temperature_max_c),
+            rate_varies=self.rate_varies or other.rate_varies)
 
 
 def record_moments(time_s, temperature_c, rate_rad_s, axes) -> dict:
@@ -120,8 +126,11 @@ def record_moments(time_s, temperature_c, rate_rad_s, axes) -> dict:
         raise CalibrationError('design moments need 2 rows or more of finite numbers, one '
                                'rate column per axis')
     x = (temperature - MOMENT_REFERENCE_C) / MOMENT_SCALE_C
-    columns = np.column_stack([x[:, None] ** np.arange(MOMENT_ORDER + 1),
-                               TemperatureSlope(RATE_WINDOW_S).batch(time, temperature)])
+    slope = TemperatureSlope(RATE_WINDOW_S).batch(time, temperature)
+    columns = np.column_stack([x[:, None] ** np.arange(MOMENT_ORDER + 1), slope])
+    # The slope builds up from 0 over the first window (the node's start): not a test of c.
+    settled = slope[time >= time[0] + RATE_WINDOW_S]
+    rms = math.sqrt(float(np.mean(settled ** 2))) if settled.size > 2 else 0.0
     block_s = max(BLOCK_S, (time[-1] - time[0]) / MAX_BLOCKS)
     block = np.minimum(((time - time[0]) / block_s).astype(int), MAX_BLOCKS - 1)
     count = int(block.max()) + 1
@@ -129,6 +138,7 @@ def record_moments(time_s, temperature_c, rate_rad_s, axes) -> dict:
         'rows': int(time.size), 'block_s': float(block_s),
         'temperature_min_c': float(temperature.min()),
         'temperature_max_c': float(temperature.max()),
+        'rate_varies': bool(rms > 0.0 and float(np.std(settled)) >= RATE_VARIATION * rms),
         'gram': (columns.T @ columns).tolist(),
         'block_rows': np.bincount(block, minlength=count).tolist(),
         'block_sum_x': np.column_stack([np.bincount(block, column, count)
@@ -147,6 +157,7 @@ def moments_of(document: dict) -> dict:
             'rows': int(document['rows']), 'block_s': float(document['block_s']),
             'temperature_min_c': float(document['temperature_min_c']),
             'temperature_max_c': float(document['temperature_max_c']),
+            'rate_varies': bool(document['rate_varies']),
             'gram': np.asarray(document['gram'], dtype=float).reshape(columns, columns),
             'block_rows': np.asarray(document['block_rows'], dtype=float),
             'block_sum_x': np.asarray(document['block_sum_x'],
@@ -328,8 +339,10 @@ def choose_design(moments, reference_c: float, scale_c: float) -> tuple:
     units show jointly: the sum over units of the residual reduction it
     brings, each in its unit's kappa sigma^2 of the widest design, against
     chi^2 with a degree per unit at 1 - SIGNIFICANCE. Then the temperature
-    rate at that order, the same way; when the units do not show it, it is
-    dropped and the order chosen again without it.
+    rate at that order, the same way over the units whose records vary dT/dt
+    (on a single ramp c x dT/dt is one more constant, found only in the first
+    rate window, and would be extrapolated to every other rate); when the
+    units do not show it, it is dropped and the order chosen again without it.
     """
     moments = list(moments)
     widest = PoolingDesign(MOMENT_ORDER, reference_c, scale_c)
@@ -349,9 +362,12 @@ def choose_design(moments, reference_c: float, scale_c: float) -> tuple:
         return 0
 
     top = order(True)
-    rate = _column_test('temperature_rate_rad_s_per_c_s', moments,
+    varied = [(unit, variance) for unit, variance in zip(moments, variances)
+              if unit.rate_varies]
+    rate = _column_test('temperature_rate_rad_s_per_c_s', [unit for unit, _ in varied],
                         PoolingDesign(top, reference_c, scale_c, True),
-                        PoolingDesign(top, reference_c, scale_c, False), variances)
+                        PoolingDesign(top, reference_c, scale_c, False),
+                        [variance for _, variance in varied])
     tests.append(rate)
     if not rate.significant:
         top = order(False)
