@@ -255,8 +255,8 @@ def write_fleet_prior(out: Path) -> list:
     pooled = [unit for unit in fleet.moments if unit not in flagged]
     left_out = [unit for unit in fleet.moments if unit in flagged]
     without = len(fleet.excluded)
-    fleet.excluded.update({unit: 'flagged by the fleet report (shrunk, not pooled)'
-                           for unit in left_out})
+    fleet.excluded.update(dict.fromkeys(left_out,
+                                        'flagged by the fleet report (shrunk, not pooled)'))
     summary = {'method': METHOD, 'units_with_moments': len(fleet.moments), 'pooled': pooled,
                'excluded': fleet.excluded, 'axes': {}, 'units': {}}
     pools, written, why_not = {}, set(), None
