@@ -19,6 +19,10 @@ import sys
 import time
 
 from mlx_tempcomp.cli import main
+from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
+from mlx_tempcomp.fleet.report import COUNT_METRICS, OUTLIER_Z, robust_z
+from mlx_tempcomp.fleet.unit import MOMENTS_FILE
+from mlx_tempcomp.node_parameters import build_model, node_values
 import numpy as np
 import pytest
 
@@ -91,7 +95,7 @@ def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
     assert run_cli(['diagnose', records / 'a1.csv', '--out', single])[0] == 0
     unit = out / 'units' / 'a1'
     fleet, alone = unit_files(unit), unit_files(single)
-    assert set(fleet) == set(alone) | {'unit.json', 'log.txt'}
+    assert set(fleet) == set(alone) | {'unit.json', 'log.txt', MOMENTS_FILE, SHRUNK_PARAMS}
     assert json.loads(fleet['report.json']) == json.loads(alone['report.json'])
     for name in ('params.yaml', 'report.md'):
         assert fleet[name].decode() == alone[name].decode().replace(str(single), str(unit))
@@ -162,6 +166,49 @@ def test_the_report_has_a_row_per_unit_and_flags_the_outlier(fleet_run):
     assert json.loads((out / 'fleet.json').read_text()) == fleet
 
 
+def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tmp_path):
+    out = fleet_run[0]
+    assert 'fleet prior of 6 units (1 flagged unit left out' in fleet_run[1][1]
+    prior = json.loads((out / PRIOR_JSON).read_text())
+    assert prior['pooled'] == ['a1', 'a2', 'a3', 'a4', 'a5', 'pair']
+    assert set(prior['excluded']) == {'odd'}, 'flagged by the report: shrunk, not pooled'
+    assert prior['units']['pair']['rows'] == 2 * ROWS and prior['units']['pair']['records'] == 2
+    assert prior['units']['odd']['axes']['z']['t_weight'] < 0.2
+    design = prior['axes']['z']['design']
+    assert design['order'] == 2 and not design['temperature_rate'], 'the records are quadratic'
+    assert prior['axes']['z']['population']['converged']
+    for path in [out / FLEET_PARAMS] + [out / 'units' / u / SHRUNK_PARAMS
+                                        for u in (*GOOD_UNITS, 'pair')]:
+        model = build_model(node_values(str(path), 'compensation_node'))
+        assert model.name == 'effects' and model.inputs == frozenset()
+    for unit in BAD_UNITS:
+        assert not (out / 'units' / unit / SHRUNK_PARAMS).exists()
+    code, stdout, _ = run_cli(['evaluate', records / 'a3.csv', '--params', out / FLEET_PARAMS,
+                               '--json'])
+    rms = json.loads(stdout)['averaged']['z']['rms']
+    # The prior's bias curve is the fleet's: within the units' spread of a3 (offset 20 %).
+    assert code == 0 and rms < 0.01
+    params = (out / FLEET_PARAMS).read_text()
+    (out / FLEET_PARAMS).unlink()
+    assert run_cli(['fleet', 'report', '--out', out])[0] == 0
+    assert (out / FLEET_PARAMS).read_text() == params
+
+
+def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():
+    # The simulated fleet of docs/fleet.md: 189 of 200 units with no effect, 11 with one.
+    counts = [0.0] * 189 + [1.0] * 11 + [2.0, 3.0, 5.0]
+    z = robust_z(counts, COUNT_METRICS['effects'])
+    flagged = sorted({value for value, score in zip(counts, z) if abs(score) > OUTLIER_Z})
+    assert flagged == [3.0, 5.0]
+    assert robust_z([2.0] * 6 + [1.0, 3.0], 1.0).tolist() == \
+        pytest.approx([0.0] * 6 + [-1.349, 1.349], abs=1e-3)
+    # A count whose MAD is not 0 keeps the plain robust z.
+    spread = [0.0, 1.0, 1.0, 2.0, 2.0, 3.0, 9.0]
+    assert robust_z(spread, 1.0).tolist() == pytest.approx(robust_z(spread).tolist())
+    # A measured value with MAD 0 still takes the mean absolute deviation.
+    assert robust_z([0.0] * 9 + [1.0])[-1] == pytest.approx(1.0 / (1.253314 * 0.1))
+
+
 def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     out = fleet_run[0]
     manifest = records / 'units.csv'
@@ -227,13 +274,16 @@ def test_simulate_fleet_writes_units_a_manifest_and_the_truth(tmp_path):
     out = tmp_path / 'fleet'
     code, stdout, _ = run_cli(['simulate', '--fleet', 4, '--fleet-outliers', 1, '--out', out,
                                '--duration-s', 20, '--rate-hz', 2, '--axes', 'z',
-                               '--thermal-lag-s', 60])
+                               '--thermal-lag-s', 60, '--acceleration-dps-per-m-s2', 0, 0, 0.01])
     assert code == 0 and 'wrote 4 units' in stdout
     truth = json.loads((out / 'fleet_truth.json').read_text())
     assert [u['unit'] for u in truth['units']] == [f'unit-00{k}' for k in range(4)]
     assert sum(u['outlier'] for u in truth['units']) == 1
     lags = [u['effects']['thermal_lag_s'] for u in truth['units']]
     assert len(set(lags)) == 4 and all(30.0 <= lag <= 90.0 for lag in lags)
+    g_z = [json.loads((out / u['truth']).read_text())['config']['effects']
+           ['acceleration_dps_per_m_s2'][2] for u in truth['units']]
+    assert len(set(g_z)) == 4 and all(0.005 <= g <= 0.015 for g in g_z)
     slopes = [json.loads((out / u['truth']).read_text())['devices']['z']
               ['zro_dps_coefficients'][1] for u in truth['units']]
     outlier = [s for s, u in zip(slopes, truth['units']) if u['outlier']][0]
@@ -285,7 +335,9 @@ def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
         assert f'{len(GOOD_UNITS)} done' in stdout
         local = fleet_run[0] / 'units'
         for unit in GOOD_UNITS:
+            # The shrunk fit is the fleet's (this fleet lacks the local run's pair and bad units).
             here, there = unit_files(out / 'units' / unit), unit_files(local / unit)
+            del here[SHRUNK_PARAMS], there[SHRUNK_PARAMS]
             assert set(here) == set(there)
             for name, data in here.items():
                 assert data.replace(str(out).encode(), b'') == \

@@ -14,6 +14,7 @@ import shlex
 import sys
 
 from .manifest import find_records, read_manifest
+from .prior import write_fleet_prior
 from .report import write_fleet_report
 from .unit import command_argv, COMMANDS, parse_command, UnitError, UnitJob
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
@@ -102,25 +103,27 @@ def fleet_command(args: argparse.Namespace) -> int:
              if outcome.interrupted else ''))
     for unit, error in outcome.failed:
         print(f'failed: {unit}: {error}', file=sys.stderr)
-    print(f'wrote {_report(Path(args.out))}')
+    _report(Path(args.out))
     if outcome.interrupted:
         return EXIT_INTERRUPTED
     return EXIT_UNITS_FAILED if outcome.failed else 0
 
 
-def _report(out: Path) -> Path:
-    """Write the fleet report into ``out``; UserError without units/ or when it cannot."""
+def _report(out: Path) -> None:
+    """Write the fleet report and prior into ``out``; UserError without units/ or on failure."""
     if not (out / 'units').is_dir():
         msg = f'--out {out}: no units/ folder; run mlx-tempcomp fleet diagnose or fit first'
         raise UserError(msg)
     try:
-        return write_fleet_report(out)
+        print(f'wrote {write_fleet_report(out)}')
+        for line in write_fleet_prior(out):
+            print(line)
     except OSError as err:
         msg = f'cannot write the fleet report into {out}: {err.strerror}'
         raise UserError(msg) from None
 
 
 def report_command(args: argparse.Namespace) -> int:
-    """Write the fleet report again from what ``--out`` holds."""
-    print(f'wrote {_report(Path(args.out))}')
+    """Write the fleet report and prior again from what ``--out`` holds."""
+    _report(Path(args.out))
     return 0

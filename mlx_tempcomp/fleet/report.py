@@ -10,8 +10,13 @@ diagnosed RMS). The bias polynomials of units differ in order and reference,
 so they are compared as the bias and its slope at one fleet temperature (the
 median of the records' mid-range temperatures). Outliers: the robust z-score
 0.6745 (x - median) / MAD of the bias, slope, held-out RMS and number of
-effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and Hoaglin's 3.5);
-when the MAD is zero, the mean absolute deviation times 1.2533 stands in.
+effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and Hoaglin's 3.5).
+The number of effects is a count: its MAD is 0 whenever more than half the
+records agree, and its smallest nonzero MAD is half a step, so the MAD is
+taken as at least half a step (`COUNT_METRICS`): a count flags 3 or more away
+from the fleet's median (z 4.0), never 1 or 2 (z 1.3, 2.7), however many
+records share the median. A measured metric with MAD 0 (more than half the
+records equal) takes the mean absolute deviation times 1.2533.
 A unit of several records has one row per record: one model over several
 records of a unit arrives with issue 15 item 3.
 """
@@ -33,6 +38,8 @@ _MEAN_AD_SCALE = 1.253314
 MIN_UNITS_FOR_OUTLIERS = 5
 PLOT = 'fleet_coefficients.png'
 METRICS = ('bias_rad_s', 'slope_rad_s_per_c', 'held_out_rms_rad_s', 'effects')
+# Metrics that are counts, and their step.
+COUNT_METRICS = {'effects': 1.0}
 
 
 def _flatten(tree, prefix: str = '') -> dict:
@@ -102,12 +109,17 @@ def _record_row(unit: str, folder: Path, record: dict) -> dict:
     return row
 
 
-def robust_z(values) -> np.ndarray:
-    """Give 0.6745 (x - median) / MAD of each value (mean absolute deviation if MAD is 0)."""
+def robust_z(values, step: float = 0.0) -> np.ndarray:
+    """
+    Give 0.6745 (x - median) / MAD of each value.
+
+    A count in whole ``step`` takes the MAD as at least half a step; a
+    measured value (``step`` 0) with MAD 0 the mean absolute deviation.
+    """
     values = np.asarray(values, dtype=float)
     median = np.median(values)
     deviation = np.abs(values - median)
-    mad = np.median(deviation)
+    mad = max(float(np.median(deviation)), 0.5 * step)
     if mad > 0.0:
         return _MAD_Z * (values - median) / mad
     spread = _MEAN_AD_SCALE * np.mean(deviation)
@@ -135,7 +147,7 @@ def _outliers(rows: list, axes: list) -> list:
                 continue
             values = [value for _, value in pairs]
             median = float(np.median(values))
-            for (row, value), z in zip(pairs, robust_z(values)):
+            for (row, value), z in zip(pairs, robust_z(values, COUNT_METRICS.get(metric, 0.0))):
                 if abs(z) > OUTLIER_Z:
                     flagged.append({'unit': row['unit'], 'record': row['record'],
                                     'axis': axis, 'metric': metric, 'value': value,
@@ -229,7 +241,8 @@ def fleet_summary(out: Path) -> dict:
                    if e['status'] != 'ok'],
         'reference_temperature_c': reference_c,
         'outlier_rule': f'|robust z| > {OUTLIER_Z} over at least {MIN_UNITS_FOR_OUTLIERS} '
-                        'records, robust z = 0.6745 (x - median) / MAD',
+                        'records, robust z = 0.6745 (x - median) / MAD, the MAD of the number '
+                        'of effects at least half an effect',
         'several_records': 'a unit of several records has one row per record; one model over '
                            'several records of a unit arrives with issue 15 item 3',
         'records': table,

@@ -9,24 +9,31 @@ through a local cache. The command writes into a temporary folder; its files
 come back as bytes for the client to store under ``OUT/units/<unit>/``
 (so the workers need no view of OUT), with the temporary paths in their text
 replaced by where the files will live. A record the command refuses gives the
-unit an error entry with the command's one-line reason. No Dask in here.
+unit an error entry with the command's one-line reason. Beside the command's
+files, each record's `MOMENTS_FILE` summarises it for the fleet prior
+(`core.pooling.record_moments`), so the prior never reads a record again. No
+Dask in here.
 """
 
 import argparse
 import contextlib
 from dataclasses import dataclass
 import io
+import json
 from pathlib import Path
 import tempfile
 import threading
 
 from .manifest import is_url, UnitSpec
+from ..core.pooling import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
+from ..toolkit.common import load
 
 COMMANDS = ('diagnose', 'fit')
 UNIT_FILE = 'unit.json'
 LOG_FILE = 'log.txt'
+MOMENTS_FILE = 'design_moments.json'
 # Files whose text may name the temporary folder or the cached copy of a URL.
 _TEXT_SUFFIXES = ('.yaml', '.md', '.txt', '.json')
 # pyplot and redirected stdout are per process: a worker process runs one unit at a time.
@@ -99,6 +106,18 @@ def one_line(err: BaseException) -> str:
     return text[0] if text else type(err).__name__
 
 
+def _moments(args: argparse.Namespace) -> dict:
+    """Give the record's design moments for the fleet prior, or why there are none."""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            recording = load(args)
+        rate = recording.gyro_rad_s if recording.reference_rad_s is None else \
+            recording.gyro_rad_s - recording.reference_rad_s
+        return record_moments(recording.time_s, recording.temperature_c, rate, recording.axes)
+    except MlxTempCompError as err:
+        return {'error': one_line(err)}
+
+
 def _run_record(job: UnitJob, index: int, work: Path, files: dict) -> None:
     """Run the command on record ``index`` in ``work``; add its files to ``files``."""
     record = job.unit.records[index]
@@ -117,6 +136,7 @@ def _run_record(job: UnitJob, index: int, work: Path, files: dict) -> None:
         msg = str(err).replace(str(out), destination).replace(local, record.path)
         raise UnitError(msg) from None
     (out / LOG_FILE).write_text(log.getvalue(), encoding='utf-8')
+    (out / MOMENTS_FILE).write_text(json.dumps(_moments(args)), encoding='utf-8')
     for path in sorted(out.rglob('*')):
         if not path.is_file():
             continue

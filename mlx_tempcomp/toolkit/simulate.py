@@ -45,6 +45,8 @@ _CSV_FORMAT = '%.12g'
 # ZRO slope on top (about ten sigma of the chips' own spread, 0.02 deg/s/C).
 FLEET_EFFECT_SPREAD = 0.2
 FLEET_VARIED_EFFECTS = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v')
+# Varied too, from a stream of their own (the fleets drawn before them stay as they were).
+FLEET_VARIED_LATER = ('hysteresis_width_c', 'acceleration_dps_per_m_s2')
 OUTLIER_ZRO_SLOPE_DPS_PER_C = 0.2
 FLEET_UNITS_PER_OUTLIER = 50
 FLEET_SEED_STRIDE = 100000
@@ -349,20 +351,26 @@ def _fleet_units(args: argparse.Namespace) -> list:
     """
     Draw each unit of ``--fleet``: its seed, effect sizes and whether it is an outlier.
 
-    Every chip coefficient varies through the seed (`GyroTruth.random`); the
-    effects given vary by a factor 1 + 0.2 N(0, 1) (kept within 0.5 to 1.5).
+    Every chip coefficient varies through the seed (`GyroTruth.random`); each
+    effect coefficient given (and each of the three g-sensitivities) by a
+    factor 1 + 0.2 N(0, 1) kept within 0.5 to 1.5.
     """
+    def factor(rng) -> float:
+        return float(np.clip(1.0 + FLEET_EFFECT_SPREAD * rng.standard_normal(), 0.5, 1.5))
+
     rng = np.random.default_rng([args.seed, args.fleet])
+    later = np.random.default_rng([args.seed, args.fleet, 1])
     count = max(1, args.fleet // FLEET_UNITS_PER_OUTLIER) if args.fleet_outliers is None \
         else min(args.fleet_outliers, args.fleet)
     outliers = set(rng.choice(args.fleet, size=count, replace=False).tolist())
     units = []
     for k in range(args.fleet):
-        factor = {name: float(np.clip(1.0 + FLEET_EFFECT_SPREAD * rng.standard_normal(), 0.5,
-                                      1.5)) for name in FLEET_VARIED_EFFECTS}
+        effects = {name: getattr(args, name) * factor(rng) for name in FLEET_VARIED_EFFECTS}
+        effects['hysteresis_width_c'] = args.hysteresis_width_c * factor(later)
+        effects['acceleration_dps_per_m_s2'] = [g * factor(later)
+                                                for g in args.acceleration_dps_per_m_s2]
         units.append({'unit': f'unit-{k:03d}', 'seed': args.seed * FLEET_SEED_STRIDE + k,
-                      'effects': {name: getattr(args, name) * factor[name]
-                                  for name in FLEET_VARIED_EFFECTS},
+                      'effects': effects,
                       'outlier': k in outliers,
                       'zro_slope_shift_dps_per_c': OUTLIER_ZRO_SLOPE_DPS_PER_C
                       if k in outliers else 0.0})
