@@ -21,11 +21,12 @@ import yaml
 from .core.chain import CalibrationChain, ChainModel
 from .core.compensation import table_compensation
 from .core.conversion import Output, SensorTransfer
-from .core.effects import AxisTerms, EffectModel, PARAMETER_DESCRIPTIONS
+from .core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
+                           polynomial_model)
 from .core.errors import ConfigError
 from .core.interpolation import Interpolation
 from .core.model_interface import ModelInputs
-from .core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
+from .core.models import AXIS_NAMES, EepromModel
 from .core.recalibration import RecalibrationLimits
 from .errors import MlxTempCompError
 from .simulation.mlx90609 import Fault
@@ -591,9 +592,8 @@ def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
                 msg = ('invalid parameter polynomial.scale: give a scale polynomial for every '
                        'axis or for none')
                 raise ParameterError(msg)
-            return PolynomialModel(
-                bias_coefficients=tuple(bias),
-                reference_temperature_c=values['polynomial.reference_temperature_c'],
+            return polynomial_model(
+                tuple(bias), reference_temperature_c=values['polynomial.reference_temperature_c'],
                 temperature_scale_c=values['polynomial.temperature_scale_c'],
                 scale_coefficients=tuple(scale) if all(scale) else (),
                 temperature_min_c=values['polynomial.temperature_min_c'],
@@ -605,8 +605,8 @@ def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
                     msg = (f'invalid parameter {key}: needs {len(axes)} values (one per axis '
                            f'in {list(axes)}), got {len(array)}')
                     raise ParameterError(msg)
-            return LinearBtcModel(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
-                                  t3_c=values['linear_btc.t3_c'])
+            return LinearBtc(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
+                             t3_c=values['linear_btc.t3_c']).model()
         if name == 'effects':
             return _effect_model(values, axes)
         if name == 'chain':

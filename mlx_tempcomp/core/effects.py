@@ -40,6 +40,11 @@ the first temperature (the device in equilibrium at power-up).
 Each effect is one `Effect` of the table `EFFECTS`: its coefficient fields,
 the descriptions of its node parameters, the inputs it needs, live or not,
 and its bias term; the model, the diagnosis and the node parameters read it.
+
+The node's ``polynomial`` and ``linear_btc`` models are effect models too, of
+a bias (and scale) polynomial only: `polynomial_model` and `LinearBtc.model`
+build them, named so that their fingerprints hash the parameters of their
+own name (the key of the ZRO state files saved for them).
 """
 
 import collections
@@ -52,7 +57,8 @@ import numpy as np
 
 from .errors import ConfigError
 from .model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from .models import finite_tuple, model_fingerprint, OffsetModel, one_row, rate_temperature_columns
+from .models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel, one_row,
+                     rate_temperature_columns)
 
 MAX_GRADIENT_TERMS = 2
 
@@ -544,7 +550,10 @@ class EffectModel(OffsetModel):
     Temperature polynomial plus diagnosed effects, per axis; see the module docstring.
 
     ``terms`` holds one `AxisTerms` per axis. Temperatures (T_eff) outside
-    [temperature_min_c, temperature_max_c] are clamped and flagged.
+    [temperature_min_c, temperature_max_c] are clamped and flagged. ``name``
+    is the node's ``model`` parameter that gives it: 'effects', or
+    'polynomial' and 'linear_btc' for a model that holds no more than their
+    parameters (`polynomial_model`, `LinearBtc`).
     """
 
     terms: tuple
@@ -558,8 +567,7 @@ class EffectModel(OffsetModel):
     secondary_scale_c: float = 1.0
     supply_reference_v: float = DEFAULT_SUPPLY_REFERENCE_V
     zro_offset_rad_s: tuple = field(default=())
-
-    name = 'effects'
+    name: str = 'effects'
 
     def __post_init__(self) -> None:
         terms = tuple(self.terms)
@@ -596,6 +604,26 @@ class EffectModel(OffsetModel):
         offset = self.zro_offset_rad_s or (0.0,) * len(terms)
         object.__setattr__(self, 'zro_offset_rad_s',
                            finite_tuple('zro_offset_rad_s', offset, len(terms)))
+        self._check_name()
+
+    def _check_name(self) -> None:
+        """Refuse a polynomial or linear_btc model holding what their parameters cannot."""
+        if self.name == 'effects':
+            return
+        if self.name not in MODEL_NAMES:
+            msg = f'an effect model is named one of {list(MODEL_NAMES)}, got {self.name!r}'
+            raise ConfigError(msg)
+        held = {name for term in self.terms for name in term.effects}
+        extra = held - {'temperature_polynomial', 'scale_factor_temperature'}
+        if self.name == 'linear_btc':
+            extra |= held & {'scale_factor_temperature'}
+        if extra:
+            msg = f'a {self.name} model holds no {", ".join(sorted(extra))}'
+            raise ConfigError(msg)
+        if self.name == 'linear_btc' and (
+                any(len(term.bias) != 2 for term in self.terms) or self.temperature_scale_c != 1.0
+                or math.isfinite(self.temperature_min_c) or math.isfinite(self.temperature_max_c)):
+            raise ConfigError('a linear_btc model is a line in T - T3 per axis, not clamped')
 
     @property
     def axes(self) -> int:
@@ -623,9 +651,20 @@ class EffectModel(OffsetModel):
         return tuple(sorted({e for t in self.terms for e in t.effects} & RECORD_EFFECTS))
 
     def fingerprint(self) -> str:
-        content = {f.name: getattr(self, f.name) for f in fields(self)
-                   if f.name not in ('terms', 'zro_offset_rad_s')}
-        content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)} for t in self.terms]
+        """Hash the parameters of the model's name, the ZRO offset left out."""
+        if self.name == 'polynomial':
+            scale = tuple(term.scale for term in self.terms)
+            content = {'bias': tuple(term.bias for term in self.terms),
+                       'scale': scale if any(scale) else (),
+                       'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
+                       'range': [self.temperature_min_c, self.temperature_max_c]}
+        elif self.name == 'linear_btc':
+            line = LinearBtc.of(self)
+            content = {'pbc': line.pbc_rad_s, 'btc': line.btc_rad_s_per_c, 't3': line.t3_c}
+        else:
+            content = {name: getattr(self, name) for name in _SCALARS}
+            content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)}
+                                for t in self.terms]
         return model_fingerprint(self.name, content)
 
     def correct(self, rate_rad_s, temperature_c,
@@ -785,13 +824,91 @@ class EffectModel(OffsetModel):
 # The parameters of `to_parameters`, in field order: float fields are scalars, tuples
 # lists; bias_steps, (time, step) pairs, becomes two lists.
 _SCALARS = tuple(f.name for f in fields(EffectModel)
-                 if f.name not in ('terms', 'zro_offset_rad_s'))
+                 if f.name not in ('terms', 'zro_offset_rad_s', 'name'))
 # Scalars a parameter file written before they existed may lack.
 _SCALAR_DEFAULTS = {'supply_reference_v': DEFAULT_SUPPLY_REFERENCE_V}
 _AXIS_SCALARS = tuple(f.name for f in fields(AxisTerms) if f.type is float)
 _AXIS_LISTS = tuple(f.name for f in fields(AxisTerms)
                     if f.type is tuple and f.name != 'bias_steps')
 _BIAS_EFFECTS = tuple(effect for effect in EFFECTS if effect.bias is not None)
+# The node's model parameters that give an effect model.
+MODEL_NAMES = ('effects', 'polynomial', 'linear_btc')
+
+
+def polynomial_model(bias_coefficients, reference_temperature_c: float = 25.0,
+                     temperature_scale_c: float = 1.0, scale_coefficients=(),
+                     temperature_min_c: float = -math.inf,
+                     temperature_max_c: float = math.inf) -> EffectModel:
+    """
+    Give the ``polynomial`` model: a bias polynomial per axis, optional scale-factor polynomials.
+
+    corrected = (raw - bias(x)) / (1 + sf(x)) - offset, x = (T - Tref) / scale;
+    coefficients lowest order first, bias in rad/s, sf relative (0 = nominal),
+    scale-factor polynomials for every axis or none. Temperatures outside
+    [min, max] are clamped and flagged, as PX4 and ArduPilot do.
+    """
+    bias = tuple(tuple(float(c) for c in axis) for axis in bias_coefficients)
+    if not 1 <= len(bias) <= 3:
+        msg = f'polynomial needs bias coefficients for 1 to 3 axes, got {len(bias)}'
+        raise ConfigError(msg)
+    for axis, coefficients in zip(AXIS_NAMES, bias):
+        if not coefficients or not all(math.isfinite(c) for c in coefficients):
+            msg = f'polynomial bias coefficients of axis {axis} must be finite and non-empty'
+            raise ConfigError(msg)
+    scale = tuple(tuple(float(c) for c in axis) for axis in scale_coefficients)
+    if scale and len(scale) != len(bias):
+        msg = f'polynomial scale coefficients given for {len(scale)} axes, bias for {len(bias)}'
+        raise ConfigError(msg)
+    if not all(math.isfinite(c) for axis in scale for c in axis):
+        raise ConfigError('polynomial scale coefficients must be finite')
+    terms = tuple(AxisTerms(bias=b, scale=s) for b, s in zip(bias, scale or ((),) * len(bias)))
+    return EffectModel(terms=terms, reference_temperature_c=reference_temperature_c,
+                       temperature_scale_c=temperature_scale_c,
+                       temperature_min_c=temperature_min_c, temperature_max_c=temperature_max_c,
+                       name='polynomial')
+
+
+@dataclass(frozen=True)
+class LinearBtc:
+    """
+    The ADIS16130 first-order bias correction: RBC = RATE + PBC + (TEMP - T3) x BTC.
+
+    PBC is minus the bias at T3 (rad/s), BTC minus the bias slope (rad/s/degC),
+    as the note's Table 6 shows (+0.12 C at a 0.04 deg/s/C slope gives -0.0048 deg/s).
+    `model` runs it as the ``linear_btc`` effect model: the bias polynomial
+    (-PBC, -BTC) in x = T - T3, which `of` reads back exactly.
+    """
+
+    pbc_rad_s: tuple
+    btc_rad_s_per_c: tuple
+    t3_c: float
+
+    def __post_init__(self) -> None:
+        pbc = tuple(float(v) for v in self.pbc_rad_s)
+        if not 1 <= len(pbc) <= 3:
+            msg = f'linear_btc needs PBC for 1 to 3 axes, got {len(pbc)}'
+            raise ConfigError(msg)
+        object.__setattr__(self, 'pbc_rad_s', finite_tuple('linear_btc.pbc', pbc, len(pbc)))
+        object.__setattr__(self, 'btc_rad_s_per_c',
+                           finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
+        if not math.isfinite(self.t3_c):
+            msg = f'linear_btc.t3_c must be finite, got {self.t3_c}'
+            raise ConfigError(msg)
+
+    def model(self) -> EffectModel:
+        return EffectModel(terms=tuple(AxisTerms(bias=(-pbc, -btc)) for pbc, btc in
+                                       zip(self.pbc_rad_s, self.btc_rad_s_per_c)),
+                           reference_temperature_c=self.t3_c, name='linear_btc')
+
+    @classmethod
+    def of(cls, model: EffectModel) -> 'LinearBtc':
+        """Give the coefficients of a ``linear_btc`` model."""
+        if model.name != 'linear_btc':
+            msg = f'a {model.name} model has no PBC and BTC'
+            raise ConfigError(msg)
+        return cls(pbc_rad_s=tuple(-term.bias[0] for term in model.terms),
+                   btc_rad_s_per_c=tuple(-term.bias[1] for term in model.terms),
+                   t3_c=model.reference_temperature_c)
 
 
 @dataclass(frozen=True)
@@ -804,6 +921,9 @@ class _History:
     play: Optional[np.ndarray]
 
 
+_NO_HISTORY = _History(slope=None, lagged=None, gradients=[], play=None)
+
+
 class _AxisRunner:
     """The history operators of one axis, run one sample at a time across blocks."""
 
@@ -813,8 +933,11 @@ class _AxisRunner:
         self.gradients = [_LagRunner(tau) for tau in term.gradient_time_constants_s]
         self.play = _PlayRunner(term.hysteresis_half_width_c) if term.hysteresis_rad_s \
             else None
+        self.idle = self.slope is self.lag is self.play is None and not self.gradients
 
     def run(self, time, temperature: np.ndarray) -> _History:
+        if self.idle:
+            return _NO_HISTORY
         values = temperature.tolist()
         times = None if time is None else time.tolist()
 

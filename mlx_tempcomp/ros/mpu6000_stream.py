@@ -84,8 +84,9 @@ def _offset_refresh(values: dict):
         msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
         raise ParameterError(msg) from None
     # A register can only add: the scale polynomial does not apply at rest.
-    return _OffsetRefresh(dataclasses.replace(model, scale_coefficients=()), path,
-                          values['mpu6000.offset_refresh_c'])
+    bias_only = dataclasses.replace(model, terms=tuple(
+        dataclasses.replace(term, scale=()) for term in model.terms))
+    return _OffsetRefresh(bias_only, path, values['mpu6000.offset_refresh_c'])
 
 
 class _OffsetRefresh(OffsetRefresh):

@@ -30,10 +30,11 @@ import math
 import numpy as np
 
 from .common import check_output_file, UserError, write_result
+from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
-from ..core.models import AXIS_NAMES, PolynomialModel
+from ..core.models import AXIS_NAMES
 from ..node_parameters import build_model, COMPENSATION_SPECS
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
 
@@ -79,26 +80,26 @@ class FirmwareCubic:
                                 for c in self.coefficients])
 
 
-def _rebased(model: PolynomialModel, reference_c: float) -> tuple:
+def _rebased(model: EffectModel, reference_c: float) -> tuple:
     """Re-expand each bias polynomial of ``model`` in powers of (T - reference_c)."""
     scale = model.temperature_scale_c
     x_of_delta = np.polynomial.Polynomial([(reference_c - model.reference_temperature_c) / scale,
                                            1.0 / scale])
     rebased = []
-    for coefficients in model.bias_coefficients:
-        power = np.polynomial.Polynomial(coefficients)(x_of_delta).coef
+    for term in model.terms:
+        power = np.polynomial.Polynomial(term.bias)(x_of_delta).coef
         rebased.append(tuple(float(c) for c in np.pad(power, (0, EXPORT_ORDER + 1 - power.size))))
     return tuple(rebased)
 
 
-def px4_cubic(model: PolynomialModel) -> FirmwareCubic:
+def px4_cubic(model: EffectModel) -> FirmwareCubic:
     """Give the PX4 form of a fitted cubic: TREF the middle of its range, TMIN/TMAX the range."""
     reference_c = 0.5 * (model.temperature_min_c + model.temperature_max_c)
     return FirmwareCubic(reference_c, _rebased(model, reference_c), model.temperature_min_c,
                          model.temperature_max_c)
 
 
-def ardupilot_cubic(model: PolynomialModel) -> FirmwareCubic:
+def ardupilot_cubic(model: EffectModel) -> FirmwareCubic:
     """
     Give the ArduPilot form of a fitted cubic, as the .parm file's digits hold it.
 
@@ -191,7 +192,7 @@ def _rate_error(recording) -> np.ndarray:
     return recording.gyro_rad_s - recording.reference_rad_s
 
 
-def _cubic(args, recording) -> PolynomialModel:
+def _cubic(args, recording) -> EffectModel:
     try:
         return fit_polynomial(recording.temperature_c, _rate_error(recording), EXPORT_ORDER)
     except TempCompError as err:
