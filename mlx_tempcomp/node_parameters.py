@@ -403,12 +403,13 @@ def check_value(spec: Spec, value) -> None:
 _WILDCARDS = ('/**', '**')
 
 
-def _flatten(tree: dict, prefix: str = '') -> dict:
+def flat_parameters(tree: dict, prefix: str = '') -> dict:
+    """Turn ``{'a': {'b': v}}`` into ``{'a.b': v}``: the names rcl gives a file's keys."""
     flat = {}
     for key, value in tree.items():
         name = f'{prefix}{key}'
         if isinstance(value, dict):
-            flat.update(_flatten(value, name + '.'))
+            flat.update(flat_parameters(value, name + '.'))
         else:
             flat[name] = value
     return flat
@@ -446,7 +447,7 @@ def _read_overrides(path: str, node_name: str) -> dict:
         if not isinstance(parameters, dict):
             msg = f'parameter file {path}: section {name!r} has no ros__parameters mapping'
             raise ParameterError(msg)
-        overrides.update(_flatten(parameters))
+        overrides.update(flat_parameters(parameters))
     return overrides
 
 

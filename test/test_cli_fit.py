@@ -9,13 +9,12 @@ from mlx_tempcomp.core.chain import ChainModel, ChainSettings, fit_chain, STAGE_
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
 from mlx_tempcomp.node_parameters import build_model
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
 from mlx_tempcomp.simulation.turntable import simulate_turntable
 import numpy as np
 from numpy.polynomial.polynomial import polyval
 import pytest
 from ros_harness import by_stamp
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu
 import yaml
 
 TIMEOUT_S = 20.0
@@ -105,13 +104,7 @@ def test_compensation_node_loads_the_fitted_file(fitted, launcher, probe, tmp_pa
         '--params-file', str(out_path),
         '-p', f'recalibration.state_file:={tmp_path / "zro_state.yaml"}'])
     received = probe.subscribe(Imu, 'imu/data')
-    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
-    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
-                                                        SENSOR_INPUT_QOS)
-    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
-                     temperature_publisher.get_subscription_count() and
-                     probe.node.count_publishers('imu/data'),
-                     TIMEOUT_S, 'the compensation node', launcher)
+    imu_publisher, temperature_publisher = probe.raw_publishers(TIMEOUT_S, launcher)
     rng = np.random.default_rng(1)
     indices = messages.axis_indices(axes)
     inputs = {}   # stamp in ns -> (raw rates in rad/s, temperature in degC)

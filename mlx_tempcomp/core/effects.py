@@ -307,22 +307,27 @@ class Effect:
     ``effects.<field>.<axis>``), ``model_fields`` the `EffectModel` fields
     (``effects.<field>``); ``descriptions`` describe each of its node
     parameters, ``{axis}`` standing for the axis. It is present on an axis
-    when its ``marker`` field is non-zero, or holds at least ``count``
-    values when ``count`` is given. ``inputs`` are the `ModelInputs` fields
-    it needs; ``live`` is False when it is tied to the clock of the record it
-    was found in. ``bias(term, model, inputs, history, total)`` adds its term
-    to the bias of an axis (None: the effect acts elsewhere in `_assemble`).
+    when its ``marker`` field (its first field unless given) is non-zero,
+    or holds at least ``count`` values when ``count`` is given. ``inputs``
+    are the `ModelInputs` fields it needs; ``live`` is False when it is tied
+    to the clock of the record it was found in. ``bias(term, model, inputs,
+    history, total)`` adds its term to the bias of an axis (None: the effect
+    acts elsewhere in `_assemble`).
     """
 
     name: str
     fields: tuple
     descriptions: Mapping
-    marker: str
+    marker: str = ''
     model_fields: tuple = ()
     count: int = 0
     inputs: frozenset = frozenset()
     live: bool = True
     bias: Optional[Callable] = None
+
+    def __post_init__(self) -> None:
+        if not self.marker:
+            object.__setattr__(self, 'marker', self.fields[0])
 
     def present(self, term: 'AxisTerms') -> bool:
         value = getattr(term, self.marker)
@@ -374,7 +379,7 @@ def _step_bias(term, model, inputs, history, total):
 _TIME = frozenset({'time_s'})
 # The effects in the order diagnose tries them and reports them; biases add up in it.
 EFFECTS = (
-    Effect('temperature_polynomial', fields=('bias',), marker='bias', count=1,
+    Effect('temperature_polynomial', fields=('bias',), count=1,
            model_fields=('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
                          'temperature_max_c'),
            descriptions={
@@ -383,18 +388,18 @@ EFFECTS = (
                'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
                'temperature_min_c': 'effective temperatures below are clamped',
                'temperature_max_c': 'effective temperatures above are clamped'}),
-    Effect('thermal_lag', fields=('thermal_lag_s',), marker='thermal_lag_s', inputs=_TIME,
+    Effect('thermal_lag', fields=('thermal_lag_s',), inputs=_TIME,
            model_fields=('temperature_rate_window_s',),
            descriptions={
                'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: '
                                 'T_eff = first-order lag of T with time constant |lag|',
                'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the '
                                             'slope over this window (s)'}),
-    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',),
-           marker='temperature_rate_rad_s_per_c_s', inputs=_TIME, bias=_rate_bias,
+    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',), inputs=_TIME,
+           bias=_rate_bias,
            descriptions={'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'}),
     Effect('thermal_gradient', fields=('gradient_time_constants_s', 'gradient_rad_s_per_c'),
-           marker='gradient_time_constants_s', count=1, inputs=_TIME, bias=_gradient_bias,
+           count=1, inputs=_TIME, bias=_gradient_bias,
            descriptions={
                'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at '
                                             'most 2)',
@@ -409,14 +414,13 @@ EFFECTS = (
                'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play '
                                           'operator',
                'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state'}),
-    Effect('supply_voltage', fields=('supply_voltage',), marker='supply_voltage',
-           model_fields=('supply_reference_v',), inputs=frozenset({'supply_voltage_v'}),
-           bias=_supply_bias,
+    Effect('supply_voltage', fields=('supply_voltage',), model_fields=('supply_reference_v',),
+           inputs=frozenset({'supply_voltage_v'}), bias=_supply_bias,
            descriptions={
                'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power '
                                  '1, rad/s',
                'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k'}),
-    Effect('secondary_temperature', fields=('secondary',), marker='secondary',
+    Effect('secondary_temperature', fields=('secondary',),
            model_fields=('secondary_reference_c', 'secondary_scale_c'),
            inputs=frozenset({'temperature_2_c'}), bias=_secondary_bias,
            descriptions={
@@ -425,27 +429,22 @@ EFFECTS = (
                'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
                'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2'}),
     Effect('acceleration_sensitivity', fields=('acceleration_rad_s_per_m_s2',),
-           marker='acceleration_rad_s_per_m_s2', inputs=frozenset({'acceleration_m_s2'}),
-           bias=_acceleration_bias,
+           inputs=frozenset({'acceleration_m_s2'}), bias=_acceleration_bias,
            descriptions={'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, '
                                                         'z acceleration'}),
-    Effect('scale_factor_temperature', fields=('scale',), marker='scale',
-           descriptions={'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: '
-                                  'none)'}),
-    Effect('rate_nonlinearity', fields=('nonlinearity',), marker='nonlinearity',
-           descriptions={'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 '
-                                         'poly(u)'}),
-    Effect('cross_axis', fields=('cross_axis',), marker='cross_axis',
-           descriptions={'cross_axis': 'axis {axis}: cross-axis coefficients, one per model '
-                                       'axis (own: 0)'}),
-    Effect('time_drift', fields=('time_drift_rad_s_per_s',), marker='time_drift_rad_s_per_s',
-           model_fields=('time_reference_s',), inputs=_TIME, live=False, bias=_drift_bias,
+    Effect('scale_factor_temperature', fields=('scale',), descriptions={
+        'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)'}),
+    Effect('rate_nonlinearity', fields=('nonlinearity',), descriptions={
+        'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)'}),
+    Effect('cross_axis', fields=('cross_axis',), descriptions={
+        'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)'}),
+    Effect('time_drift', fields=('time_drift_rad_s_per_s',), model_fields=('time_reference_s',),
+           inputs=_TIME, live=False, bias=_drift_bias,
            descriptions={
                'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since '
                                          'time_reference_s',
                'time_reference_s': 'time drift is zero at this stamp (s)'}),
-    Effect('bias_step', fields=('bias_steps',), marker='bias_steps', inputs=_TIME, live=False,
-           bias=_step_bias,
+    Effect('bias_step', fields=('bias_steps',), inputs=_TIME, live=False, bias=_step_bias,
            descriptions={
                'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
                'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s'}),
@@ -457,14 +456,6 @@ LIVE_EFFECTS = tuple(effect.name for effect in EFFECTS if effect.live)
 # The description of every effects.* node parameter, by its name without the axis.
 PARAMETER_DESCRIPTIONS = {name: text for effect in EFFECTS
                           for name, text in effect.descriptions.items()}
-
-
-def _polynomial(name: str, values) -> tuple:
-    values = tuple(float(v) for v in values)
-    if not all(math.isfinite(v) for v in values):
-        msg = f'{name} must be finite, got {list(values)}'
-        raise ConfigError(msg)
-    return values
 
 
 @dataclass(frozen=True)
@@ -499,7 +490,7 @@ class AxisTerms:
     cross_axis: tuple = ()
 
     def __post_init__(self) -> None:
-        bias = _polynomial('bias', self.bias)
+        bias = finite_tuple('bias', self.bias)
         if not bias:
             raise ConfigError('bias needs at least one coefficient')
         object.__setattr__(self, 'bias', bias)
@@ -515,12 +506,12 @@ class AxisTerms:
             raise ConfigError(msg)
         if self.hysteresis_rad_s and not self.hysteresis_half_width_c:
             raise ConfigError('hysteresis_rad_s needs a positive hysteresis_half_width_c')
-        steps = tuple(_polynomial('bias_steps', pair) for pair in self.bias_steps)
+        steps = tuple(finite_tuple('bias_steps', pair) for pair in self.bias_steps)
         if any(len(pair) != 2 for pair in steps):
             raise ConfigError('bias_steps must be (time_s, rad_s) pairs')
         object.__setattr__(self, 'bias_steps', steps)
         for name in _AXIS_LISTS:
-            object.__setattr__(self, name, _polynomial(name, getattr(self, name)))
+            object.__setattr__(self, name, finite_tuple(name, getattr(self, name)))
         taus, gains = self.gradient_time_constants_s, self.gradient_rad_s_per_c
         if len(taus) != len(gains) or len(taus) > MAX_GRADIENT_TERMS:
             msg = (f'gradient_time_constants_s and gradient_rad_s_per_c need the same number '

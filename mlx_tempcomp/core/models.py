@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import hashlib
 import json
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -45,10 +46,10 @@ def rate_temperature_columns(rate_rad_s, temperature_c, axes: int) -> tuple:
     return rate, np.broadcast_to(temperature, rate.shape)
 
 
-def finite_tuple(name: str, values, length: int) -> tuple:
-    """Give ``length`` finite floats of ``values``; ConfigError naming ``name`` otherwise."""
+def finite_tuple(name: str, values, length: Optional[int] = None) -> tuple:
+    """Give the finite floats of ``values``, ``length`` of them if given; else ConfigError."""
     values = tuple(float(v) for v in values)
-    if len(values) != length:
+    if length is not None and len(values) != length:
         msg = f'{name} needs {length} values (one per axis), got {len(values)}'
         raise ConfigError(msg)
     if not all(math.isfinite(v) for v in values):

@@ -43,7 +43,7 @@ from ..core.table import sensor_tables
 from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
                                limits_of, ParameterError, state_file_of, transfer_of)
 from ..sources.bag import BagError, eeprom_images_from_multiarray
-from ..state_file import Field, load_state, reject_state, StateFileError, write_state
+from ..state_file import Field, load_state, reject_state, StateFileError
 
 # Parameters whose change rebuilds the model.
 _MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
@@ -515,11 +515,7 @@ class CompensationNode(Node):
                                                                          offset_rad_s))
         text = (f'ZRO offset {summary} rad/s at {stats.temperature_c:.2f} C from '
                 f'{stats.samples} samples over {duration_s:g} s')
-        try:
-            write_state(self.state_path, state)
-        except StateFileError as err:
-            return f'applied but not saved: {text}; {err}'
-        return f'{text}; saved to {self.state_path}'
+        return messages.saved_reply(self.state_path, state, text)
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:

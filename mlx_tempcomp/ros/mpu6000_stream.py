@@ -30,7 +30,7 @@ from ..node_parameters import axes_of, build_model, node_values, ParameterError
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000
-from ..state_file import Field, load_state, StateFileError, write_state
+from ..state_file import Field, load_state
 
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 _INT16 = {'low': INT16_MIN, 'high': INT16_MAX}
@@ -350,8 +350,4 @@ class MpuStream(DeviceStream):
                 f'(bias {list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '
                 f'from {bias.samples} samples at {temperature_c:.2f} C (gyro bias before '
                 f'{residual} deg/s)')
-        try:
-            write_state(self.offsets_path, state)
-        except StateFileError as err:
-            return f'applied but not saved: {text}; {err}'
-        return f'{text}; saved to {self.offsets_path}'
+        return messages.saved_reply(self.offsets_path, state, text)

@@ -35,7 +35,7 @@ from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES
-from ..node_parameters import build_model, COMPENSATION_SPECS
+from ..node_parameters import build_model, COMPENSATION_SPECS, flat_parameters
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
 
 EXPORT_ORDER = 3
@@ -209,16 +209,7 @@ def _corrected(model, recording) -> np.ndarray:
 
 def node_model(parameters: dict):
     """Build the model the compensation node runs from a command's (nested) parameters."""
-    flat = {}
-
-    def walk(prefix: str, tree: dict) -> None:
-        for key, value in tree.items():
-            if isinstance(value, dict):
-                walk(f'{prefix}{key}.', value)
-            else:
-                flat[prefix + key] = value
-
-    walk('', parameters)
+    flat = flat_parameters(parameters)
     return build_model({spec.name: flat.get(spec.name, spec.initial_value)
                         for spec in COMPENSATION_SPECS})
 
