@@ -4,7 +4,8 @@ ROS 2 parameters of the compensation node for a fitted model, free of rclpy.
 One function per model the toolkit fits builds its ``ros__parameters``
 mapping: `polynomial_parameters` (bias polynomials, also the relative
 correction), `linear_btc_parameters`, `effect_parameters` (the effect model
-of ``diagnose``) and `chain_parameters`. `parameter_file` wraps the mapping
+of ``diagnose``) and `chain_parameters`; `model_error_parameters` adds the
+model's error by temperature to any of them. `parameter_file` wraps the mapping
 in the section of a node and `write_parameter_file` writes it atomically so
 that ``compensation_node --ros-args --params-file FILE`` loads it as is. Every
 number is a Python float (rcl refuses an int for a double parameter) and
@@ -15,6 +16,7 @@ import yaml
 
 from .core.chain import ChainModel
 from .core.effects import EffectModel, LinearBtc
+from .core.model_error import ModelErrorTable
 from .core.models import AXIS_NAMES
 from .state_file import atomic_write
 
@@ -89,6 +91,20 @@ def effect_parameters(model: EffectModel, axes) -> dict:
     axes = _check_axes(axes, model.axes)
     return {'model': 'effects', 'axes': list(axes),
             'effects': nest_parameters(model.to_parameters(axes))}
+
+
+def model_error_parameters(table: ModelErrorTable, axes) -> dict:
+    """
+    Return the compensation node's ``model_error`` parameters for any model.
+
+    The table of the model's error by temperature (`ModelErrorTable`), which
+    the node adds to the Imu angular velocity covariance; ``axes`` names the
+    Imu axis of each of its error columns.
+    """
+    axes = _check_axes(axes, table.axes)
+    return {'model_error': {'temperature_c': [float(t) for t in table.temperature_c],
+                            **{f'{axis}_rad_s': [float(v) for v in values]
+                               for axis, values in zip(axes, table.error_rad_s)}}}
 
 
 def linear_btc_parameters(model: EffectModel, axes) -> dict:

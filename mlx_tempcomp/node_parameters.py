@@ -25,6 +25,7 @@ from .core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPT
                            polynomial_model)
 from .core.errors import ConfigError
 from .core.interpolation import Interpolation
+from .core.model_error import ModelErrorTable, table_temperatures
 from .core.model_interface import ModelInputs
 from .core.models import AXIS_NAMES, EepromModel
 from .core.recalibration import RecalibrationLimits
@@ -341,6 +342,15 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('linear_btc.t3_c', 25.0, 'T3, the temperature of the PBC measurement',
          low=-100.0, high=200.0),
 ) + EFFECT_SPECS + CHAIN_SPECS + (
+    Spec('model_error.temperature_c', NoDefault('double_array'),
+         'temperatures of the model error table, strictly increasing, degC (empty: no model '
+         'error; mlx-tempcomp diagnose writes it)'),
+) + tuple(
+    Spec(f'model_error.{axis}_rad_s', NoDefault('double_array'),
+         f'axis {axis}: held-out RMS error of the model at each model_error.temperature_c, '
+         'rad/s; its square, linear in T between them and held beyond, is added to '
+         'rate_noise_rad_s^2 in the angular velocity covariance') for axis in AXIS_NAMES
+) + (
     Spec('recalibration.duration_s', 5.0, 'averaging window (sensor time)', low=0.05,
          high=3600.0),
     Spec('recalibration.noise_multiple', 3.0, 'rate spread above this x noise means motion',
@@ -521,6 +531,39 @@ def limits_of(values: dict) -> RecalibrationLimits:
         rate_noise_rad_s=noise, noise_multiple=values['recalibration.noise_multiple'],
         max_mean_rate_rad_s=values['recalibration.max_mean_rate_rad_s'],
         max_temperature_change_c=values['recalibration.max_temperature_change_c'])
+
+
+def model_error_of(values: dict) -> Optional[ModelErrorTable]:
+    """
+    Build the model error table of the measured axes; None when model_error.* is unset.
+
+    Raise `ParameterError` naming the parameter when the table is given in part
+    or is not a table (temperatures not increasing, lengths that differ).
+    """
+    axes = axes_of(values)
+    temperature = values['model_error.temperature_c']
+    errors = [values[f'model_error.{axis}_rad_s'] for axis in axes]
+    if not temperature and not any(errors):
+        return None
+    if not temperature:
+        given = next(axis for axis, values in zip(axes, errors) if values)
+        msg = (f'invalid parameter model_error.temperature_c: unset, but '
+               f'model_error.{given}_rad_s is given; the table needs its temperatures')
+        raise ParameterError(msg)
+    try:
+        table_temperatures(temperature)
+    except ConfigError as err:
+        raise ParameterError(f'invalid parameter model_error.temperature_c: {err}') from None
+    for axis, column in zip(axes, errors):
+        if len(column) != len(temperature):
+            msg = (f'invalid parameter model_error.{axis}_rad_s: needs {len(temperature)} '
+                   f'values (one per model_error.temperature_c), got {len(column)}')
+            raise ParameterError(msg)
+        if not all(math.isfinite(v) and v >= 0.0 for v in column):
+            msg = (f'invalid parameter model_error.{axis}_rad_s: an error must be finite and '
+                   f'>= 0, got {list(column)}')
+            raise ParameterError(msg)
+    return ModelErrorTable(tuple(temperature), tuple(tuple(column) for column in errors))
 
 
 def state_file_of(values: dict, node_name: str) -> str:

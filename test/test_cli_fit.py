@@ -148,6 +148,11 @@ def test_measured_sweep_with_tofupilot_preset(tmp_path, capsys):
     assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
             'predicted from the blocks before it): x ') in out
     assert 'skipped: dropped by preset 1' in out
+    # The blocks before the first forward block cool from 52 to -11 C; it is colder still,
+    # so its fold's polynomial runs wholly clamped.
+    assert 'held-out rows outside the temperature range of their training blocks (clamped): ' \
+        in out
+    assert '  block 5: 100% of 420 rows outside -11.45 .. 52.11 C' in out
     axes, model = model_from_yaml(out_path)
     assert axes == ('x', 'y', 'z')
     assert model.temperature_min_c < model.temperature_max_c

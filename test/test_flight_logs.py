@@ -7,6 +7,7 @@ one-line ``error:`` or a counted partial read, never a traceback.
 """
 
 import json
+import struct
 import tracemalloc
 
 from cli_checks import assert_user_error
@@ -56,6 +57,16 @@ def test_reader_gives_the_readme_instances_counts_and_temperatures(name):
         assert np.all(np.diff(instance.time_s) > 0)
         assert instance.gyro_rad_s.shape == (len(instance), 3)
         assert instance.acceleration_m_s2.shape == (len(instance), 3)
+
+
+def test_accelerometers_keep_their_own_device_ids():
+    # robologs: IMU 1's accelerometer is another chip than its gyro (README).
+    ids = [(i.device_id, i.accel_device_id) for i in read_flight_log(_log(ROBOLOGS)).instances]
+    assert ids == [(3932170, 3932170), (4325386, 4259850)]
+    # pymavlink test log: INS_ACC_ID and INS_ACC2_ID beside INS_GYR_ID and INS_GYR2_ID.
+    log = read_flight_log(_log(PYMAVLINK))
+    assert [i.accel_device_id for i in log.instances] == [
+        int(log.parameters['INS_ACC_ID']), int(log.parameters['INS_ACC2_ID'])]
 
 
 def test_durations_come_from_the_stamps_not_the_header():
@@ -211,11 +222,38 @@ def test_instance_all_runs_the_command_once_per_usable_instance(capsys, tmp_path
     assert capsys.readouterr().out.count('== IMU instance') == 1
 
 
+def _message_ends(data: bytes, suffix: str = '.ulg') -> list:
+    """
+    Where each message of a log ends.
+
+    ULog: after the 16-byte header, uint16 size, uint8 type, data. DataFlash: 0xA3 0x95,
+    uint8 type, data of the length its FMT message (type 128, 89 bytes) gives.
+    """
+    ends = []
+    if suffix == '.ulg':
+        position = 16
+        while position + 3 <= len(data):
+            position += 3 + struct.unpack_from('<H', data, position)[0]
+            ends.append(position)
+        return ends
+    lengths, position = {128: 89}, 0
+    while position + 3 <= len(data) and data[position:position + 2] == b'\xa3\x95':
+        kind = data[position + 2]
+        if kind == 128 and position + 5 <= len(data):
+            lengths[data[position + 3]] = data[position + 4]
+        if kind not in lengths:
+            break
+        position += lengths[kind]
+        ends.append(position)
+    return ends
+
+
 @pytest.mark.parametrize('name', LOGS)
 def test_truncated_copies_give_an_error_line_or_a_counted_partial_read(capsys, tmp_path,
                                                                        name):
     data = _log(name).read_bytes()
     full = {i.index: len(i) for i in read_flight_log(_log(name)).instances}
+    boundaries = set(_message_ends(data, _log(name).suffix.lower()))
     rng = np.random.default_rng(17)
     for offset in sorted(rng.integers(0, len(data), TRUNCATIONS).tolist()):
         cut = tmp_path / f'cut{offset}{_log(name).suffix}'
@@ -227,10 +265,14 @@ def test_truncated_copies_give_an_error_line_or_a_counted_partial_read(capsys, t
                 captured.err
             continue
         assert code == 0, (offset, captured.err)
-        # A partial read: what was read, counted per instance, never more than the log has.
+        # A partial read: what was read, counted per instance, never more than the log has,
+        # and a note that the file was cut unless it was cut exactly between two messages
+        # (neither format declares its length: such a copy reads as a shorter whole log).
         report = json.loads(captured.out)
         for item in report['instances']:
             assert item['samples'] <= full[item['instance']], offset
+        cut = any('cut short' in note for note in report['notes'])
+        assert cut != (offset in boundaries), (offset, report['notes'])
 
 
 @pytest.mark.parametrize('name', LOGS)
@@ -240,3 +282,36 @@ def test_a_copy_cut_inside_its_header_is_one_error_line(capsys, tmp_path, name):
     for command in (['inspect'], ['fit', '--out', str(tmp_path / 'p.yaml')]):
         code = main([command[0], str(cut), *command[1:]])
         assert_user_error(code, capsys, str(cut))
+
+
+def _cut_notes(path):
+    return [note for note in read_flight_log(path).notes if 'cut short' in note]
+
+
+def test_a_ulog_cut_inside_a_message_says_so_and_one_cut_between_messages_cannot(tmp_path):
+    data = _log(PYULOG).read_bytes()
+    ends = _message_ends(data)
+    assert ends[-1] == len(data)
+    middle = ends[len(ends) // 2]
+    inside = tmp_path / 'inside.ulg'
+    inside.write_bytes(data[:middle + 7])
+    (note,) = _cut_notes(inside)
+    assert f'the last 7 bytes (from byte {middle})' in note
+    # ULog declares no length and no end: a cut between two messages reads as a whole log.
+    between = tmp_path / 'between.ulg'
+    between.write_bytes(data[:middle])
+    assert _cut_notes(between) == [] and _cut_notes(_log(PYULOG)) == []
+
+
+def test_a_ulog_whose_declared_appended_data_is_cut_off_says_so(tmp_path):
+    data = bytearray(_log(PYULOG).read_bytes())
+    # The flag-bits message: 16-byte header, 3-byte message header, compat[8], incompat[8],
+    # appended_offsets[3]; incompat bit 0 says data is appended at those offsets.
+    assert data[18] == ord('B')
+    data[19 + 8] |= 1
+    struct.pack_into('<Q', data, 19 + 16, len(data) + 100)
+    cut = tmp_path / 'appended.ulg'
+    cut.write_bytes(bytes(data))
+    (note,) = _cut_notes(cut)
+    assert f'data appended at byte {len(data) + 100}' in note
+    assert [len(i) for i in read_flight_log(cut).instances] == [6, 6, 6]

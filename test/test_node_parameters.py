@@ -9,8 +9,10 @@ value a YAML file can give.
 from pathlib import Path
 
 from hypothesis import given, strategies as st
+from mlx_tempcomp.core.model_error import ModelErrorTable
 from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, flat_parameters,
-                                          node_values, NoDefault, ParameterError, type_of)
+                                          limits_of, model_error_of, node_values, NoDefault,
+                                          ParameterError, type_of)
 from mlx_tempcomp.ros.params import descriptor
 import pytest
 from rclpy.parameter import Parameter
@@ -80,3 +82,41 @@ def test_a_file_s_integer_for_a_double_is_read_as_the_nodes_take_it(tmp_path):
     with pytest.raises(ParameterError, match='invalid parameter stale_timeout_s: expected '
                                              "double, got string \\('two'\\)"):
         node_values(str(path), 'compensation_node')
+
+
+def model_error_values(**given) -> dict:
+    values = {spec.name: spec.initial_value for spec in COMPENSATION_SPECS}
+    values.update({'axes': ['x', 'z'], **given})
+    return values
+
+
+def test_model_error_of_builds_the_table_of_the_measured_axes():
+    assert model_error_of(model_error_values()) is None
+    table = model_error_of(model_error_values(**{
+        'model_error.temperature_c': [0.0, 30.0], 'model_error.x_rad_s': [1e-3, 2e-3],
+        'model_error.z_rad_s': [3e-3, 0.0], 'model_error.y_rad_s': [9.0]}))
+    # y is not measured: its values are not used, as polynomial.bias.y would not be.
+    assert table == ModelErrorTable((0.0, 30.0), ((1e-3, 2e-3), (3e-3, 0.0)))
+    # The sensor-noise limits of a ZRO recalibration do not take the model error.
+    assert limits_of(model_error_values()).rate_noise_rad_s == 0.0058
+
+
+@pytest.mark.parametrize('given, message', [
+    ({'model_error.x_rad_s': [1e-3]},
+     'invalid parameter model_error.temperature_c: unset, but model_error.x_rad_s is given; '
+     'the table needs its temperatures'),
+    ({'model_error.temperature_c': [0.0, 30.0], 'model_error.x_rad_s': [1e-3, 1e-3]},
+     'invalid parameter model_error.z_rad_s: needs 2 values (one per '
+     'model_error.temperature_c), got 0'),
+    ({'model_error.temperature_c': [30.0, 0.0], 'model_error.x_rad_s': [1e-3, 1e-3],
+      'model_error.z_rad_s': [1e-3, 1e-3]},
+     'invalid parameter model_error.temperature_c: model error temperatures must be '
+     'strictly increasing, got [30.0, 0.0]'),
+    ({'model_error.temperature_c': [0.0], 'model_error.x_rad_s': [-1e-3],
+      'model_error.z_rad_s': [1e-3]},
+     'invalid parameter model_error.x_rad_s: an error must be finite and >= 0, got [-0.001]'),
+])
+def test_model_error_of_names_what_is_wrong(given, message):
+    with pytest.raises(ParameterError) as raised:
+        model_error_of(model_error_values(**given))
+    assert str(raised.value) == message

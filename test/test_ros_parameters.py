@@ -38,6 +38,11 @@ INVALID = {
                               'linear_btc.pbc_rad_s': [0.0],
                               'linear_btc.btc_rad_s_per_c': [0.0, 0.0]},
                              'invalid parameter linear_btc.pbc_rad_s: needs 2 values'),
+    'model_error_not_increasing': ('compensation_node',
+                                   {'model_error.temperature_c': [20.0, 10.0],
+                                    'model_error.z_rad_s': [1e-3, 2e-3]},
+                                   'invalid parameter model_error.temperature_c: model error '
+                                   'temperatures must be strictly increasing, got [20.0, 10.0]'),
     'qos_override_misspelt': ('compensation_node',
                               {'qos_overrides./imu/data_raw.subscription.reliability': 'relible'},
                               'invalid qos_overrides for imu/data_raw: Unexpected QoS override '

@@ -40,6 +40,19 @@ when its held-out RMS under the deciding validation is at least
 not above it; otherwise the axis writes the cubic, and `ModelChoice` says
 why.
 
+Several records of one unit (`records.join_records`) are diagnosed as one:
+each keeps its own history (every stateful input starts afresh at its
+first row, and a fold model runs each record from its start), and each has
+its own bias offset, a constant column per record beyond the first in
+every fit (a power cycle or a re-mount shifts the bias). Blocks never span
+two records, and a block is predicted only when its record has training
+rows (`validation.split`). The model written carries the offset of the
+last record diagnosed: the robot runs after it, on the same mount, and
+the node's ZRO recalibration at rest absorbs whatever a new run shifts.
+``test_record`` holds the last record out; it is judged as written and
+after a re-zero: its own bias over its first ``rezero_s`` seconds taken
+off, as ``imu/recalibrate_zro`` does on a node.
+
 By default the loop searches only the effects a node can run on a live
 stream (`LIVE_EFFECTS`); acceleration only when the record shows the sensor
 moved. The effects tied to the record's clock (time drift, bias steps) are
@@ -49,6 +62,14 @@ to that axis (a live term would only stand in for it), the search of the
 axis ends and the record effect is named its ``cause``. After the loop
 they are tested on top of the final model and reported as findings. Unless
 ``record_effects`` puts them into the search, they are never added.
+
+Last, what the figures rest on: `OutsideFittedRange` says how much of the
+test part and of each forward held-out block lies outside the temperature
+range the model predicting it was fitted on (where it ran clamped), and
+`ErrorByTemperature` bins the written model's held-out residuals (and the
+test part's) into ``error_bins`` temperature bins (`validation.
+error_by_temperature`): the validated error as a function of T, which the
+node can add to its covariance.
 """
 
 from dataclasses import dataclass, field, replace
@@ -64,8 +85,13 @@ from .errors import CalibrationError, ConfigError
 from .fitting import MIN_SPAN_C
 from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 from .model_interface import INPUTS, ModelInputs
-from .validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD,
-                         one_standard_error, order_score, ROUND_ROBIN, split, training_sums)
+from .recalibration import RecalibrationLimits
+from .records import join_records
+from .validation import (DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, error_by_temperature,
+                         FORWARD, held_out_outside_range, one_standard_error, order_score,
+                         outside_range, OutsideRange, record_block_bounds, ROUND_ROBIN, split,
+                         temperature_bin_edges, TemperatureErrors,
+                         training_sums)
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -94,6 +120,13 @@ SUPPLY_ORDERS = (1, 2)
 SECONDARY_ORDERS = (1, 2, 3)
 SCALE_ORDERS = (0, 1, 2)
 NONLINEARITY_ORDERS = (2, 3)
+# The node's imu/recalibrate_zro: its default window (recalibration.duration_s) and the
+# fewest samples it accepts in it.
+DEFAULT_REZERO_S = 5.0
+REZERO_MIN_SAMPLES = RecalibrationLimits.min_samples
+
+# Temperature bins of the error-by-temperature table (equal width over the diagnosed part).
+DEFAULT_ERROR_BINS = 8
 
 Progress = Optional[Callable[[int, int, str], None]]
 
@@ -111,11 +144,14 @@ class DiagnosisSettings:
     block_tolerance: float = 1.0
     test_fraction: float = 0.0
     test_cycle: bool = False
+    test_record: bool = False
+    rezero_s: float = DEFAULT_REZERO_S
     rate_window_s: float = DEFAULT_RATE_WINDOW_S
     record_effects: bool = False
     validation: str = FORWARD
     min_past: float = DEFAULT_MIN_PAST
     baseline_margin: float = 0.05
+    error_bins: int = DEFAULT_ERROR_BINS
 
     def __post_init__(self) -> None:
         checks = (
@@ -133,12 +169,15 @@ class DiagnosisSettings:
              f'block_tolerance must be non-negative, got {self.block_tolerance}'),
             (math.isfinite(self.test_fraction) and 0.0 <= self.test_fraction < 1.0,
              f'test_fraction must be in [0, 1), got {self.test_fraction}'),
-            (not (self.test_cycle and self.test_fraction),
-             'hold out either the last cycle or a test fraction, not both'),
+            (sum((self.test_cycle, bool(self.test_fraction), self.test_record)) <= 1,
+             'hold out one of the last cycle, a test fraction or the last record'),
+            (math.isfinite(self.rezero_s) and self.rezero_s > 0.0,
+             f'rezero_s must be positive, got {self.rezero_s}'),
             (math.isfinite(self.rate_window_s) and self.rate_window_s > 0.0,
              f'rate_window_s must be positive, got {self.rate_window_s}'),
             (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
              f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
+            (self.error_bins >= 1, f'error_bins must be at least 1, got {self.error_bins}'),
         )
         for ok, msg in checks:
             if not ok:
@@ -264,13 +303,62 @@ class AxisDiagnosis:
 
 @dataclass(frozen=True)
 class BinnedResidual:
-    """Binned residuals (bins, axes) of the base and diagnosed models, for plots."""
+    """Binned residuals (bins, axes) of the base and diagnosed models; rows per bin."""
 
     time_s: np.ndarray
     temperature_c: np.ndarray
     heating: np.ndarray
     before_rad_s: np.ndarray
     after_rad_s: np.ndarray
+    rows: Optional[np.ndarray] = None
+
+
+@dataclass(frozen=True)
+class OutsideFittedRange:
+    """
+    Where the model runs outside the temperature range it was fitted on: it clamps there.
+
+    Temperatures are the effective ones each axis's model clamps (T, or
+    T_eff with a thermal lag), one column per axis; ``per_axis`` says whether
+    they differ. ``blocks`` holds per block of the forward scheme the
+    `OutsideRange` of its rows against the blocks before it (None: not
+    predicted), ``test`` the test part's against the written model's range.
+    """
+
+    per_axis: bool
+    blocks: tuple
+    test: Optional[OutsideRange] = None
+
+
+@dataclass(frozen=True)
+class ErrorByTemperature:
+    """
+    The written model's held-out error per temperature bin (`TemperatureErrors`).
+
+    ``held_out``: the residuals of the deciding validation's folds (the
+    figure the node takes); ``test``: the written model on the test part.
+    ``rows_per_bin`` is the mean number of samples per averaging bin.
+    """
+
+    validation: str
+    held_out: TemperatureErrors
+    rows_per_bin: float
+    test: Optional[TemperatureErrors] = None
+
+
+@dataclass(frozen=True)
+class RecordFit:
+    """
+    One record of the input: its name and rows, and whether the diagnosis fitted it.
+
+    ``offset_rad_s`` is its bias offset per axis against the written one
+    (the last fitted record's), None for a held-out record.
+    """
+
+    name: str
+    rows: int
+    fitted: bool
+    offset_rad_s: Optional[tuple]
 
 
 @dataclass(frozen=True)
@@ -282,7 +370,11 @@ class Diagnosis:
     'test' with a test part), to a mapping of each of METHODS to one
     `HeldOutError` per axis.
     ``skipped`` lists (effect, reason) for effects the data cannot support
-    or the settings leave out.
+    or the settings leave out. ``records`` describes each record
+    (`RecordFit`); with a held-out record, 'test_rezeroed' in ``comparison``
+    holds the errors after its re-zero, and ``rezero_rad_s`` maps each of
+    METHODS to what the re-zero took off per axis. ``outside_range`` and
+    ``error_by_temperature`` are the module docstring's last paragraph.
     """
 
     axes: tuple
@@ -299,6 +391,17 @@ class Diagnosis:
     held_out: BinnedResidual
     test: Optional[BinnedResidual] = None
     bounds: Mapping = field(default_factory=dict)
+    records: tuple = ()
+    rezero_rad_s: Mapping = field(default_factory=dict)
+    first_blocks: tuple = (0,)
+    outside_range: Optional[OutsideFittedRange] = None
+    error_by_temperature: Optional[ErrorByTemperature] = None
+
+    def split(self, scheme: Optional[str] = None):
+        """Give the blocks as a scheme (default: the deciding one) dealt them, records and all."""
+        settings = self.settings
+        return split(settings.blocks, scheme or settings.validation, settings.folds,
+                     settings.min_past, self.first_blocks)
 
 
 @dataclass(frozen=True)
@@ -386,9 +489,12 @@ class _Problem:
     def __init__(self, recording, settings: DiagnosisSettings, progress: Progress):
         self.settings = settings
         self.progress = progress
+        recording = self.records = join_records(recording)
         self.axes = tuple(recording.axes)
         total = len(recording.time_s)
         self.rows = _test_start(recording, settings)
+        # The records the diagnosis fits; the last of them gives the written offset.
+        self.fitted_records = recording.record_of(self.rows - 1) + 1
         self.full = recording
         rows = slice(0, self.rows)
 
@@ -411,8 +517,12 @@ class _Problem:
         self.centre_c = 0.5 * (low + high)
         self.half_span_c = 0.5 * (high - low)
         self.time_reference_s = float(self.time[0])
-        self.duration_s = max(float(self.time[-1] - self.time[0]), 1.0)
-        self.slope = temperature_rate_c_s(self.time, self.temperature, settings.rate_window_s)
+        # The longest record: a time constant must fit into one (histories restart).
+        self.duration_s = max(max(float(self.time[rows.stop - 1] - self.time[rows.start])
+                                  for rows in recording.segments(self.rows)), 1.0)
+        self.slope = self.each(functools.partial(temperature_rate_c_s,
+                                                 window_s=settings.rate_window_s),
+                               self.time, self.temperature)
         self._split()
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
@@ -437,10 +547,16 @@ class _Problem:
                 'gradient_time_constant_s': (self.settings.rate_window_s, longest),
                 'hysteresis_half_width_c': (WIDTH_GRID_C[0], self.half_span_c)}
 
+    def each(self, operator, *columns) -> np.ndarray:
+        """Run a history operator over each record's rows of ``columns`` (`Records.each`)."""
+        return self.records.each(operator, *columns)
+
     def _split(self) -> None:
-        """Cut rows into blocks, bins inside blocks, and deal blocks to folds."""
+        """Cut rows into blocks (none spanning two records), bins inside blocks; deal blocks."""
         settings = self.settings
-        edges = self.block_edges = block_bounds(self.rows, settings.blocks)
+        rows = [part.stop - part.start for part in self.records.segments(self.rows)]
+        edges, self.first_blocks = record_block_bounds(rows, settings.blocks)
+        self.block_edges = edges
         block = np.repeat(np.arange(settings.blocks), np.diff(edges))
         boundary = np.zeros(self.rows, dtype=bool)
         boundary[edges[:-1]] = True
@@ -457,7 +573,9 @@ class _Problem:
 
     def folds_of(self, scheme: str) -> _Folds:
         """Return the folds of a validation scheme over this problem's bins."""
-        return _Folds(self.settings.split(scheme), self.bin_block, self.block_edges)
+        settings = self.settings
+        return _Folds(split(settings.blocks, scheme, settings.folds, settings.min_past,
+                            self.first_blocks), self.bin_block, self.block_edges)
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         """Return the bin means of row values (rows,) or (rows, k), or of their first rows."""
@@ -474,11 +592,7 @@ class _Problem:
 
     def effective(self, lag_s: float) -> np.ndarray:
         """T_eff of a thermal lag (`EffectModel`), row by row."""
-        if lag_s > 0.0:
-            return self.temperature + lag_s * self.slope
-        if lag_s < 0.0:
-            return FirstOrderLag(-lag_s).batch(self.time, self.temperature)
-        return self.temperature
+        return _effective(self.records, self.time, self.temperature, self.slope, lag_s)
 
     def x(self, lag_s: float) -> np.ndarray:
         return (self.effective(lag_s) - self.centre_c) / self.half_span_c
@@ -539,7 +653,22 @@ class _Problem:
             columns = _FITS[effect].columns
             if columns is not None:
                 blocks.append(columns(self, axis, spec, choice))
+        blocks.append(self.offset_columns())
         return np.column_stack(blocks)
+
+    def offset_columns(self) -> np.ndarray:
+        """
+        Give the bias offset columns of the records after the first (none for one record).
+
+        Last in every design: 1 on the bins of its record. The offsets are the
+        records' bias against the first's; a record with no training bins in
+        a fold has a zero column there, coefficient 0 (`_solve_normal`).
+        """
+        def build():
+            record = np.searchsorted(self.records.starts, self.starts, side='right') - 1
+            return (record[:, None] == np.arange(1, self.fitted_records)[None, :]).astype(
+                np.float64)
+        return self.cached('offsets', build)
 
     def score_spec(self, axis: int, spec: _Spec, folds: Optional[_Folds] = None) -> _Score:
         """Score the terms of ``spec`` on an axis, the polynomial clamped as the folds run it."""
@@ -577,7 +706,17 @@ class _Problem:
         return _Score(fold_rms, _rms(residual[scored], self.counts[scored]), rank_ok, residual)
 
     def fit_terms(self, axis: int, spec: _Spec, bins=None) -> AxisTerms:
-        """Fit one axis on the given bins (all when None) and return its terms."""
+        """Fit one axis on the given bins (all when None); its terms with the written offset."""
+        terms, offsets = self.fit_offsets(axis, spec, bins)
+        return _shifted(terms, offsets[-1])
+
+    def fit_offsets(self, axis: int, spec: _Spec, bins=None) -> tuple:
+        """
+        Fit one axis on the given bins (all when None).
+
+        Return (its terms, each fitted record's offset to add to their constant:
+        0 for the first).
+        """
         design = self.design(axis, spec)
         target = self.target[:, axis]
         if bins is not None:
@@ -586,7 +725,9 @@ class _Problem:
         # The solver `score` uses: a fold's model is the one its score was judged on.
         weighted = design * weights[:, None]
         solution, _ = _solve_normal(weighted.T @ design, weighted.T @ target)
-        return self._terms(axis, spec, solution)
+        offsets = self.fitted_records - 1
+        return (self._terms(axis, spec, solution[:solution.size - offsets]),
+                (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
 
     def _terms(self, axis: int, spec: _Spec, solution: np.ndarray) -> AxisTerms:
         values = iter(float(v) for v in solution)
@@ -601,20 +742,40 @@ class _Problem:
 
     def model(self, specs: tuple, fold: Optional[int] = None,
               folds: Optional[_Folds] = None) -> EffectModel:
-        """Fit every axis on all bins, or on the training bins of ``fold``."""
+        """Fit every axis on all bins, or on the training bins of ``fold``; written offset."""
+        return self.record_models(specs, fold, folds)[-1]
+
+    def record_models(self, specs: tuple, fold: Optional[int] = None,
+                      folds: Optional[_Folds] = None) -> tuple:
+        """
+        Fit every axis on all bins, or on the training bins of ``fold``: one model per record.
+
+        Each fitted record's model has its own offset; a record after them
+        (the test record) runs the last one's, the written offset.
+        """
         folds = folds or self.folds
         bins = None if fold is None else folds.train[fold]
         low, high = self.clamp_range(specs, None if fold is None else
                                      folds.split.training[fold])
         secondary = self.secondary or (25.0, 1.0)
         supply = self.supply_reference or (EffectModel.supply_reference_v, 1.0)
-        return EffectModel(
-            terms=tuple(self.fit_terms(axis, spec, bins) for axis, spec in enumerate(specs)),
+        fits = [self.fit_offsets(axis, spec, bins) for axis, spec in enumerate(specs)]
+        model = EffectModel(
+            terms=tuple(terms for terms, _ in fits),
             reference_temperature_c=self.centre_c, temperature_scale_c=self.half_span_c,
             temperature_min_c=low, temperature_max_c=high,
             temperature_rate_window_s=self.settings.rate_window_s,
             time_reference_s=self.time_reference_s, secondary_reference_c=secondary[0],
             secondary_scale_c=secondary[1], supply_reference_v=supply[0])
+        models = tuple(replace(model, terms=tuple(_shifted(terms, offsets[record])
+                                                  for terms, offsets in fits))
+                       for record in range(self.fitted_records))
+        return models + models[-1:] * (self.records.count - self.fitted_records)
+
+    def record_offsets(self, specs: tuple) -> np.ndarray:
+        """Give each fitted record's bias offset (records, axes) against the written one."""
+        offsets = np.array([self.fit_offsets(axis, spec)[1] for axis, spec in enumerate(specs)])
+        return (offsets - offsets[:, -1:]).T
 
     def clamp_range(self, specs: tuple, blocks: Optional[np.ndarray] = None) -> tuple:
         """Return the range of T_eff over the given blocks (all when None) and all axes."""
@@ -623,14 +784,25 @@ class _Problem:
         return (float(min(np.min(low[used]) for low, _ in ranges)),
                 float(max(np.max(high[used]) for _, high in ranges)))
 
-    def residual(self, model: EffectModel, axis: int, stop: Optional[int] = None) -> np.ndarray:
+    def residual(self, model, axis: int, stop: Optional[int] = None) -> np.ndarray:
         """
-        Return corrected minus truth for one axis, the model run from the record start.
+        Return corrected minus truth for one axis up to row ``stop``.
+
+        ``model`` is one `EffectModel`, or one per record (`record_models`);
+        each record runs from its own start, its history fresh.
+        """
+        models = model if isinstance(model, tuple) else (model,) * self.records.count
+        parts = [self._run(models[record], axis, rows)
+                 for record, rows in enumerate(self.records.segments(stop))]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _run(self, model: EffectModel, axis: int, span: slice) -> np.ndarray:
+        """
+        Return corrected minus truth for one axis on the rows of ``span``, from its start.
 
         Without cross-axis terms the axis runs alone: a third of the memory.
         """
         source = self.full
-        span = slice(0, stop)
         column = axis
         rate = source.gyro_rad_s[span]
         if not model.has_cross_axis:
@@ -646,6 +818,11 @@ class _Problem:
             corrected = corrected - source.reference_rad_s[span, axis]
         return corrected
 
+    def test_residual(self, model: EffectModel, axis: int) -> np.ndarray:
+        """Return corrected minus truth on the test rows, run from their record's start."""
+        first = self.records.starts[self.records.record_of(self.rows)]
+        return self._run(model, axis, slice(first, len(self.full)))[self.rows - first:]
+
     def held_out(self, specs: tuple, label: str, folds: Optional[_Folds] = None,
                  axes: Optional[tuple] = None) -> tuple:
         """
@@ -659,7 +836,7 @@ class _Problem:
         count = folds.split.folds
         for fold, held in enumerate(folds.held):
             self.report(fold, count, label)
-            model = self.model(specs, fold, folds)
+            model = self.record_models(specs, fold, folds)
             for axis in axes:
                 binned = self.mean(self.residual(model, axis, folds.stop[fold]))
                 residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
@@ -706,6 +883,27 @@ class _Problem:
             self.progress(done, total, label)
 
 
+def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
+    """Give the terms with ``offset_rad_s`` added to the polynomial's constant."""
+    if not offset_rad_s:
+        return terms
+    return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
+
+
+def _effective(records, time_s: np.ndarray, temperature_c: np.ndarray, slope_c_s: np.ndarray,
+               lag_s: float) -> np.ndarray:
+    """
+    T_eff of a thermal lag (`EffectModel`), row by row; ``slope_c_s`` the windowed dT/dt.
+
+    A lag filter starts afresh at each record's first row (`Records.each`).
+    """
+    if lag_s > 0.0:
+        return temperature_c + lag_s * slope_c_s
+    if lag_s < 0.0:
+        return records.each(FirstOrderLag(-lag_s).batch, time_s, temperature_c)
+    return temperature_c
+
+
 def _centre_and_half_span(values) -> Optional[tuple]:
     """Return (centre, half span) of a column, None when absent or constant."""
     if values is None:
@@ -715,7 +913,28 @@ def _centre_and_half_span(values) -> Optional[tuple]:
 
 
 def _test_start(recording, settings: DiagnosisSettings) -> int:
-    """Return the first row of the test part: the last fraction or the last full cycle."""
+    """
+    Return the first row of the test part: the last record, fraction or full cycle.
+
+    Refuse what several records cannot do, and a held-out record too short
+    to re-zero, before any work.
+    """
+    records = recording.count
+    if records > 1 and settings.record_effects:
+        msg = ("record-only effects run on one record's clock: with several records they "
+               'are findings only (leave out --record-effects)')
+        raise CalibrationError(msg)
+    if settings.test_record:
+        if records < 2:
+            msg = (f'{recording.names[0]} is the only record: holding out the last record '
+                   'needs two or more')
+            raise CalibrationError(msg)
+        rezero_window_rows(recording, records - 1, settings.rezero_s)
+        return recording.starts[-2]
+    if records > 1 and (settings.test_cycle or settings.test_fraction):
+        msg = ('with several records, hold out a whole record (--test record or --test '
+               'each), not a part of the last one')
+        raise CalibrationError(msg)
     if not settings.test_cycle:
         return test_start_row(len(recording.time_s), settings.test_fraction)
     try:
@@ -953,7 +1172,7 @@ def _second_gradient(search: _Search, problem: _Problem, axis: int, spec: _Spec)
 
 def _gradient_columns(problem: _Problem, axis: int, spec: _Spec, taus: tuple) -> np.ndarray:
     def difference(tau: float) -> np.ndarray:
-        lagged = FirstOrderLag(tau).batch(problem.time, problem.temperature)
+        lagged = problem.each(FirstOrderLag(tau).batch, problem.time, problem.temperature)
         return problem.mean(problem.temperature - lagged)
     return np.column_stack([problem.cached(('gradient', tau), functools.partial(difference, tau))
                             for tau in taus])
@@ -971,8 +1190,8 @@ def _hysteresis_trials(search: _Search, problem: _Problem, axis: int, spec: _Spe
 
 
 def _play_columns(problem: _Problem, axis: int, spec: _Spec, width_c: float) -> np.ndarray:
-    return problem.cached(('play', width_c), lambda: problem.mean(
-        play_state(problem.temperature, width_c))[:, None])
+    return problem.cached(('play', width_c), lambda: problem.mean(problem.each(
+        functools.partial(play_state, half_width_c=width_c), problem.temperature))[:, None])
 
 
 def _supply_columns(problem: _Problem, axis: int, spec: _Spec, order: int) -> np.ndarray:
@@ -1030,8 +1249,15 @@ def _step_columns(problem: _Problem, axis: int, spec: _Spec, time_s: float) -> n
 
 def _step_report(terms: AxisTerms, problem: _Problem) -> dict:
     (time_s, step_rad_s), = terms.bias_steps
-    return {'time_s': time_s, 'step_rad_s': step_rad_s,
-            'after_start_s': time_s - problem.time_reference_s}
+    records = problem.records
+    if records.count == 1:
+        return {'time_s': time_s, 'step_rad_s': step_rad_s,
+                'after_start_s': time_s - problem.time_reference_s}
+    # Several records: the stamp on the clock of the record the step lies in.
+    record, own_s = records.own_time_s(time_s)
+    return {'time_s': own_s, 'step_rad_s': step_rad_s,
+            'after_start_s': float(time_s - records.time_s[records.starts[record]]),
+            'record': records.names[record]}
 
 
 # Every effect but BASE_EFFECT; the design columns come in EFFECT_NAMES order.
@@ -1230,8 +1456,9 @@ def _cause(record: tuple, tried: list) -> Optional[Candidate]:
 
 
 def _heating(problem: _Problem, rows: slice, starts: np.ndarray) -> np.ndarray:
-    slope = temperature_rate_c_s(problem.full.time_s, problem.full.temperature_c,
-                                 problem.settings.rate_window_s)[rows]
+    slope = problem.each(functools.partial(temperature_rate_c_s,
+                                           window_s=problem.settings.rate_window_s),
+                         problem.full.time_s, problem.full.temperature_c)[rows]
     return np.add.reduceat(slope, starts) >= 0.0
 
 
@@ -1242,33 +1469,134 @@ def _binned_error(residual: np.ndarray, starts: np.ndarray) -> tuple:
     return binned, errors
 
 
+def _cubic_trend(problem: _Problem, error: np.ndarray, temperature_c: np.ndarray
+                 ) -> np.ndarray:
+    """
+    Return the PX4-style cubic fitted to ``error`` on the diagnosed rows, at ``temperature_c``.
+
+    np.polyfit(T, rate, 3), as the PX4 script does; over several records
+    with each record's offset beside it, the last one's written (the same
+    treatment as the diagnosed model).
+    """
+    if problem.fitted_records == 1:
+        return np.polyval(np.polyfit(problem.temperature, error[:problem.rows], PX4_ORDER),
+                          temperature_c)
+
+    def powers(values):
+        return np.polynomial.polynomial.polyvander(
+            (values - problem.centre_c) / problem.half_span_c, PX4_ORDER)
+
+    record = np.searchsorted(problem.records.starts, np.arange(problem.rows), side='right') - 1
+    offsets = (record[:, None] == np.arange(1, problem.fitted_records)[None, :])
+    solution = np.linalg.lstsq(np.column_stack([powers(problem.temperature), offsets]),
+                               error[:problem.rows], rcond=None)[0]
+    return powers(temperature_c) @ solution[:PX4_ORDER + 1] + solution[-1]
+
+
 def _compare_test(problem: _Problem, base_model: EffectModel, model: EffectModel) -> tuple:
-    """Return (errors per method on the test part, binned residual before/after)."""
+    """
+    Return (errors per method on the test part, binned residual before/after, re-zero).
+
+    The errors map 'test' and, when the test part is a record, 'test_rezeroed'
+    (each residual less its mean over the record's re-zero window) to the
+    errors per method; re-zero maps each method to what the window took off
+    per axis (empty without a test record).
+    """
     full = problem.full
     test = slice(problem.rows, len(full.time_s))
     rows = len(full.time_s) - problem.rows
     starts = bin_starts(full.time_s[test], problem.settings.average_s)
     shape = (rows, len(problem.axes))
-    none, cubic, before, after = (np.empty(shape) for _ in range(4))
+    residuals = {method: np.empty(shape) for method in METHODS}
     for axis in range(len(problem.axes)):
         truth = 0.0 if full.reference_rad_s is None else full.reference_rad_s[:, axis]
         error = full.gyro_rad_s[:, axis] - truth
-        none[:, axis] = error[test]
-        trend = np.polyfit(problem.temperature, error[:problem.rows], PX4_ORDER)
-        cubic[:, axis] = error[test] - np.polyval(trend, full.temperature_c[test])
-        before[:, axis] = problem.residual(base_model, axis)[test]
-        after[:, axis] = problem.residual(model, axis)[test]
-    before, before_errors = _binned_error(before, starts)
-    after, after_errors = _binned_error(after, starts)
-    comparison = {'none': _binned_error(none, starts)[1],
-                  'px4_cubic': _binned_error(cubic, starts)[1],
-                  'temperature_polynomial': before_errors, 'diagnosed': after_errors}
+        residuals['none'][:, axis] = error[test]
+        residuals['px4_cubic'][:, axis] = error[test] - _cubic_trend(
+            problem, error, full.temperature_c[test])
+        residuals['temperature_polynomial'][:, axis] = problem.test_residual(base_model, axis)
+        residuals['diagnosed'][:, axis] = problem.test_residual(model, axis)
+    binned = {method: _binned_error(values, starts) for method, values in residuals.items()}
+    scopes = {'test': {method: errors for method, (_, errors) in binned.items()}}
+    rezero = {}
+    if problem.settings.test_record:
+        window = rezero_window_rows(full, full.count - 1, problem.settings.rezero_s)
+        rezero = {method: values[:window].mean(axis=0) for method, values in residuals.items()}
+        scopes['test_rezeroed'] = {method: _binned_error(values - rezero[method], starts)[1]
+                                   for method, values in residuals.items()}
     counts = np.diff(np.append(starts, rows)).astype(np.float64)
-    binned = BinnedResidual(
+    part = BinnedResidual(
         time_s=np.add.reduceat(full.time_s[test], starts) / counts,
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
-        heating=_heating(problem, test, starts), before_rad_s=before, after_rad_s=after)
-    return comparison, binned
+        heating=_heating(problem, test, starts),
+        before_rad_s=binned['temperature_polynomial'][0], after_rad_s=binned['diagnosed'][0],
+        rows=counts)
+    return scopes, part, {method: tuple(float(v) for v in offset)
+                          for method, offset in rezero.items()}
+
+
+def rezero_window_rows(records, record: int, window_s: float) -> int:
+    """
+    Return how many first rows of a record the node's ZRO recalibration would average.
+
+    ``imu/recalibrate_zro`` takes samples from the first until one lies
+    ``window_s`` after it, and refuses fewer than REZERO_MIN_SAMPLES; the
+    sensor must be at rest (a reference rate, if recorded, zero). Raise
+    CalibrationError naming the record otherwise.
+    """
+    rows = records.rows(record)
+    since = records.time_s[rows] - records.time_s[rows.start]
+    name = records.names[record]
+    if since[-1] < window_s:
+        msg = (f'{name}: the record lasts {since[-1]:.3g} s, shorter than the re-zero window '
+               f'of {window_s:g} s (--rezero-s)')
+        raise CalibrationError(msg)
+    count = int(np.searchsorted(since, window_s)) + 1
+    if count < REZERO_MIN_SAMPLES:
+        needed = since[min(REZERO_MIN_SAMPLES, since.size) - 1]
+        msg = (f'{name}: its first {window_s:g} s hold {count} samples, and imu/recalibrate_zro '
+               f'refuses fewer than {REZERO_MIN_SAMPLES}: give --rezero-s {needed:g} or more')
+        raise CalibrationError(msg)
+    reference = records.reference_rad_s
+    if reference is not None and np.any(reference[rows][:count] != 0.0):
+        msg = (f'{name}: the reference rate is not zero in its first {window_s:g} s: the '
+               're-zero needs the sensor at rest there')
+        raise CalibrationError(msg)
+    return count
+
+
+def _outside_range(problem: _Problem, specs: tuple, model: EffectModel) -> OutsideFittedRange:
+    """
+    Measure which rows the written model and the forward folds' models run clamped.
+
+    Each axis's effective temperature over the whole record (history states
+    from its start, as the node runs them), against the range of the blocks
+    before each forward block and against the written model's range.
+    """
+    full = problem.full
+    slope = problem.each(functools.partial(temperature_rate_c_s,
+                                           window_s=problem.settings.rate_window_s),
+                         full.time_s, full.temperature_c)
+    lags = [spec.thermal_lag_s for spec in specs]
+    effective = np.column_stack([_effective(problem.records, full.time_s, full.temperature_c,
+                                            slope, lag) for lag in lags])
+    blocks = held_out_outside_range(effective[:problem.rows], problem.block_edges,
+                                    problem.folds_of(FORWARD).split)
+    test = outside_range(effective[problem.rows:], model.temperature_min_c,
+                         model.temperature_max_c) if problem.test_rows else None
+    return OutsideFittedRange(len(set(lags)) > 1, blocks, test)
+
+
+def _error_by_temperature(problem: _Problem, held_out: BinnedResidual,
+                          test: Optional[BinnedResidual]) -> ErrorByTemperature:
+    """Bin the written model's held-out (and test) residuals by temperature."""
+    temperature = problem.temperature
+    edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
+                                  problem.settings.error_bins)
+    tables = [None if part is None else error_by_temperature(
+        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test)]
+    return ErrorByTemperature(problem.settings.validation, tables[0],
+                              float(np.mean(problem.counts)), tables[1])
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
@@ -1388,10 +1716,11 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
         heating=_heating(problem, held_rows, problem.starts), before_rad_s=base_residual,
-        after_rad_s=residual)
-    test = None
+        after_rad_s=residual, rows=problem.counts)
+    test, rezero = None, {}
     if problem.test_rows:
-        comparison['test'], test = _compare_test(problem, base_model, model)
+        scopes, test, rezero = _compare_test(problem, base_model, model)
+        comparison.update(scopes)
     per_axis = tuple(AxisDiagnosis(name, found[a].order, scores[a], tuple(steps[a]),
                                    tuple(rejected[a]), findings[a], choices[a], causes[a])
                      for a, name in enumerate(axes))
@@ -1400,4 +1729,19 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
                      comparison=comparison, rows=problem.rows, test_rows=problem.test_rows,
                      bins=len(problem.starts),
                      truth='reference' if problem.truth_is_reference else 'zero (at rest)',
-                     held_out=held_out, test=test, bounds=problem.bounds)
+                     held_out=held_out, test=test, bounds=problem.bounds,
+                     records=_record_fits(problem, tuple(specs)), rezero_rad_s=rezero,
+                     first_blocks=problem.first_blocks,
+                     outside_range=_outside_range(problem, tuple(specs), model),
+                     error_by_temperature=_error_by_temperature(problem, held_out, test))
+
+
+def _record_fits(problem: _Problem, specs: tuple) -> tuple:
+    """Describe each record: its name, rows, role and fitted offset against the written one."""
+    offsets = problem.record_offsets(specs)
+    records = problem.records
+    return tuple(RecordFit(name, records.starts[k + 1] - records.starts[k],
+                           k < problem.fitted_records,
+                           tuple(float(v) for v in offsets[k]) if k < problem.fitted_records
+                           else None)
+                 for k, name in enumerate(records.names))

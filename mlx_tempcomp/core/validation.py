@@ -12,11 +12,24 @@ The record is cut into contiguous blocks. Two schemes deal them to folds:
   A model can interpolate between its neighbours in time there, which a
   node never does; the figure is reported beside the forward one.
 
+Several records of one unit (`records.Records`) are cut into blocks each
+(`record_block_bounds`), so no block spans two records. Each record may
+have its own bias offset, learnt from its own rows, so a block is predicted
+only when its record has rows on the training side: forward, the first
+block of every record only trains (a fold never predicts a record from its
+own future, nor from nothing of it).
+
 Each fold's held-out RMS is one score; an order (or effect) is summarised
 by the mean over the folds and its standard error, and the order is chosen
 by the one-standard-error rule. Least squares on the folds adds up the
 normal equations of the training blocks (`training_sums`), so every fold
 costs one small solve.
+
+Two views of the held-out rows tell what the figures mean:
+`held_out_outside_range` says how much of each held-out block lies outside
+the temperature range of its fold's training blocks (where a model clamps),
+and `error_by_temperature` bins held-out residuals by temperature (the RMS
+per bin: the validated error as a function of T).
 """
 
 from dataclasses import dataclass
@@ -48,11 +61,16 @@ class OrderScore:
 
 @dataclass(frozen=True)
 class Split:
-    """Which blocks train (training) and which are predicted (held) in each fold."""
+    """
+    Which blocks train (training) and which are predicted (held) in each fold.
+
+    ``record_starts`` holds the first block of each record.
+    """
 
     scheme: str
     training: np.ndarray
     held: np.ndarray
+    record_starts: tuple = (0,)
 
     @property
     def folds(self) -> int:
@@ -69,11 +87,17 @@ class Split:
 
     def describe(self) -> str:
         """Say in words how the blocks are dealt."""
+        records = len(self.record_starts)
         if self.scheme == FORWARD:
             first = int(np.argmax(self.predicted))
-            return (f'forward over {self.blocks} blocks: blocks {first} to {self.blocks - 1} '
+            text = (f'forward over {self.blocks} blocks: blocks {first} to {self.blocks - 1} '
                     'each predicted from the blocks before it')
-        return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds'
+            if records > 1:
+                text += (f' (in {records} records, whose first blocks only train: blocks '
+                         + ', '.join(str(b) for b in self.record_starts) + ')')
+            return text
+        return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds' + (
+            f' (in {records} records)' if records > 1 else '')
 
 
 def block_bounds(samples: int, count: int) -> np.ndarray:
@@ -91,14 +115,46 @@ def block_bounds(samples: int, count: int) -> np.ndarray:
     return np.concatenate(([0], np.cumsum(sizes)))
 
 
+def record_block_bounds(record_rows, count: int) -> tuple:
+    """
+    Cut records of the given rows into ``count`` blocks in all, none spanning two records.
+
+    Each record gets blocks in proportion to its rows (largest remainders),
+    but at least 2, so a block is never its record's only one. Return (the
+    count + 1 row boundaries, the first block of each record).
+    """
+    rows = np.array([operator.index(r) for r in record_rows], dtype=np.int64)
+    if rows.size == 1:
+        return block_bounds(int(rows[0]), count), (0,)
+    count = operator.index(count)
+    if count < 2 * rows.size:
+        msg = (f'{rows.size} records need at least {2 * rows.size} blocks (2 each), got '
+               f'{count}')
+        raise CalibrationError(msg)
+    share = count * rows / rows.sum()
+    dealt = np.maximum(np.floor(share).astype(np.int64), 2)
+    while dealt.sum() > count:  # the floor of 2 took blocks: give back the most over share
+        dealt[np.argmax(np.where(dealt > 2, dealt - share, -np.inf))] -= 1
+    order = np.argsort(-(share - dealt), kind='stable')
+    dealt[order[:count - int(dealt.sum())]] += 1
+    edges = [np.asarray(block_bounds(int(r), int(d))[:-1]) + offset
+             for r, d, offset in zip(rows, dealt, np.concatenate(([0], np.cumsum(rows))))]
+    return (np.concatenate(edges + [[int(rows.sum())]]),
+            tuple(int(v) for v in np.concatenate(([0], np.cumsum(dealt)[:-1]))))
+
+
 def first_forward_block(blocks: int, min_past: float) -> int:
     """Return the first block the forward scheme predicts (at least 1)."""
     return max(1, math.ceil(min_past * blocks - 1e-9))
 
 
 def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
-          min_past: float = DEFAULT_MIN_PAST) -> Split:
-    """Deal ``blocks`` contiguous blocks to folds by ``scheme``; see the module docstring."""
+          min_past: float = DEFAULT_MIN_PAST, record_starts: tuple = (0,)) -> Split:
+    """
+    Deal ``blocks`` contiguous blocks to folds by ``scheme``; see the module docstring.
+
+    ``record_starts`` gives the first block of each record (`record_block_bounds`).
+    """
     if scheme not in SCHEMES:
         msg = f'validation must be one of {", ".join(SCHEMES)}, got {scheme!r}'
         raise CalibrationError(msg)
@@ -108,11 +164,13 @@ def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
     index = np.arange(blocks)
     if scheme == FORWARD:
         first = first_forward_block(blocks, min_past)
-        if blocks - first < 2:
+        predicted = np.setdiff1d(index[first:], record_starts)
+        if predicted.size < 2:
             msg = (f'forward validation needs at least 2 blocks to predict: of {blocks} '
                    f'blocks the first {first} (--min-past {min_past:g}) only train')
+            if len(record_starts) > 1:
+                msg += ', and so does the first block of each record'
             raise CalibrationError(msg)
-        predicted = index[first:]
         held = predicted[:, None] == index[None, :]
         training = index[None, :] < predicted[:, None]
     else:
@@ -122,7 +180,7 @@ def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
             raise CalibrationError(msg)
         held = index[None, :] % folds == np.arange(folds)[:, None]
         training = ~held
-    return Split(scheme, training, held)
+    return Split(scheme, training, held, tuple(record_starts))
 
 
 def training_sums(split_: Split, per_block: np.ndarray) -> np.ndarray:
@@ -157,3 +215,118 @@ def one_standard_error(scores) -> int:
         raise CalibrationError(msg)
     threshold = best.mean_rms_rad_s + best.standard_error_rad_s
     return next(s.order for s in scores if s.mean_rms_rad_s <= threshold)
+
+
+@dataclass(frozen=True)
+class OutsideRange:
+    """
+    How much of a part of the record lies outside a temperature range, per column.
+
+    ``rows`` rows were checked against [``low_c``, ``high_c``]; ``fraction``
+    holds, per temperature column (one per axis when the axes' effective
+    temperatures differ), the share of rows outside, ``furthest_c`` how far
+    beyond the nearer edge the furthest one lies (0 when none is outside).
+    """
+
+    rows: int
+    low_c: float
+    high_c: float
+    fraction: tuple
+    furthest_c: tuple
+
+
+def outside_range(temperature_c, low_c: float, high_c: float) -> OutsideRange:
+    """Measure the rows of ``temperature_c`` ((rows,) or (rows, columns)) outside [low, high]."""
+    columns = np.asarray(temperature_c, dtype=np.float64)
+    columns = columns.reshape(len(columns), -1)
+    beyond = np.maximum(low_c - columns, columns - high_c)
+    rows = columns.shape[0]
+    fraction = np.count_nonzero(beyond > 0.0, axis=0) / rows if rows else \
+        np.zeros(columns.shape[1])
+    furthest = np.maximum(np.max(beyond, axis=0, initial=0.0), 0.0)
+    return OutsideRange(rows, float(low_c), float(high_c), tuple(float(f) for f in fraction),
+                        tuple(float(f) for f in furthest))
+
+
+def held_out_outside_range(temperature_c, bounds: np.ndarray, split_: Split) -> tuple:
+    """
+    Give, per block, the `OutsideRange` of its rows against its fold's training range.
+
+    ``temperature_c`` is (rows,) or (rows, columns), cut at ``bounds``
+    (`block_bounds`); a fold's range spans every column of its training
+    blocks, as a model clamps every axis at one fitted range. Blocks no fold
+    predicts give None.
+    """
+    columns = np.asarray(temperature_c, dtype=np.float64)
+    columns = columns.reshape(len(columns), -1)
+    starts = bounds[:-1]
+    low = np.min(np.minimum.reduceat(columns, starts, axis=0), axis=1)
+    high = np.max(np.maximum.reduceat(columns, starts, axis=0), axis=1)
+    result = [None] * split_.blocks
+    for training, held in zip(split_.training, split_.held):
+        for block in np.flatnonzero(held):
+            result[block] = outside_range(columns[bounds[block]:bounds[block + 1]],
+                                          np.min(low[training]), np.max(high[training]))
+    return tuple(result)
+
+
+@dataclass(frozen=True)
+class TemperatureErrors:
+    """
+    RMS of held-out residuals per temperature bin: the validated error as a function of T.
+
+    ``edges_c`` bounds the bins (``bins`` + 1 values); per bin, ``count`` is
+    the number of residual values in it (each the mean over one averaging
+    bin), ``weight`` the sum of their weights (the samples they average),
+    ``temperature_c`` their weighted mean temperature (NaN when empty) and
+    ``rms_rad_s`` (bins, axes) their weighted RMS per axis.
+    """
+
+    edges_c: tuple
+    temperature_c: tuple
+    count: tuple
+    weight: tuple
+    rms_rad_s: tuple
+
+    def filled(self) -> tuple:
+        """Give the indices of the bins holding residuals."""
+        return tuple(k for k, count in enumerate(self.count) if count)
+
+
+def temperature_bin_edges(low_c: float, high_c: float, bins: int) -> np.ndarray:
+    """Give ``bins`` + 1 edges of equal-width bins from ``low_c`` to ``high_c``."""
+    if bins < 1 or not (math.isfinite(low_c) and math.isfinite(high_c) and low_c <= high_c):
+        msg = f'temperature bins need 1 or more bins over a finite range, got {bins}, ' \
+              f'{low_c} to {high_c} C'
+        raise CalibrationError(msg)
+    return np.linspace(low_c, high_c, bins + 1)
+
+
+def error_by_temperature(temperature_c, residual_rad_s, weights, edges_c) -> TemperatureErrors:
+    """
+    Bin residuals (values, axes) by their temperature (values,) and give the RMS per bin.
+
+    ``weights`` (values,) weigh each value (the rows of its averaging bin), as
+    the held-out RMS does. Values NaN on any axis (bins no fold predicts) and
+    outside the edges are left out; the last bin includes its upper edge.
+    """
+    temperature = np.asarray(temperature_c, dtype=np.float64)
+    residual = np.asarray(residual_rad_s, dtype=np.float64).reshape(len(temperature), -1)
+    weights = np.asarray(weights, dtype=np.float64)
+    edges = np.asarray(edges_c, dtype=np.float64)
+    bins = edges.size - 1
+    index = np.searchsorted(edges, temperature, side='right') - 1
+    index[temperature == edges[-1]] = bins - 1
+    used = np.all(np.isfinite(residual), axis=1) & (index >= 0) & (index < bins)
+    index, weights, temperature = index[used], weights[used], temperature[used]
+    residual = residual[used]
+    count = np.bincount(index, minlength=bins)
+    total = np.bincount(index, weights=weights, minlength=bins)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        mean_c = np.bincount(index, weights=weights * temperature, minlength=bins) / total
+        rms = np.column_stack([np.sqrt(np.bincount(index, weights=weights * residual[:, a] ** 2,
+                                                   minlength=bins) / total)
+                               for a in range(residual.shape[1])])
+    return TemperatureErrors(tuple(float(e) for e in edges), tuple(float(t) for t in mean_c),
+                             tuple(int(c) for c in count), tuple(float(w) for w in total),
+                             tuple(tuple(float(v) for v in row) for row in rms))

@@ -7,9 +7,11 @@ while the model needs them, ``imu/temperature_2_raw`` (a second temperature)
 and ``imu/supply_voltage`` (sensor_msgs/BatteryState, its voltage); pairs
 samples by stamp, runs them through the stream of the model named by ``model``
 (which keeps the state of stateful effects) and publishes ``imu/data`` and
-``imu/temperature``. The supply voltage is held (the latest at or before each
-sample's stamp, ``supply_voltage.pairing: hold``) or paired by stamp like the
-temperature (``stamp``). The ``imu/recalibrate_zro`` service
+``imu/temperature``; the angular velocity covariance is ``rate_noise_rad_s``^2,
+plus the square of the model's error at the sample's temperature when
+``model_error.*`` gives a table. The supply voltage is held (the latest at or
+before each sample's stamp, ``supply_voltage.pairing: hold``) or paired by
+stamp like the temperature (``stamp``). The ``imu/recalibrate_zro`` service
 (std_srvs/Trigger) learns the ZRO residual at rest and persists it.
 """
 
@@ -41,12 +43,14 @@ from ..core.pairing import StampPairer, zero_order_hold
 from ..core.recalibration import check_window
 from ..core.table import sensor_tables
 from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
-                               limits_of, ParameterError, state_file_of, transfer_of)
+                               limits_of, model_error_of, ParameterError, state_file_of,
+                               transfer_of)
 from ..sources.bag import BagError, eeprom_images_from_multiarray
 from ..state_file import Field, load_state, reject_state, StateFileError
 
-# Parameters whose change rebuilds the model.
-_MODEL_PREFIXES = ('model', 'eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
+# Parameters whose change rebuilds the model: model and those under these prefixes.
+_MODEL_PREFIXES = ('eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
+_MODEL_ERROR_PREFIX = 'model_error.'
 _TEMPERATURE_2 = 'temperature_2'
 _SUPPLY = 'supply_voltage'
 # Model inputs on topics of their own, subscribed while the model needs them:
@@ -109,6 +113,7 @@ class CompensationNode(Node):
         self.no_supply_recent = False
         self.last_input = None
         self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
+        self.model_error = model_error_of(self.values)
 
         per_axis = len(self.axes) > 1 and self.values['model'] == 'eeprom'
         self.temperature_streams = tuple(f'temperature_{axis}' for axis in self.axes) \
@@ -159,8 +164,11 @@ class CompensationNode(Node):
         loaded = 'nothing saved yet' if not state else \
             (f"a {state['model']} ZRO offset {state['zro_offset']} {state['offset_unit']} "
              f"of {state['time']}")
+        table = self.model_error
+        covariance = '' if table is None else \
+            f' (covariance: rate noise + model error at {len(table.temperature_c)} temperatures)'
         return (f'model {self.values["model"]} on axes {list(self.axes)}; waits for '
-                f'{", ".join(inputs)}; publishes {", ".join(outputs)}; state file '
+                f'{", ".join(inputs)}; publishes {", ".join(outputs)}{covariance}; state file '
                 f'{self.state_path}: {loaded}')
 
     def _warn_waiting(self) -> None:
@@ -428,6 +436,7 @@ class CompensationNode(Node):
         if clamped:
             self.clamped_samples += clamped
             self.clamped_recent = True
+        covariances = self._covariances(temperatures)
         window = self.window
         first = self.temperature_streams[0]
         for row, ((stamp_ns, parts), rate) in enumerate(zip(samples, rates)):
@@ -441,12 +450,25 @@ class CompensationNode(Node):
                     imu.header.stamp, imu.header.frame_id,
                     sum(temperatures[row]) / len(temperatures[row]), parts[first].variance))
             self.imu_publisher.publish(messages.set_rates(imu, self.indices, rate,
-                                                          self.covariance))
+                                                          covariances[row]))
             if window is not None:
                 window.add(stamp_ns, raw[row], temperatures[row], rate)
         self.samples_out += len(samples)
         self.blocks += 1
         self.largest_block = max(self.largest_block, len(samples))
+
+    def _covariances(self, temperatures: list) -> list:
+        """
+        Give the angular velocity covariance of each sample at its temperatures.
+
+        rate_noise_rad_s^2, plus the model error's square at the temperature
+        when a table is given; with the noise unknown (0) it stays all 0.
+        """
+        noise = self.values['rate_noise_rad_s']
+        if self.model_error is None or noise <= 0.0:
+            return [self.covariance] * len(temperatures)
+        return [messages.diagonal_covariance(self.indices, row)
+                for row in self.model_error.variance(noise, temperatures).tolist()]
 
     # Recalibration.
     async def recalibrate(self, request, response):
@@ -523,7 +545,9 @@ class CompensationNode(Node):
         candidate.update({p.name: messages_value(p) for p in parameters})
         try:
             check_choices(COMPENSATION_SPECS, candidate)
-            if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
+            if any(p.name.startswith(_MODEL_ERROR_PREFIX) for p in parameters):
+                model_error_of(candidate)
+            if _changes_model(parameters):
                 if self.window is not None:
                     raise ParameterError('a ZRO recalibration is running; try again after it')
                 self._build(candidate)
@@ -535,7 +559,8 @@ class CompensationNode(Node):
         for parameter in parameters:
             self.values[parameter.name] = messages_value(parameter)
         self.covariance = messages.rate_covariance(self.indices, self.values['rate_noise_rad_s'])
-        if any(p.name.startswith(_MODEL_PREFIXES) for p in parameters):
+        self.model_error = model_error_of(self.values)
+        if _changes_model(parameters):
             # Validated in validate_parameters; swapped between two samples.
             self._use(self._with_saved_offset(self._build(self.values)))
             self.get_logger().info(f'model now {self.values["model"]}')
@@ -554,6 +579,8 @@ class CompensationNode(Node):
             'blocks': self.blocks, 'largest_block': self.largest_block,
             'unpaired_dropped': self.dropped_before + self.pairer.dropped,
             'temperature_clamped_samples': self.clamped_samples,
+            'model_error_temperatures': 0 if self.model_error is None else
+            len(self.model_error.temperature_c),
             'no_acceleration_samples': self.no_acceleration_samples,
             'no_supply_voltage_samples': self.no_supply_samples,
             'input_age_s': float('nan') if age is None else age,
@@ -596,6 +623,10 @@ class CompensationNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diagnostics_publisher.publish(array)
+
+
+def _changes_model(parameters) -> bool:
+    return any(p.name == 'model' or p.name.startswith(_MODEL_PREFIXES) for p in parameters)
 
 
 def zro_state_fields(full_scale_rad_s: float) -> tuple:

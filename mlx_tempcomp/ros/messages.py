@@ -30,9 +30,14 @@ def axis_indices(axes) -> tuple:
 
 def rate_covariance(indices, noise_rad_s: float) -> list:
     """Return the diagonal covariance: variance on measured axes, all 0 (unknown) without noise."""
+    return diagonal_covariance(indices, [noise_rad_s ** 2] * len(indices))
+
+
+def diagonal_covariance(indices, variances) -> list:
+    """Return the 3 x 3 covariance, row by row, with ``variances`` on the measured axes."""
     covariance = [0.0] * 9
-    for index in indices:
-        covariance[4 * index] = noise_rad_s ** 2
+    for index, variance in zip(indices, variances):
+        covariance[4 * index] = variance
     return covariance
 
 

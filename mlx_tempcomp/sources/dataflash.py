@@ -4,11 +4,17 @@ ArduPilot DataFlash (``.bin``) logs read with pymavlink's DFReader: one IMU inst
 Only the IMU, PARM and MSG messages are decoded (DFReader's type filter; the
 file is memory-mapped). Modern logs have one ``IMU`` type with an instance
 column ``I``; older ones have ``IMU``, ``IMU2``, ``IMU3`` and no ``I``.
-Device ids are the ``INS_GYRn_ID`` parameters.
+Device ids are the ``INS_GYRn_ID`` parameters (``INSn_GYR_ID`` from IMU 4 on).
 Units come from the log's FMTU/UNIT/MULT messages when it has them (rad/s
 or deg/s, m/s/s, degC); without them, those LogStructure.h documents (rad/s,
 m/s/s, degC) are assumed and a note says so. Time is ``TimeUS``
 (microseconds since boot). Motion is found on each instance's own samples.
+
+The ``IMU`` rates and accelerations are in the vehicle's frame: ArduPilot
+rotates each sample by ``AHRS_ORIENTATION`` after its offsets and thermal
+corrections (``AP_InertialSensor_Backend::_rotate_and_correct_gyro``), so the
+INS_TCAL coefficients act in the sensor frame before that rotation.
+`board_rotation` gives that rotation from ArduPilot's table.
 """
 
 import contextlib
@@ -36,6 +42,46 @@ UNIT_FACTORS = {
 _KIND = {'GyrX': 'gyro', 'GyrY': 'gyro', 'GyrZ': 'gyro', 'AccX': 'acceleration',
          'AccY': 'acceleration', 'AccZ': 'acceleration', 'T': 'temperature'}
 _FIRMWARE = re.compile(r'^(Ardu\w+|APM:\w+)\s+V\S+')
+# AHRS_ORIENTATION values as (roll, pitch, yaw) in degrees, AP_Math/rotations.h order:
+# the rotation is Matrix3::from_euler(roll, pitch, yaw). 38 (ROLL_90_PITCH_68_YAW_293) is
+# the matrix vector3.cpp spells out, which is from_euler(90, 68.8, 293.3). Values 42 on
+# (ROLL_45, ROLL_315, the custom ones) are past tempcal_IMU.py's table (pymavlink rotmat).
+BOARD_ROTATIONS_DEG = (
+    (0, 0, 0), (0, 0, 45), (0, 0, 90), (0, 0, 135), (0, 0, 180), (0, 0, 225), (0, 0, 270),
+    (0, 0, 315), (180, 0, 0), (180, 0, 45), (180, 0, 90), (180, 0, 135), (0, 180, 0),
+    (180, 0, 225), (180, 0, 270), (180, 0, 315), (90, 0, 0), (90, 0, 45), (90, 0, 90),
+    (90, 0, 135), (270, 0, 0), (270, 0, 45), (270, 0, 90), (270, 0, 135), (0, 90, 0),
+    (0, 270, 0), (0, 180, 90), (0, 180, 270), (90, 90, 0), (180, 90, 0), (270, 90, 0),
+    (90, 180, 0), (270, 180, 0), (90, 270, 0), (180, 270, 0), (270, 270, 0), (90, 180, 90),
+    (90, 0, 270), (90, 68.8, 293.3), (0, 315, 0), (90, 315, 0), (0, 7, 0),
+)
+
+
+def board_rotation(orientation: int) -> np.ndarray:
+    """
+    Give the matrix ArduPilot rotates IMU samples by for ``AHRS_ORIENTATION`` = orientation.
+
+    A logged sample is R @ v with v in the sensor frame, so R.T @ logged is v.
+    Raise FlightLogError for a value tempcal_IMU.py cannot undo (42 on, custom).
+    """
+    if not 0 <= orientation < len(BOARD_ROTATIONS_DEG):
+        msg = (f'AHRS_ORIENTATION {orientation} is not one that tempcal_IMU.py (ArduPilot) can '
+               f'undo (it knows 0 to {len(BOARD_ROTATIONS_DEG) - 1}; custom rotations and '
+               'ROLL_45/ROLL_315 are beyond its table)')
+        raise FlightLogError(msg)
+    roll, pitch, yaw = np.radians(BOARD_ROTATIONS_DEG[orientation])
+    cr, sr, cp, sp, cy, sy = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
+                              np.cos(yaw), np.sin(yaw))
+    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+                     [-sp, sr * cp, cr * cp]])
+
+
+def device_id_parameter(kind: str, index: int) -> str:
+    """Name the device id parameter of ``kind`` GYR or ACC of IMU instance ``index`` (0-based)."""
+    if index >= 3:
+        return f'INS{index + 1}_{kind}_ID'
+    return f'INS_{kind}{index + 1 if index else ""}_ID'
 
 
 def _factors(path, reader, name: str) -> tuple:
@@ -81,6 +127,22 @@ def _scan(path, reader):
     return rows, parameters, firmware
 
 
+def _unindexed_tail(reader) -> int:
+    """
+    Give the bytes at the end that are no whole message, from DFReader's index.
+
+    The index holds the offset of every message, a last one cut short too; the
+    reading itself jumps from one wanted message to the next, so it cannot tell.
+    """
+    offsets = reader.offsets
+    last = max(((found[-1], kind) for kind, found in enumerate(offsets) if found),
+               default=None)
+    if last is None or last[1] not in reader.formats:
+        return 0
+    end = last[0] + reader.formats[last[1]].len
+    return reader.data_len - (last[0] if end > reader.data_len else end)
+
+
 @contextlib.contextmanager
 def _captured_output(chatter: io.StringIO):
     """Send what Python and the C indexer print (stdout, stderr) into ``chatter``."""
@@ -116,7 +178,7 @@ def read_dataflash(path) -> FlightLog:
                            '(no FMT message in it)')
                     raise FlightLogError(msg)
                 rows, parameters, firmware = _scan(path, reader)
-                unread = int(reader.data_len - reader.offset)
+                unread = max(int(reader.data_len - reader.offset), _unindexed_tail(reader))
                 factors = {kind: _factors(path, reader, kind) for _, kind, _ in rows}
             finally:
                 reader.close()
@@ -126,14 +188,16 @@ def read_dataflash(path) -> FlightLog:
         msg = f'{path}: not a readable DataFlash log ({type(err).__name__}: {err})'
         raise FlightLogError(msg) from None
     instances = []
-    # The IMU ids are parameters: INS_GYR_ID, INS_GYR2_ID, ... (0 when unset).
-    ids = {i: int(parameters.get(f'INS_GYR{i + 1 if i else ""}_ID', 0)) for i, _, _ in rows}
+    # The IMU ids are parameters: INS_GYR_ID, INS_GYR2_ID, ..., INS4_GYR_ID (0 when unset).
+    ids = {(i, kind): int(parameters.get(device_id_parameter(kind, i), 0))
+           for i, _, _ in rows for kind in ('GYR', 'ACC')}
     for (index, kind, label), values in sorted(rows.items()):
         scale, _ = factors[kind]
         values = np.array(values) * np.r_[1e-6, scale]
         values = values[np.argsort(values[:, 0], kind='stable')]
         instances.append(ImuInstance(
-            index=index, name=label, device_id=ids[index] or None, time_s=values[:, 0],
+            index=index, name=label, device_id=ids[index, 'GYR'] or None,
+            accel_device_id=ids[index, 'ACC'] or None, time_s=values[:, 0],
             temperature_c=values[:, 7], gyro_rad_s=values[:, 1:4],
             acceleration_m_s2=values[:, 4:7],
             moving=moving_samples(values[:, 0], values[:, 1:4], values[:, 4:7])))

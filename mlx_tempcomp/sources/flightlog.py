@@ -49,8 +49,9 @@ class ImuInstance:
 
     ``index`` is the log's instance number (PX4 multi_id, ArduPilot ``I`` or
     IMU/IMU2/IMU3 order), ``name`` where the samples come from,
-    ``device_id`` the driver's id when the log has one. ``moving`` flags the
-    samples taken while the vehicle moved.
+    ``device_id`` the gyro driver's id when the log has one,
+    ``accel_device_id`` the accelerometer's (it may differ: two chips). ``moving``
+    flags the samples taken while the vehicle moved.
     """
 
     index: int
@@ -61,6 +62,7 @@ class ImuInstance:
     gyro_rad_s: np.ndarray
     acceleration_m_s2: Optional[np.ndarray]
     moving: np.ndarray
+    accel_device_id: Optional[int] = None
 
     def __post_init__(self):
         for name in ('time_s', 'temperature_c', 'gyro_rad_s', 'acceleration_m_s2'):

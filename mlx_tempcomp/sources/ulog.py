@@ -9,10 +9,20 @@ boot. ``sensor_gyro`` holds raw rates, before the CAL_GYROn offsets. The
 vehicle's motion is found on ``sensor_combined`` (about 200 Hz), which sees
 a hop that the 1 Hz ``sensor_gyro`` samples of the default log profile miss;
 without it, on the instance's own samples.
+
+A file cut inside a message is said to be cut (`file_end`): the ULog spec
+has readers drop that message, and pyulog does so without a word. A file cut
+exactly between two messages cannot be told from a whole one: ULog declares
+no length and has no end marker (its sync messages are for resynchronising
+after corruption); only appended data the flag-bits header declares past the
+end shows a cut there.
 """
 
 import contextlib
 import io
+import mmap
+import os
+import struct
 
 import numpy as np
 
@@ -24,6 +34,13 @@ UNITS_NOTE = 'units as PX4 msg/SensorGyro.msg declares them: rad/s, m/s^2, degC'
 # An accel sample pairs with a gyro sample of the same instance stamped this close.
 PAIR_TOLERANCE_S = 0.1
 _US = 1e-6
+# The file header (magic, version, timestamp), then messages: uint16 size, uint8 type, data.
+FILE_HEADER_BYTES = 16
+MESSAGE_HEADER = struct.Struct('<HB')
+# The flag-bits message ('B', first after the header): compat[8], incompat[8], offsets[3].
+FLAG_BITS = ord('B')
+FLAG_BITS_BODY = struct.Struct('<8B8B3Q')
+DATA_APPENDED = 0x1
 
 
 def _release(value) -> str:
@@ -55,6 +72,12 @@ def _paired_accel(gyro_time_s: np.ndarray, accel) -> np.ndarray:
     return paired
 
 
+def _device_id(data):
+    """Give a topic's device_id, or None when it has none or several."""
+    ids = np.unique(data['device_id']) if 'device_id' in data else ()
+    return int(ids[0]) if len(ids) == 1 else None
+
+
 def _motion_times(combined):
     """Give the stamps of sensor_combined's moving samples, or None without the topic."""
     if combined is None or combined['timestamp'].size < 2:
@@ -75,14 +98,52 @@ def _instance(gyro, accel, motion_times) -> ImuInstance:
         moving = moving_samples(time_s, rate, acceleration)
     else:
         moving = near(time_s, motion_times, MOTION_MARGIN_S)
-    ids = np.unique(data['device_id']) if 'device_id' in data else ()
     return ImuInstance(
         index=int(gyro.multi_id), name=f'sensor_gyro[{gyro.multi_id}]',
-        device_id=int(ids[0]) if len(ids) == 1 else None, time_s=time_s,
+        device_id=_device_id(data),
+        accel_device_id=None if accel is None else _device_id(accel.data), time_s=time_s,
         temperature_c=np.asarray(data['temperature'], dtype=np.float64)[order],
         gyro_rad_s=rate,
         acceleration_m_s2=None if np.isnan(acceleration).all() else acceleration,
         moving=moving)
+
+
+def file_end(path) -> str:
+    """
+    Say how a ULog file is cut short; '' when it ends where a message ends.
+
+    Walks the message headers (memory-mapped, nothing kept): the file is cut
+    when its last message runs past the end, or when the flag-bits message
+    declares data appended at an offset past the end.
+    """
+    with open(path, 'rb') as handle:
+        size = os.fstat(handle.fileno()).st_size
+        if size <= FILE_HEADER_BYTES:
+            return ''
+        with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            start = FILE_HEADER_BYTES
+            body = start + MESSAGE_HEADER.size
+            length, kind = MESSAGE_HEADER.unpack_from(data, start)
+            if kind == FLAG_BITS and length >= FLAG_BITS_BODY.size \
+                    and size >= body + FLAG_BITS_BODY.size:
+                fields = FLAG_BITS_BODY.unpack_from(data, body)
+                offsets = [offset for offset in fields[16:] if offset]
+                if fields[8] & DATA_APPENDED and offsets:
+                    if max(offsets) > size:
+                        return (f'its header declares data appended at byte {max(offsets)}; '
+                                f'the file ends at byte {size}')
+                    # What comes before an appended part may end inside a message.
+                    start = max(start, *offsets)
+            position = start
+            while position + MESSAGE_HEADER.size <= size:
+                length, _ = MESSAGE_HEADER.unpack_from(data, position)
+                if position + MESSAGE_HEADER.size + length > size:
+                    break
+                position += MESSAGE_HEADER.size + length
+    if position == size:
+        return ''
+    return (f'the last {size - position} bytes (from byte {position}) are a message cut off, '
+            'not read')
 
 
 def read_ulog(path) -> FlightLog:
@@ -112,6 +173,10 @@ def read_ulog(path) -> FlightLog:
     if ulog.file_corruption or chatter.getvalue().strip():
         said = ' '.join(chatter.getvalue().split())[:200]
         notes.append(f'file damaged or cut short: read what pyulog could ({said or "corrupt"})')
+    else:
+        cut = file_end(path)
+        if cut:
+            notes.append(f'file cut short: {cut}')
     if ulog.dropouts:
         lost_ms = sum(d.duration for d in ulog.dropouts)
         notes.append(f'{len(ulog.dropouts)} logger dropouts, {lost_ms} ms in all')

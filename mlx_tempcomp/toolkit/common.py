@@ -100,10 +100,29 @@ def instance_option(text: str):
     return 'all' if text == 'all' else non_negative_int(text)
 
 
-def add_recording_options(parser: argparse.ArgumentParser) -> None:
-    """Add the input recording argument and how to read it (CSV columns, bag topics, IMU)."""
-    parser.add_argument('input', help='CSV file, rosbag2 bag (folder, .db3 or .mcap), PX4 ULog '
-                                      '(.ulg) or ArduPilot DataFlash log (.bin)')
+class _Records(argparse.Action):
+    """Store the records given (``records``) and the first as ``input``."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, list(values))
+        namespace.input = values[0]
+
+
+def add_recording_options(parser: argparse.ArgumentParser, several: bool = False) -> None:
+    """
+    Add the input recording argument and how to read it (CSV columns, bag topics, IMU).
+
+    With ``several``, one or more records of one unit: ``records`` lists them
+    and ``input`` is the first (`load_records` reads them all).
+    """
+    kinds = ('CSV file, rosbag2 bag (folder, .db3 or .mcap), PX4 ULog (.ulg) or ArduPilot '
+             'DataFlash log (.bin)')
+    if several:
+        parser.add_argument('records', nargs='+', action=_Records, metavar='RECORD',
+                            help=f'{kinds}; several records of one unit are read the same '
+                                 'way and fitted as one')
+    else:
+        parser.add_argument('input', help=kinds)
     parser.add_argument('--instance', type=instance_option, metavar='N|all',
                         help='IMU instance of a .ulg or .bin log (default: the first usable '
                              'one; all: each usable one in turn, output names suffixed .imuN)')
@@ -219,6 +238,11 @@ def load(args: argparse.Namespace) -> Recording:
     return recording
 
 
+def load_records(args: argparse.Namespace) -> list:
+    """Load each of ``args.records`` with `load` (the same options for all), in order."""
+    return [load(argparse.Namespace(**{**vars(args), 'input': path})) for path in args.records]
+
+
 # Output options a command run once per IMU instance (--instance all) suffixes with .imuN.
 _OUTPUT_OPTIONS = ('out', 'out_csv', 'px4_params', 'ardupilot_parm')
 
@@ -240,6 +264,9 @@ def run_command(args: argparse.Namespace) -> int:
         return args.handler(args)
     if getattr(args, 'json', False):
         msg = '--json prints one document: give one --instance, not all'
+        raise UserError(msg)
+    if len(getattr(args, 'records', ())) > 1:
+        msg = '--instance all runs one record per IMU instance: give one record, or --instance N'
         raise UserError(msg)
     if not is_flight_log(args.input):
         msg = f'--instance applies to .ulg and .bin logs, not {args.input}'

@@ -1,30 +1,46 @@
 """
 ``mlx-tempcomp diagnose``: the closed loop, its report, plots and a parameter file.
 
-Runs `mlx_tempcomp.core.diagnosis.diagnose` on a recording and writes into
-``--out DIR``: report.md, report.json (per axis the ordered steps with their
-held-out error before and after, per fold and per block, the rejected and
-skipped candidates, the findings of the record-only effects),
-residual_vs_temperature.png, residual_vs_time.png, error_per_step.png and
-params.yaml, which compensation_node loads: live-runnable effects only,
-unless --record-effects put time drift and bias steps into the search.
+Runs `mlx_tempcomp.core.diagnosis.diagnose` on a recording, or on several
+records of one unit fitted as one, and writes into ``--out DIR``:
+report.md, report.json (per axis the ordered steps with their held-out error
+before and after, per fold and per block, the rejected and skipped
+candidates, the findings of the record-only effects; each record's offset;
+a held-out record's errors as written and after a re-zero),
+residual_vs_temperature.png, residual_vs_time.png, error_per_step.png,
+error_by_temperature.png and params.yaml, which compensation_node loads:
+live-runnable effects only, unless --record-effects put time drift and bias
+steps into the search, and the held-out error by temperature
+(``model_error.*``, for the Imu covariance). The report says how much of the
+test set and of each forward held-out block lies outside the temperature
+range the model predicting it was fitted on (`uncertainty`).
+``--test each`` diagnoses once per record with that record held out, then
+once over all records for params.yaml.
 """
 
 import argparse
+import dataclasses
 import math
 from pathlib import Path
 
 from .common import (add_recording_options, add_validation_options, check_output_folder,
-                     fraction, load, non_negative_float, non_negative_int, UserError,
-                     validation_settings, write_json, write_result)
+                     fraction, load_records, non_negative_float, non_negative_int,
+                     positive_float, UserError, validation_settings, write_json, write_result)
 from .exports import add_export_options, check_export_outputs, write_exports
 from .progress import add_progress_option, Progress
-from ..core.diagnosis import diagnose as run_diagnosis, DiagnosisSettings, METHODS
+from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
+                          outside_lines, outside_range_json, params_model_error,
+                          plot_error_by_temperature)
+from ..core.diagnosis import (DEFAULT_REZERO_S, diagnose as run_diagnosis, DiagnosisSettings,
+                              METHODS, rezero_window_rows)
 from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
+from ..core.records import join_records
+from ..core.validation import FORWARD
 from ..model_params import effect_parameters, parameter_file, write_parameter_file
 
-PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png')
+PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png',
+         'error_by_temperature.png')
 # Plots draw at most this many bins per axis (every k-th bin beyond).
 MAX_PLOT_POINTS = 20000
 METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
@@ -32,9 +48,16 @@ METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bi
           'bias')
 
 
+TEST_RECORD = 'record'
+TEST_EACH = 'each'
+WRITTEN_OFFSET = ('the last record fitted: the robot runs after it, on that mount and '
+                  'power-up; on a new run, recalibrate the ZRO at rest (imu/recalibrate_zro) '
+                  "to take up that run's own offset")
+
+
 def _test_part(text: str):
-    """Parse --test: 'cycle' or a fraction in [0, 1) (argparse type)."""
-    return 'cycle' if text == 'cycle' else fraction(text)
+    """Parse --test: 'cycle', 'record', 'each' or a fraction in [0, 1) (argparse type)."""
+    return text if text in ('cycle', TEST_RECORD, TEST_EACH) else fraction(text)
 
 
 def add_parser(commands) -> None:
@@ -47,9 +70,11 @@ def add_parser(commands) -> None:
                     'second temperature, acceleration, scale factor, rate nonlinearity, '
                     'cross-axis) on held-out blocks and add the best significant one, until '
                     'none helps. Blocks are judged forward in time by default (each predicted '
-                    'by a fit on the blocks before it). Writes report.md, report.json, PNG '
-                    'plots and params.yaml for the compensation node into --out.')
-    add_recording_options(parser)
+                    'by a fit on the blocks before it). Several records of one unit are '
+                    'fitted as one, each with its own history and bias offset (params.yaml '
+                    "carries the last record's). Writes report.md, report.json, PNG plots and "
+                    'params.yaml for the compensation node into --out.')
+    add_recording_options(parser, several=True)
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='folder for the report, plots and parameter file (created)')
     add_validation_options(parser)
@@ -77,11 +102,23 @@ def add_parser(commands) -> None:
                         help='refuse an effect when a held-out block gets worse by more than F '
                              'x the larger of its RMS and the axis RMS (default: %(default)s)')
     test = parser.add_mutually_exclusive_group()
-    test.add_argument('--test', type=_test_part, metavar='F|cycle',
-                      help="keep a final test set: the last F of the record, or 'cycle' for "
-                           'the last full heating/cooling cycle (the record needs two)')
+    test.add_argument('--test', type=_test_part, metavar='F|cycle|record|each',
+                      help="keep a final test set: the last F of the record, 'cycle' for "
+                           'the last full heating/cooling cycle (the record needs two); of '
+                           "several records, 'record' holds out the last, 'each' each in "
+                           'turn (leave one record out)')
     test.add_argument('--test-fraction', type=fraction, metavar='F',
                       help='same as --test F')
+    parser.add_argument('--rezero-s', type=positive_float, default=DEFAULT_REZERO_S,
+                        metavar='S', help='a held-out record is judged as written and after a '
+                                          're-zero: its mean residual over its first S '
+                                          'seconds taken off, as imu/recalibrate_zro '
+                                          '(recalibration.duration_s) does (default: '
+                                          '%(default)s)')
+    parser.add_argument('--error-bins', type=non_negative_int, default=defaults.error_bins,
+                        metavar='N', help='temperature bins of the error-by-temperature table '
+                                          '(equal width over the diagnosed part; params.yaml '
+                                          'model_error.*) (default: %(default)s)')
     parser.add_argument('--record-effects', action='store_true',
                         help='also search time drift and bias steps, which are tied to the '
                              "record's clock, and write them into params.yaml (default: "
@@ -100,8 +137,10 @@ class _Bars:
         self.enabled = enabled
         self.bar = None
         self.label = None
+        self.run = ''
 
     def __call__(self, done: int, total: int, label: str) -> None:
+        label = f'{self.run}{label}'
         if label != self.label:
             self.close()
             self.bar = Progress(total, f'diagnose: {label}', self.enabled)
@@ -115,39 +154,98 @@ class _Bars:
         self.bar = None
 
 
+def _check_records(args: argparse.Namespace, test) -> None:
+    """Refuse what several records (or one, with --test record|each) cannot do, before work."""
+    records = args.records
+    twice = sorted({record for record in records if records.count(record) > 1})
+    if twice:
+        msg = f'{twice[0]} is given twice: give each record of the unit once'
+        raise UserError(msg)
+    if test in (TEST_RECORD, TEST_EACH) and len(records) < 2:
+        msg = (f'{records[0]}: --test {test} holds out whole records: give two or more '
+               'records of the unit, or --test F')
+        raise UserError(msg)
+    if len(records) > 1 and (args.px4_params or args.ardupilot_parm):
+        msg = ('--px4-params and --ardupilot-parm export the cubic of one record: give one '
+               f'record, not {len(records)}')
+        raise UserError(msg)
+
+
+def _error_text(records: list, err: Exception) -> str:
+    """Name the record a diagnosis error is about, or every record when it is all of them."""
+    text = str(err)
+    if any(text.startswith(f'{record}:') for record in records):
+        return text
+    return f'{", ".join(records)}: {text}'
+
+
+def _diagnoses(args: argparse.Namespace, recordings: list, settings: DiagnosisSettings,
+               bars: '_Bars') -> tuple:
+    """
+    Return (the diagnosis written, those with a record held out).
+
+    --test each first diagnoses with each record held out in turn (the
+    others in the order given), then over all records for params.yaml.
+    """
+    if settings.test_record and args.test == TEST_EACH:
+        records = join_records(recordings)
+        for record in range(len(recordings)):  # refuse a short record before any work
+            rezero_window_rows(records, record, settings.rezero_s)
+        held_out = []
+        for record, recording in enumerate(recordings):
+            bars.run = f'record {record + 1} of {len(recordings)} held out: '
+            others = recordings[:record] + recordings[record + 1:]
+            held_out.append(run_diagnosis(others + [recording], settings, progress=bars))
+        bars.run = 'all records: '
+        written = run_diagnosis(recordings, dataclasses.replace(settings, test_record=False),
+                                progress=bars)
+        return written, tuple(held_out)
+    diagnosis = run_diagnosis(recordings, settings, progress=bars)
+    return diagnosis, (diagnosis,) if settings.test_record else ()
+
+
 def diagnose_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out')
+    test = args.test if args.test is not None else args.test_fraction or 0.0
+    _check_records(args, test)
     check_export_outputs(args)
-    recording = load(args)
+    recordings = load_records(args)
     bars = _Bars(True if args.progress else None)
     try:
-        test = args.test if args.test is not None else args.test_fraction or 0.0
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
             block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
-            test_cycle=test == 'cycle',
-            test_fraction=0.0 if test == 'cycle' else test,
+            error_bins=args.error_bins,
+            test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
+            test_fraction=test if isinstance(test, float) else 0.0, rezero_s=args.rezero_s,
             record_effects=args.record_effects, **validation_settings(args))
-        diagnosis = run_diagnosis(recording, settings, progress=bars)
+        diagnosis, held_out = _diagnoses(args, recordings, settings, bars)
     except TempCompError as err:
-        msg = f'{args.input}: {err}'
-        raise UserError(msg) from None
+        raise UserError(_error_text(args.records, err)) from None
     finally:
         bars.close()
     out = Path(args.out)
-    report = _report(args.input, recording, diagnosis)
+    source = ', '.join(args.records)
+    report = _report(source, recordings, diagnosis, held_out)
     try:
         out.mkdir(exist_ok=True)
         write_json(out / 'report.json', report)
         write_result(out / 'report.md', _markdown(report))
         _plots(out, diagnosis)
-        content = parameter_file(args.node_name, effect_parameters(diagnosis.model,
-                                                                   diagnosis.axes))
+        model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
+                                            diagnosis.settings.average_s)
+        content = parameter_file(args.node_name, {
+            **effect_parameters(diagnosis.model, diagnosis.axes), **model_error})
         record = diagnosis.model.record_effects
-        header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {args.input}\n'
+        header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {source}\n'
                   + (f'Holds record-only effects ({", ".join(record)}): they use the stamps '
                      'of that record\n' if record else 'Live-runnable effects only\n')
+                  + (f'Bias offset of {report["written_offset"]["record"]}, '
+                     + WRITTEN_OFFSET.replace(': ', ':\n', 1) + '\n'
+                     if len(recordings) > 1 else '')
+                  + ('model_error: held-out RMS by temperature (a bias error), added to the '
+                     'Imu covariance\n' if model_error else '')
                   + f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
         write_parameter_file(out / 'params.yaml', content, header)
     except OSError as err:
@@ -155,10 +253,12 @@ def diagnose_command(args: argparse.Namespace) -> int:
         raise UserError(msg) from None
     print(_summary(report))
     print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
-    held = diagnosis.test_rows
-    write_exports(args, recording, lambda part: diagnosis.model,
-                  start=len(recording) - held if held else None, full_saw_held_out=not held)
-    print('\n'.join(_written_lines(report)))
+    if len(recordings) == 1:
+        held = diagnosis.test_rows
+        write_exports(args, recordings[0], lambda part: diagnosis.model,
+                      start=len(recordings[0]) - held if held else None,
+                      full_saw_held_out=not held)
+    print('\n'.join(_held_out_lines(report) + _written_lines(report)))
     return 0
 
 
@@ -189,8 +289,9 @@ def _record_effect_text(finding) -> str:
     """Say what a record-only effect is: its size and, for a step, when."""
     parameters = finding.parameters
     if finding.effect == 'bias_step':
+        record = f' of {parameters["record"]}' if 'record' in parameters else ''
         return (f'a step of {parameters["step_rad_s"]:.3g} rad/s '
-                f'{parameters["after_start_s"]:.1f} s after the record start (stamp '
+                f'{parameters["after_start_s"]:.1f} s after the record start{record} (stamp '
                 f'{parameters["time_s"]:.1f} s)')
     return f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
 
@@ -224,7 +325,54 @@ def _written(axis, terms) -> dict:
             'other_ratio': _number(choice.other_ratio), 'reason': choice.reason}
 
 
-def _report(source: str, recording, diagnosis) -> dict:
+def _gains(methods: dict) -> dict:
+    """Give the PX4-style cubic's RMS over the diagnosed model's per axis (above 1: better)."""
+    return {axis: _number(methods['px4_cubic'][axis].rms_rad_s / error.rms_rad_s)
+            if error.rms_rad_s else None for axis, error in methods['diagnosed'].items()}
+
+
+def _held_out_record(diagnosis) -> dict:
+    """Describe how the model fitted on the other records does on the held-out one."""
+    held = diagnosis.records[-1]
+    scopes = {scope: {method: dict(zip(diagnosis.axes, errors))
+                      for method, errors in diagnosis.comparison[scope].items()}
+              for scope in ('test', 'test_rezeroed')}
+    return {'record': held.name, 'rows': held.rows,
+            'fitted_on': [r.name for r in diagnosis.records if r.fitted],
+            'gain_as_written': _gains(scopes['test']),
+            'gain_after_rezero': _gains(scopes['test_rezeroed']),
+            'as_written': {m: {a: _error(e) for a, e in errors.items()}
+                           for m, errors in scopes['test'].items()},
+            'after_rezero': {m: {a: _error(e) for a, e in errors.items()}
+                             for m, errors in scopes['test_rezeroed'].items()},
+            'rezero_rad_s': {m: dict(zip(diagnosis.axes, offset))
+                             for m, offset in diagnosis.rezero_rad_s.items()},
+            'written': {axis.axis: axis.choice.written for axis in diagnosis.per_axis}}
+
+
+def _geometric_mean(values) -> float:
+    values = [v for v in values if v]
+    return math.exp(sum(math.log(v) for v in values) / len(values)) if values else None
+
+
+def _records(recordings: list, diagnosis, held_out: tuple) -> dict:
+    """Return the records part of report.json: each record, the written offset, held out."""
+    fits = {fit.name: fit for fit in diagnosis.records}
+    written = [fit for fit in diagnosis.records if fit.fitted][-1]
+    entries = [{'record': r.source, 'rows': len(r), 'duration_s': r.duration_s,
+                'fitted': fits[r.source].fitted,
+                'offset_rad_s': None if fits[r.source].offset_rad_s is None else
+                dict(zip(diagnosis.axes, fits[r.source].offset_rad_s))} for r in recordings]
+    records = [_held_out_record(d) for d in held_out]
+    summary = {kind: {axis: _number(_geometric_mean(r[kind][axis] for r in records))
+                      for axis in diagnosis.axes}
+               for kind in ('gain_as_written', 'gain_after_rezero')} if records else None
+    return {'records': entries,
+            'written_offset': {'record': written.name, 'why': WRITTEN_OFFSET},
+            'held_out_records': records, 'held_out_summary': summary}
+
+
+def _report(source: str, recordings: list, diagnosis, held_out: tuple = ()) -> dict:
     """Return the content of report.json (all errors in rad/s)."""
     settings = diagnosis.settings
     average = f'{settings.average_s:g} s' if settings.average_s else 'one sample'
@@ -281,19 +429,22 @@ def _report(source: str, recording, diagnosis) -> dict:
         'truth': diagnosis.truth,
         'rows': {'diagnosed': diagnosis.rows, 'test': diagnosis.test_rows,
                  'bins': diagnosis.bins,
-                 'skipped_while_loading': dict(recording.skipped),
-                 'sorted_while_loading': recording.sorted_rows},
+                 'skipped_while_loading': _skipped_while_loading(recordings),
+                 'sorted_while_loading': sum(r.sorted_rows for r in recordings)},
         'settings': {'validation': settings.validation,
                      'other_validation': settings.other_validation,
                      'min_past': settings.min_past,
-                     'held_out_scheme': settings.split().describe(),
-                     'other_scheme': settings.split(settings.other_validation).describe(),
+                     'held_out_scheme': diagnosis.split().describe(),
+                     'other_scheme': diagnosis.split(settings.other_validation).describe(),
                      'folds': settings.folds, 'blocks': settings.blocks,
                      'average_s': settings.average_s, 'max_order': settings.max_order,
                      'min_gain': settings.min_gain, 'significance': settings.significance,
                      'block_tolerance': settings.block_tolerance,
                      'baseline_margin': settings.baseline_margin,
-                     'test': 'cycle' if settings.test_cycle else settings.test_fraction,
+                     'test': (('each' if held_out and not settings.test_record else 'record')
+                              if held_out else 'cycle' if settings.test_cycle
+                              else settings.test_fraction),
+                     'rezero_s': settings.rezero_s,
                      'record_effects': settings.record_effects,
                      'temperature_rate_window_s': settings.rate_window_s},
         'effects': {'searched': list(settings.effects),
@@ -305,7 +456,21 @@ def _report(source: str, recording, diagnosis) -> dict:
         'axes': axes,
         'skipped': skipped,
         'comparison': comparison,
+        **_records(recordings, diagnosis, held_out),
+        'outside_fitted_range': outside_range_json(diagnosis.outside_range, diagnosis.axes,
+                                                   diagnosis.split(FORWARD).describe()),
+        'error_by_temperature': error_by_temperature_json(diagnosis.error_by_temperature,
+                                                          diagnosis.axes, settings.average_s),
     }
+
+
+def _skipped_while_loading(recordings: list) -> dict:
+    """Add up the rows each record skipped while loading, by reason."""
+    total = {}
+    for recording in recordings:
+        for reason, count in recording.skipped.items():
+            total[reason] = total.get(reason, 0) + count
+    return total
 
 
 def _e(value) -> str:
@@ -339,13 +504,19 @@ def _comparison_lines(report: dict) -> list:
     header = ('method', *(f'{a} RMS' for a in names), *(f'{a} peak' for a in names))
     settings = report['settings']
     test = settings['test']
+    held = report['held_out_records'][-1]['record'] if report['held_out_records'] else None
     scopes = {settings['validation']: f'Held-out blocks, {settings["held_out_scheme"]} '
                                       '(decides)',
               settings['other_validation']: f'Held-out blocks, {settings["other_scheme"]} '
                                             '(reported beside)',
-              'test': 'Test set (' + ('the last full heating/cooling cycle' if test == 'cycle'
-                                      else f'the last {test:g} of the record')
-                      + ', never seen by the diagnosis)'}
+              'test': (f'Test record {held}, as written (the written offset: its own is '
+                       'unknown), never seen by the diagnosis' if held else
+                       'Test set (' + ('the last full heating/cooling cycle' if test == 'cycle'
+                                       else f'the last {test:g} of the record')
+                       + ', never seen by the diagnosis)'),
+              'test_rezeroed': f'Test record {held}, after a re-zero (its mean residual over '
+                               f'its first {settings["rezero_s"]:g} s taken off, as '
+                               'imu/recalibrate_zro does at rest)'}
     for scope, methods in report['comparison'].items():
         lines += ['', f'### {scopes[scope]}', '']
         rows = [(_METHOD_TEXT[m], *(_e(methods[m][a]['rms']) for a in names),
@@ -357,8 +528,73 @@ def _comparison_lines(report: dict) -> list:
             if cubic[a]['rms'])]
     lines += ['', 'The cubic on held-out blocks is least squares of T^0..T^3 (raw '
                   'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
-                  '3) on every row of the diagnosed part, as the PX4 script does.']
+                  '3) on every row of the diagnosed part, as the PX4 script does'
+              + ('; over several records each record has its own offset beside it, in the '
+                 'cubic as in the diagnosed model, and both write the last one.'
+                 if len(report['records']) > 1 else '.')]
     return lines
+
+
+def _ratio_text(gains: dict) -> str:
+    return ', '.join(f'{axis} {_gain(gain)}' for axis, gain in gains.items())
+
+
+def _gain(gain) -> str:
+    return '-' if gain is None else f'{gain:.2f}x'
+
+
+def _held_out_lines(report: dict) -> list:
+    """Per held-out record, the gain over the cubic as written and after a re-zero; summary."""
+    rezero = report['settings']['rezero_s']
+    lines = []
+    for record in report['held_out_records']:
+        lines.append(f'held out {record["record"]}: gain over the PX4-style cubic (its RMS / '
+                     "the model's) as written "
+                     f'{_ratio_text(record["gain_as_written"])}; '
+                     f'after a re-zero over its first {rezero:g} s '
+                     f'{_ratio_text(record["gain_after_rezero"])}')
+    summary = report['held_out_summary']
+    if summary and len(report['held_out_records']) > 1:
+        lines.append('leave one record out, geometric mean of the gains over the cubic: as '
+                     f'written {_ratio_text(summary["gain_as_written"])}; after a re-zero '
+                     f'{_ratio_text(summary["gain_after_rezero"])}')
+    return lines
+
+
+def _records_lines(report: dict) -> list:
+    """Describe the records of a unit: rows, role, offset; the written offset; held out."""
+    axes = list(report['axes'])
+    lines = ['## Records', '',
+             f'{len(report["records"])} records of one unit, each with its own history '
+             '(lags, play operators and the rate window start at its first row) and its own '
+             'bias offset (a constant per record in every fit). params.yaml carries the '
+             f'offset of {report["written_offset"]["record"]}, '
+             f'{report["written_offset"]["why"]}.', '']
+    lines += _table(('record', 'rows', 'duration (s)', 'role',
+                     *(f'{a} offset vs written (rad/s)' for a in axes)),
+                    [(r['record'], r['rows'], f'{r["duration_s"]:.0f}',
+                      'fitted' if r['fitted'] else 'held out',
+                      *(_e(r['offset_rad_s'][a]) if r['offset_rad_s'] else '-' for a in axes))
+                     for r in report['records']])
+    held = report['held_out_records']
+    if held:
+        lines += ['', '### Held-out records', '',
+                  'Each fitted on the other records, run on the held-out one from its start; '
+                  "gain = the PX4-style cubic's RMS / the diagnosed model's (above 1: "
+                  "better), as written and after a re-zero over the record's first "
+                  f'{report["settings"]["rezero_s"]:g} s.', '']
+        lines += _table(('held-out record', *(f'{a} as written' for a in axes),
+                         *(f'{a} after re-zero' for a in axes), 'writes'),
+                        [(r['record'], *(_gain(r['gain_as_written'][a]) for a in axes),
+                          *(_gain(r['gain_after_rezero'][a]) for a in axes),
+                          ', '.join(f'{a} {w}' for a, w in r['written'].items()))
+                         for r in held])
+        summary = report['held_out_summary']
+        if len(held) > 1:
+            lines += ['', 'Geometric mean over the held-out records: as written '
+                      f'{_ratio_text(summary["gain_as_written"])}; after a re-zero '
+                      f'{_ratio_text(summary["gain_after_rezero"])}.']
+    return lines + ['']
 
 
 def _axis_lines(name: str, axis: dict) -> list:
@@ -439,7 +675,8 @@ def _markdown(report: dict) -> str:
              f'- held-out scheme (decides): {settings["held_out_scheme"]}; reported beside: '
              f'{settings["other_scheme"]}; stateful inputs (temperature slope over '
              f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
-             'over the whole record before rows are split.',
+             + ('over each record from its start' if len(report['records']) > 1 else
+                'over the whole record') + ' before rows are split.',
              f'- an effect is added when its relative held-out RMS reduction is at least '
              f'{settings["min_gain"]:g}, its mean per-fold improvement exceeds '
              f'{settings["significance"]:g} standard errors and no held-out block but the '
@@ -463,12 +700,16 @@ def _markdown(report: dict) -> str:
               'cubic.', '']
     lines += [f'- {line}' for line in _written_lines(report)]
     lines.append('')
+    if len(report['records']) > 1:
+        lines += _records_lines(report)
     if report['skipped']:
         lines += ['## Skipped candidates', '']
         lines += [f'- {s["effect"]}: {s["reason"]}' for s in report['skipped']]
         lines.append('')
     for name, axis in report['axes'].items():
         lines += _axis_lines(name, axis)
+    lines += outside_lines(report['outside_fitted_range'])
+    lines += error_lines(report['error_by_temperature'], list(report['axes']))
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
@@ -481,6 +722,10 @@ def _summary(report: dict) -> str:
     lines = [f'{report["source"]}: {rows["diagnosed"]} rows diagnosed in {rows["bins"]} bins'
              + (f', last {rows["test"]} rows kept as the test set' if rows['test'] else '')
              + f'; truth {report["truth"]}; errors in rad/s']
+    if len(report['records']) > 1:
+        lines.append(f'{len(report["records"])} records, each with its own history and bias '
+                     f'offset; params.yaml carries the offset of '
+                     f'{report["written_offset"]["record"]} (the last record fitted)')
     for skipped in report['skipped']:
         lines.append(f'skipped {skipped["effect"]}: {skipped["reason"]}')
     for name, axis in report['axes'].items():
@@ -496,6 +741,10 @@ def _summary(report: dict) -> str:
         for method in METHODS:
             values = ', '.join(f'{a} {_e(e["rms"])}' for a, e in methods[method].items())
             lines.append(f'{scope:<16} {method:<22} {values}')
+    lines += console_lines(report)
+    not_written = report['error_by_temperature']['not_written']
+    if not_written:
+        lines.append(not_written)
     return '\n'.join(lines)
 
 
@@ -568,6 +817,7 @@ def _plots(out: Path, diagnosis) -> None:
     plot.grid(True, which='both', alpha=0.3)
     plot.legend()
     _save(pyplot, figure, out / PLOTS[2])
+    plot_error_by_temperature(out / PLOTS[3], diagnosis, _save)
 
 
 def _save(pyplot, figure, path: Path) -> None:

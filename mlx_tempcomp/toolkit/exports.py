@@ -1,31 +1,43 @@
 """
-Exports for the flight controller: the bias cubic in PX4's and ArduPilot's own parameter files.
+Exports for the flight controller: the bias cubics in PX4's and ArduPilot's own parameter files.
 
 ``fit`` and ``diagnose`` take ``--px4-params FILE`` and ``--ardupilot-parm
-FILE``. Each firmware runs a cubic in temperature per gyro axis, not our full
-model: the export is a least-squares cubic of the bias (gyro rate at rest,
-or gyro minus the reference) fitted to all rows, written in the firmware's
-form, and the command says on held-out rows how far that cubic lies from our
-full model (both fitted again on the rows before them), so a user sees what
-the flight controller loses. docs/flight-logs.md gives the sources.
+FILE``. Each firmware runs a cubic in temperature per gyro axis (and per
+accelerometer axis), not our full model: the export is a least-squares cubic
+of the gyro bias (gyro rate at rest, or gyro minus the reference) and, when
+the record has acceleration, of the accelerometer offset, fitted to all rows
+and written in the firmware's form. The command says on held-out rows how far
+the gyro cubic lies from our full model (both fitted again on the rows before
+them), so a user sees what the flight controller loses, and what the
+accelerometer cubic leaves. docs/flight-logs.md gives the sources.
 
 - PX4 (``TemperatureCompensation::calc_thermal_offsets_3D``): offset =
-  sum_k X_k (clamp(T, TMIN, TMAX) - TREF)^k, subtracted from the raw rate;
+  sum_k X_k (clamp(T, TMIN, TMAX) - TREF)^k, subtracted from the raw value;
   TREF the middle of the range, as ``Tools/process_sensor_caldata.py`` sets
-  it. The file is QGC's, as that script writes it: three comment lines, then
-  ``1<TAB>1<TAB>NAME<TAB>VALUE<TAB>TYPE`` (type 6 int32, 9 float) in sorted
-  name order, values as Python prints them (every digit a double holds).
-  ``TC_Gn_ID`` is the gyro's device id (PX4 matches the set by it).
+  it; the accelerometer's X0 is its cubic at TREF less its median (the script
+  fits the offset from the median, gravity with it). The file is QGC's, as
+  that script writes it: three comment lines, then
+  ``1<TAB>1<TAB>NAME<TAB>VALUE<TAB>TYPE`` (type 6 int32, 9 float), values as
+  Python prints them (every digit a double holds); the TC_A block in the
+  script's order (ID, TMIN, TMAX, TREF, X0..X3 per axis), the TC_G block in
+  sorted name order. ``TC_Gn_ID`` / ``TC_An_ID`` are the device ids (PX4
+  matches a set by them). sensor_gyro and sensor_accel are logged in the
+  frame the offsets are subtracted in (before SENS_BOARD_ROT), so nothing is
+  rotated, as in the script.
 - ArduPilot (``AP_InertialSensor_tempcal.cpp``): v - P(T - 35) + P(caltemp - 35)
   with P(d) = (c1 d + c2 d^2 + c3 d^3) 1e-6, T clamped to [TMIN, TMAX], no
-  constant term (it stays in INS_GYROFFS, learnt at boot). The file is what
+  constant term (it stays in INS_GYROFFS / INS_ACCOFFS). The file is what
   ``Tools/scripts/tempcal_IMU.py`` writes: ``NAME VALUE`` lines, TMIN and
-  TMAX with one decimal, coefficients x 1e6 with nine; the cubic as those
-  digits hold it is the one exported (`ardupilot_cubic`).
+  TMAX with one decimal, ACCk then GYRk coefficients x 1e6 with nine; the
+  cubic as those digits hold it is the one exported (`ardupilot_cubic`).
+  The correction acts in the sensor frame and a DataFlash log holds the
+  vehicle frame, so a log's ``AHRS_ORIENTATION`` is undone first, as the
+  script does. IMUs 1-3 are ``INS_TCALn_*``, IMUs 4 and 5 ``INSn_TCAL_*``.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -36,6 +48,7 @@ from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES
 from ..node_parameters import build_model, COMPENSATION_SPECS, flat_parameters
+from ..sources.dataflash import board_rotation
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
 
 EXPORT_ORDER = 3
@@ -48,8 +61,11 @@ ARDUPILOT_RANGE_DECIMALS = 1
 ARDUPILOT_COEFFICIENT_DECIMALS = 9
 # ArduPilot documents TMAX at least this far above TMIN.
 ARDUPILOT_MIN_SPAN_C = 10.0
-PX4_GYROS = 4
-ARDUPILOT_TCAL_IMUS = 3
+PX4_SETS = 4
+# ArduPilot's thermal sets: INS_TCAL1..3_ (AP_InertialSensor.cpp), INS4_TCAL_ and
+# INS5_TCAL_ (the AP_InertialSensor_Params groups 4_ and 5_).
+ARDUPILOT_TCAL_IMUS = 5
+ARDUPILOT_OLD_GROUPS = 3
 PX4_TYPE_INT32 = 6
 PX4_TYPE_FLOAT = 9
 PX4_HEADER = ('# Sensor thermal compensation parameters\n#\n'
@@ -59,10 +75,10 @@ PX4_HEADER = ('# Sensor thermal compensation parameters\n#\n'
 @dataclass(frozen=True)
 class FirmwareCubic:
     """
-    A bias cubic per axis in a firmware's form, in rad/s.
+    A cubic per axis in a firmware's form, in the sensor's units (rad/s, m/s^2).
 
     offset(T) = sum_k coefficients[axis][k] (clamp(T, min, max) - reference)^k;
-    ``coefficients`` has (c0, c1, c2, c3) per axis x, y, z, c_k in rad/s/C^k.
+    ``coefficients`` has (c0, c1, c2, c3) per axis x, y, z, c_k in units/C^k.
     """
 
     reference_c: float
@@ -80,6 +96,35 @@ class FirmwareCubic:
                                 for c in self.coefficients])
 
 
+@dataclass(frozen=True)
+class ExportedImu:
+    """
+    What the exports need to know of the IMU: which one, its ids, how the log rotated it.
+
+    ``rotation`` maps the sensor's axes to the record's (logged = rotation @
+    sensor); ``orientation`` is the DataFlash log's AHRS_ORIENTATION (0 otherwise).
+    """
+
+    index: int = 0
+    gyro_device_id: Optional[int] = None
+    accel_device_id: Optional[int] = None
+    orientation: int = 0
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def sensor_axes(self, values: np.ndarray) -> np.ndarray:
+        """Give rows of (x, y, z) in the sensor's axes: rotation.T @ row, for every row."""
+        return np.asarray(values) @ self.rotation
+
+
+@dataclass(frozen=True)
+class ExportedCubics:
+    """The cubics fitted for the files: gyro, and accelerometer with its median (or None)."""
+
+    gyro: EffectModel
+    accel: Optional[EffectModel] = None
+    accel_median: Optional[np.ndarray] = None
+
+
 def _rebased(model: EffectModel, reference_c: float) -> tuple:
     """Re-expand each bias polynomial of ``model`` in powers of (T - reference_c)."""
     scale = model.temperature_scale_c
@@ -92,10 +137,17 @@ def _rebased(model: EffectModel, reference_c: float) -> tuple:
     return tuple(rebased)
 
 
-def px4_cubic(model: EffectModel) -> FirmwareCubic:
-    """Give the PX4 form of a fitted cubic: TREF the middle of its range, TMIN/TMAX the range."""
+def px4_cubic(model: EffectModel, baseline=(0.0, 0.0, 0.0)) -> FirmwareCubic:
+    """
+    Give the PX4 form of a fitted cubic: TREF the middle of its range, TMIN/TMAX the range.
+
+    ``baseline`` is taken off X0 per axis: the accelerometer's median, from which
+    process_sensor_caldata.py fits its offset.
+    """
     reference_c = 0.5 * (model.temperature_min_c + model.temperature_max_c)
-    return FirmwareCubic(reference_c, _rebased(model, reference_c), model.temperature_min_c,
+    coefficients = tuple((c[0] - float(b),) + c[1:]
+                         for c, b in zip(_rebased(model, reference_c), baseline))
+    return FirmwareCubic(reference_c, coefficients, model.temperature_min_c,
                          model.temperature_max_c)
 
 
@@ -105,7 +157,7 @@ def ardupilot_cubic(model: EffectModel) -> FirmwareCubic:
 
     About 35 C; c1..c3 rounded as tempcal_IMU.py prints them (x 1e6, nine
     decimals); the range rounded outwards to one decimal, so no fitted
-    temperature is clamped. c0, the bias at 35 C, is kept for the report:
+    temperature is clamped. c0, the value at 35 C, is kept for the report:
     ArduPilot has no parameter for it.
     """
     scale = 10.0 ** ARDUPILOT_RANGE_DECIMALS
@@ -118,9 +170,9 @@ def ardupilot_cubic(model: EffectModel) -> FirmwareCubic:
                          math.ceil(model.temperature_max_c * scale) / scale)
 
 
-def px4_params_text(cubic: FirmwareCubic, gyro: int, device_id: int) -> str:
-    """Give the QGC .params text of PX4 gyro ``gyro``'s thermal set (and TC_G_ENABLE 1)."""
-    prefix = f'TC_G{gyro}_'
+def _px4_block(sensor: str, cubic: FirmwareCubic, index: int, device_id: int) -> dict:
+    """Give one TC_<sensor><index>_* set, names to (value, type), in the script's order."""
+    prefix = f'TC_{sensor}{index}_'
     values = {prefix + 'ID': (device_id, PX4_TYPE_INT32),
               prefix + 'TMIN': (cubic.temperature_min_c, PX4_TYPE_FLOAT),
               prefix + 'TMAX': (cubic.temperature_max_c, PX4_TYPE_FLOAT),
@@ -128,62 +180,117 @@ def px4_params_text(cubic: FirmwareCubic, gyro: int, device_id: int) -> str:
     for axis, coefficients in enumerate(cubic.coefficients):
         values.update((f'{prefix}X{k}_{axis}', (float(c), PX4_TYPE_FLOAT))
                       for k, c in enumerate(coefficients))
-    lines = [f'1\t1\tTC_G_ENABLE\t1\t{PX4_TYPE_INT32}']
-    lines += [f'1\t1\t{name}\t{value}\t{kind}' for name, (value, kind) in sorted(values.items())]
+    return values
+
+
+def px4_params_text(gyro: FirmwareCubic, index: int, device_id: int, accel=None) -> str:
+    """
+    Give the QGC .params text of PX4 IMU ``index``'s thermal sets, with their enables.
+
+    ``accel`` is (FirmwareCubic, device id) of the accelerometer, or None. The
+    script writes the TC_A block unsorted (its ``sort`` is never called) before the
+    TC_G block, sorted; TC_A_ENABLE and TC_G_ENABLE 1 precede their blocks.
+    """
+    lines = []
+    if accel is not None:
+        cubic, accel_id = accel
+        lines.append(f'1\t1\tTC_A_ENABLE\t1\t{PX4_TYPE_INT32}')
+        lines += [f'1\t1\t{name}\t{value}\t{kind}'
+                  for name, (value, kind) in _px4_block('A', cubic, index, accel_id).items()]
+    lines.append(f'1\t1\tTC_G_ENABLE\t1\t{PX4_TYPE_INT32}')
+    lines += [f'1\t1\t{name}\t{value}\t{kind}'
+              for name, (value, kind) in sorted(_px4_block('G', gyro, index, device_id).items())]
     return PX4_HEADER + '\n'.join(lines) + '\n'
 
 
-def ardupilot_parm_text(cubic: FirmwareCubic, imu: int) -> str:
-    """Give the .parm text of ArduPilot IMU ``imu`` (1-3): ENABLE, TMIN, TMAX, GYRk_X/Y/Z."""
-    prefix = f'INS_TCAL{imu}_'
+def ardupilot_tcal_prefix(imu: int) -> str:
+    """Give the parameter prefix of ArduPilot IMU ``imu``'s (1-5) thermal set."""
+    return f'INS_TCAL{imu}_' if imu <= ARDUPILOT_OLD_GROUPS else f'INS{imu}_TCAL_'
+
+
+def ardupilot_parm_text(gyro: FirmwareCubic, imu: int,
+                        accel: Optional[FirmwareCubic] = None) -> str:
+    """Give the .parm text of ArduPilot IMU ``imu`` (1-5): ENABLE, TMIN, TMAX, ACCk, GYRk."""
+    prefix = ardupilot_tcal_prefix(imu)
     lines = [f'{prefix}ENABLE 1',
-             f'{prefix}TMIN {cubic.temperature_min_c:.{ARDUPILOT_RANGE_DECIMALS}f}',
-             f'{prefix}TMAX {cubic.temperature_max_c:.{ARDUPILOT_RANGE_DECIMALS}f}']
-    for k in range(1, EXPORT_ORDER + 1):
-        lines += [f'{prefix}GYR{k}_{axis.upper()} '
-                  f'{c[k] * ARDUPILOT_SCALE_FACTOR:.{ARDUPILOT_COEFFICIENT_DECIMALS}f}'
-                  for axis, c in zip(AXIS_NAMES, cubic.coefficients)]
+             f'{prefix}TMIN {gyro.temperature_min_c:.{ARDUPILOT_RANGE_DECIMALS}f}',
+             f'{prefix}TMAX {gyro.temperature_max_c:.{ARDUPILOT_RANGE_DECIMALS}f}']
+    for name, cubic in (('ACC', accel), ('GYR', gyro)):
+        if cubic is None:
+            continue
+        for k in range(1, EXPORT_ORDER + 1):
+            lines += [f'{prefix}{name}{k}_{axis.upper()} '
+                      f'{c[k] * ARDUPILOT_SCALE_FACTOR:.{ARDUPILOT_COEFFICIENT_DECIMALS}f}'
+                      for axis, c in zip(AXIS_NAMES, cubic.coefficients)]
     return '\n'.join(lines) + '\n'
 
 
 def add_export_options(parser) -> None:
-    """Add --px4-params, --ardupilot-parm and --px4-device-id."""
+    """Add --px4-params, --ardupilot-parm, --px4-device-id and --px4-accel-device-id."""
     parser.add_argument('--px4-params', metavar='FILE',
-                        help="also write the bias cubic as PX4's TC_G* parameters (QGC .params, "
-                             'as Tools/process_sensor_caldata.py writes it)')
+                        help="also write the cubics as PX4's TC_G* (and TC_A*) parameters (QGC "
+                             '.params, as Tools/process_sensor_caldata.py writes it)')
     parser.add_argument('--ardupilot-parm', metavar='FILE',
-                        help="also write the bias cubic as ArduPilot's INS_TCALn_* parameters "
+                        help="also write the cubics as ArduPilot's INS_TCALn_* parameters "
                              '(.parm, as Tools/scripts/tempcal_IMU.py writes it)')
     parser.add_argument('--px4-device-id', type=int, metavar='ID',
                         help="TC_Gn_ID: the gyro's device id (CAL_GYROn_ID); default: the "
                              "instance's device_id in a .ulg log")
+    parser.add_argument('--px4-accel-device-id', type=int, metavar='ID',
+                        help="TC_An_ID: the accelerometer's device id (CAL_ACCn_ID); default: "
+                             'its device_id in a .ulg log; without one, no TC_A* set')
 
 
 def check_export_outputs(args) -> None:
-    """Check the export paths before any work (UserError if one cannot be written)."""
+    """Check the export paths and the IMU before any work (UserError if one cannot be used)."""
     for option in ('px4_params', 'ardupilot_parm'):
         if getattr(args, option, None) is not None:
             check_output_file(getattr(args, option), '--' + option.replace('_', '-'))
-    if getattr(args, 'ardupilot_parm', None) is not None:
-        rotation = _identity(args)[2]
-        if rotation:
-            # IMU messages are in the board frame; INS_TCAL corrects in the sensor frame.
-            msg = (f'{args.input}: AHRS_ORIENTATION is {rotation}: ArduPilot corrects in the '
-                   'sensor frame and tempcal_IMU.py undoes that rotation first; this export '
-                   'does not')
-            raise UserError(msg)
+    if getattr(args, 'px4_params', None) is None and getattr(args, 'ardupilot_parm', None) is None:
+        return
+    imu = _exported_imu(args)
+    if args.px4_params is not None and imu.index >= PX4_SETS:
+        msg = (f'{args.input}: PX4 has thermal sets TC_G0..{PX4_SETS - 1}; instance '
+               f'{imu.index} has none')
+        raise UserError(msg)
+    if args.ardupilot_parm is not None and imu.index >= ARDUPILOT_TCAL_IMUS:
+        msg = (f'{args.input}: ArduPilot has thermal sets for IMUs 1-{ARDUPILOT_TCAL_IMUS} '
+               f'(INS_TCAL1..3_*, INS4_TCAL_*, INS5_TCAL_*); instance {imu.index} '
+               f'(IMU {imu.index + 1}) has none')
+        raise UserError(msg)
 
 
-def _identity(args) -> tuple:
-    """Give the IMU's instance number, device id and board rotation (0 unless a log says)."""
+def _tcal_enabled(log, index: int) -> str:
+    """Name the DataFlash log's thermal set of IMU ``index`` when the firmware applied it."""
+    name = ardupilot_tcal_prefix(index + 1) + 'ENABLE'
+    return name if log.parameters.get(name) == 1 else ''
+
+
+def _exported_imu(args) -> ExportedImu:
+    """Give the IMU's instance number, device ids and board rotation (none unless a log says)."""
     if not is_flight_log(args.input):
-        return 0, None, 0
+        return ExportedImu()
     try:
         log = read_flight_log(args.input)
         instance = log.instance(args.instance)
     except FlightLogError as err:
         raise UserError(str(err)) from None
-    return instance.index, instance.device_id, int(log.parameters.get('AHRS_ORIENTATION', 0))
+    orientation = int(log.parameters.get('AHRS_ORIENTATION', 0))
+    try:
+        rotation = board_rotation(orientation)
+    except FlightLogError as err:
+        msg = f"{args.input}: {err}; the exports need the IMU's own axes, where it is corrected"
+        raise UserError(msg) from None
+    enabled = _tcal_enabled(log, instance.index)
+    if enabled:
+        # The logged samples are already corrected by that set; tempcal_IMU.py takes the
+        # correction off again before fitting.
+        msg = (f'{args.input}: {enabled} is 1 in the log: its IMU samples are already '
+               'corrected by that thermal set, which this export does not undo; calibrate '
+               'from a log taken with it 0')
+        raise UserError(msg)
+    return ExportedImu(instance.index, instance.device_id, instance.accel_device_id,
+                       orientation, rotation)
 
 
 def _rate_error(recording) -> np.ndarray:
@@ -192,12 +299,22 @@ def _rate_error(recording) -> np.ndarray:
     return recording.gyro_rad_s - recording.reference_rad_s
 
 
-def _cubic(args, recording) -> EffectModel:
+def _cubic(args, temperature_c, values, what: str = 'cubic') -> EffectModel:
     try:
-        return fit_polynomial(recording.temperature_c, _rate_error(recording), EXPORT_ORDER)
+        return fit_polynomial(temperature_c, values, EXPORT_ORDER)
     except TempCompError as err:
-        msg = f'{args.input}: the exported cubic: {err}'
+        msg = f'{args.input}: the exported {what}: {err}'
         raise UserError(msg) from None
+
+
+def _cubics(args, recording, imu: ExportedImu = ExportedImu()) -> ExportedCubics:
+    """Fit the gyro cubic and, with acceleration, the accelerometer's, in the sensor's axes."""
+    gyro = _cubic(args, recording.temperature_c, imu.sensor_axes(_rate_error(recording)))
+    if recording.acceleration_m_s2 is None:
+        return ExportedCubics(gyro)
+    acceleration = imu.sensor_axes(recording.acceleration_m_s2)
+    accel = _cubic(args, recording.temperature_c, acceleration, 'accelerometer cubic')
+    return ExportedCubics(gyro, accel, np.median(acceleration, axis=0))
 
 
 def _corrected(model, recording) -> np.ndarray:
@@ -219,10 +336,19 @@ def held_out_start(rows: int) -> int:
     return rows - max(1, int(round(HELD_OUT_FRACTION * rows)))
 
 
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
 def _comparison(args, recording, full_model_on, start: int, full_saw_held_out: bool) -> list:
-    """Say on the held-out rows how far the cubic lies from the full model, per axis."""
+    """
+    Say on the held-out rows how far the cubics leave the full model, per axis.
+
+    Both in the record's axes: a least-squares cubic per axis turns with its data.
+    """
     train, held = recording.slice(slice(0, start)), slice(start, len(recording))
-    cubic = px4_cubic(_cubic(args, train))
+    cubics = _cubics(args, train)
+    cubic = px4_cubic(cubics.gyro)
     truth = 0.0 if recording.reference_rad_s is None else recording.reference_rad_s[held]
     cubic_rad_s = recording.gyro_rad_s[held] - cubic.offset_rad_s(recording.temperature_c[held])
     try:
@@ -237,16 +363,25 @@ def _comparison(args, recording, full_model_on, start: int, full_saw_held_out: b
              f'{"axis":<6}{"cubic - full":>14}{"peak":>12}{"cubic resid.":>14}'
              f'{"full resid.":>13}',
              f'{"":<6}{"RMS rad/s":>14}{"rad/s":>12}{"RMS rad/s":>14}{"RMS rad/s":>13}']
-
-    def rms(values):
-        return float(np.sqrt(np.mean(np.square(values))))
-
     for i, axis in enumerate(recording.axes):
         difference = cubic_rad_s[:, i] - full_rad_s[:, i]
         truth_i = truth if np.isscalar(truth) else truth[:, i]
-        lines.append(f'{axis:<6}{rms(difference):>14.3e}{np.max(np.abs(difference)):>12.3e}'
-                     f'{rms(cubic_rad_s[:, i] - truth_i):>14.3e}'
-                     f'{rms(full_rad_s[:, i] - truth_i):>13.3e}')
+        lines.append(f'{axis:<6}{_rms(difference):>14.3e}{np.max(np.abs(difference)):>12.3e}'
+                     f'{_rms(cubic_rad_s[:, i] - truth_i):>14.3e}'
+                     f'{_rms(full_rad_s[:, i] - truth_i):>13.3e}')
+    if cubics.accel is None:
+        return lines
+    # What the accelerometer cubic (offset from the median, as PX4 fits it) leaves of the
+    # rows' spread about the median of the rows before them; no full model to set beside.
+    acceleration = recording.acceleration_m_s2[held]
+    after = acceleration - (px4_cubic(cubics.accel, cubics.accel_median).offset_rad_s(
+        recording.temperature_c[held]) + cubics.accel_median)
+    lines += ['accelerometer cubic on the same rows (the toolkit has no full accelerometer '
+              'model):',
+              f'{"axis":<6}{"raw - median":>14}{"after cubic":>14}',
+              f'{"":<6}{"RMS m/s^2":>14}{"RMS m/s^2":>14}']
+    lines += [f'{axis:<6}{_rms(acceleration[:, i] - cubics.accel_median[i]):>14.3e}'
+              f'{_rms(after[:, i]):>14.3e}' for i, axis in enumerate(AXIS_NAMES)]
     return lines
 
 
@@ -259,62 +394,91 @@ def write_exports(args, recording, full_model_on, start=None, full_saw_held_out=
     first held-out row (default: the last `HELD_OUT_FRACTION` of the rows).
     """
     if args.px4_params is None and args.ardupilot_parm is None:
-        if args.px4_device_id is not None:
-            msg = '--px4-device-id applies with --px4-params'
-            raise UserError(msg)
+        for option in ('px4_device_id', 'px4_accel_device_id'):
+            if getattr(args, option) is not None:
+                msg = f'--{option.replace("_", "-")} applies with --px4-params'
+                raise UserError(msg)
         return
     if recording.axes != AXIS_NAMES:
         msg = (f'{args.input}: a flight controller corrects x, y and z; the recording has '
                f'gyro {", ".join(recording.axes)}')
         raise UserError(msg)
-    index, device_id, _ = _identity(args)
+    imu = _exported_imu(args)
     start = held_out_start(len(recording)) if start is None else start
     for line in _comparison(args, recording, full_model_on, start, full_saw_held_out):
         print(line)
-    model = _cubic(args, recording)
+    cubics = _cubics(args, recording, imu)
+    if imu.orientation:
+        print(f'AHRS_ORIENTATION {imu.orientation} undone: the files hold the cubics in the '
+              "IMU's own axes, in which ArduPilot corrects (as tempcal_IMU.py)")
     try:
         if args.px4_params is not None:
-            _write_px4(args, model, index, device_id)
+            _write_px4(args, cubics, imu)
         if args.ardupilot_parm is not None:
-            _write_ardupilot(args, model, index)
+            _write_ardupilot(args, cubics, imu.index)
     except OSError as err:
         msg = f'cannot write {err.filename}: {err.strerror}'
         raise UserError(msg) from None
 
 
-def _write_px4(args, model, index: int, device_id) -> None:
-    device_id = args.px4_device_id if args.px4_device_id is not None else device_id
+def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
+    index = imu.index
+    device_id = args.px4_device_id if args.px4_device_id is not None else imu.gyro_device_id
     if device_id is None:
         msg = ("--px4-params needs the gyro's device id, which PX4 matches TC_Gn_ID against: "
                'give --px4-device-id (CAL_GYRO0_ID on the vehicle); a .ulg log holds it')
         raise UserError(msg)
-    if index >= PX4_GYROS:
-        msg = f'PX4 has thermal sets TC_G0..{PX4_GYROS - 1}; instance {index} has none'
+    accel, left_out = None, ''
+    if cubics.accel is not None:
+        accel_id = args.px4_accel_device_id if args.px4_accel_device_id is not None \
+            else imu.accel_device_id
+        if accel_id is None:
+            left_out = (f'  TC_A{index}_* left out: PX4 matches it by the device id of the '
+                        f'accelerometer; give --px4-accel-device-id (CAL_ACC{index}_ID)')
+        else:
+            accel = (px4_cubic(cubics.accel, cubics.accel_median), accel_id)
+    elif args.px4_accel_device_id is not None:
+        msg = '--px4-accel-device-id: the record has no acceleration, so no TC_A* set'
         raise UserError(msg)
-    cubic = px4_cubic(model)
-    write_result(args.px4_params, px4_params_text(cubic, index, device_id))
-    print(f'wrote {args.px4_params} (PX4 TC_G{index}_*, TC_G{index}_ID {device_id}, TREF '
-          f'{cubic.reference_c:.2f} C, range {cubic.temperature_min_c:.2f} to '
-          f'{cubic.temperature_max_c:.2f} C; TC_G_ENABLE 1; reboot to apply)')
+    cubic = px4_cubic(cubics.gyro)
+    write_result(args.px4_params, px4_params_text(cubic, index, device_id, accel))
+    sets, enables = f'TC_G{index}_* (ID {device_id})', 'TC_G_ENABLE 1'
+    if accel is not None:
+        sets, enables = f'TC_A{index}_* (ID {accel[1]}) and {sets}', 'TC_A_ENABLE and ' + enables
+    print(f'wrote {args.px4_params} (PX4 {sets}, TREF {cubic.reference_c:.2f} C, range '
+          f'{cubic.temperature_min_c:.2f} to {cubic.temperature_max_c:.2f} C; {enables}; '
+          'reboot to apply)')
+    if left_out:
+        print(left_out)
+    elif cubics.accel is None:
+        print(f'  TC_A{index}_* left out: the record has no acceleration')
 
 
-def _write_ardupilot(args, model, index: int) -> None:
-    if index >= ARDUPILOT_TCAL_IMUS:
-        msg = (f'ArduPilot names INS_TCAL1..{ARDUPILOT_TCAL_IMUS}_*; instance {index} needs '
-               f'INS{index + 1}_TCAL_*, which this export does not write')
-        raise UserError(msg)
-    cubic = ardupilot_cubic(model)
-    write_result(args.ardupilot_parm, ardupilot_parm_text(cubic, index + 1))
+def _rounding(model: EffectModel, written: FirmwareCubic) -> float:
+    """Give how far the written digits move a cubic over its fitted range."""
     exact = px4_cubic(model)
     grid_c = np.linspace(exact.temperature_min_c, exact.temperature_max_c, 1001)
-    rounding = np.max(np.abs((cubic.offset_rad_s(grid_c) - exact.offset_rad_s(grid_c))))
-    constant = ', '.join(f'{axis} {c[0]:+.4e}'
-                         for axis, c in zip(AXIS_NAMES, cubic.coefficients))
-    print(f'wrote {args.ardupilot_parm} (ArduPilot INS_TCAL{index + 1}_*, about 35 C, range '
-          f'{cubic.temperature_min_c:.1f} to {cubic.temperature_max_c:.1f} C; the file '
-          f'digits move the cubic by at most {rounding:.1e} rad/s; reboot to apply)')
+    return float(np.max(np.abs(written.offset_rad_s(grid_c) - exact.offset_rad_s(grid_c))))
+
+
+def _write_ardupilot(args, cubics: ExportedCubics, index: int) -> None:
+    imu = index + 1
+    gyro = ardupilot_cubic(cubics.gyro)
+    accel = None if cubics.accel is None else ardupilot_cubic(cubics.accel)
+    write_result(args.ardupilot_parm, ardupilot_parm_text(gyro, imu, accel))
+    prefix = ardupilot_tcal_prefix(imu)
+    rounding = f'gyro {_rounding(cubics.gyro, gyro):.1e} rad/s'
+    if accel is not None:
+        rounding += f', accelerometer {_rounding(cubics.accel, accel):.1e} m/s^2'
+    print(f'wrote {args.ardupilot_parm} (ArduPilot {prefix}*, about 35 C, range '
+          f'{gyro.temperature_min_c:.1f} to {gyro.temperature_max_c:.1f} C; the file digits '
+          f'move the cubics by at most {rounding}; reboot to apply)')
+    constant = ', '.join(f'{axis} {c[0]:+.4e}' for axis, c in zip(AXIS_NAMES, gyro.coefficients))
     print(f'  the bias at 35 C (rad/s: {constant}) has no INS_TCAL parameter: ArduPilot '
           'keeps it in INS_GYROFFS_*, learnt at boot')
-    if cubic.temperature_max_c - cubic.temperature_min_c < ARDUPILOT_MIN_SPAN_C:
+    if accel is None:
+        print(f'  {prefix}ACC* left out: the record has no acceleration; the board keeps the '
+              f'{prefix}ACC* it has')
+    if gyro.temperature_max_c - gyro.temperature_min_c < ARDUPILOT_MIN_SPAN_C:
         print(f'  note: ArduPilot documents TMAX at least {ARDUPILOT_MIN_SPAN_C:g} C above TMIN; '
-              f'this range spans {cubic.temperature_max_c - cubic.temperature_min_c:.1f} C')
+              f'this range spans {gyro.temperature_max_c - gyro.temperature_min_c:.1f} C')

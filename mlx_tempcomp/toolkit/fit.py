@@ -19,13 +19,15 @@ from .common import (add_parameter_file_options, add_recording_options,
                      non_negative_int, positive_float, UserError, validation_settings,
                      write_node_parameters)
 from .exports import add_export_options, check_export_outputs, node_model, write_exports
+from .uncertainty import block_lines
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
                             format_order_table, relative_polynomial, select_orders, table_step_c)
 from ..core.models import AXIS_NAMES
-from ..core.validation import DEFAULT_BLOCKS, DEFAULT_FOLDS, split
+from ..core.validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
+                               held_out_outside_range, split)
 from ..model_params import chain_parameters, linear_btc_parameters, polynomial_parameters
 
 DEFAULT_MAX_ORDER = 8
@@ -64,6 +66,10 @@ def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
         print(format_order_table(selections))
         dealt = split(blocks, validation['validation'], folds, validation['min_past'])
         how = f'chosen on held-out blocks, {dealt.describe()}'
+        outside = held_out_outside_range(recording.temperature_c,
+                                         block_bounds(len(recording.temperature_c), blocks),
+                                         dealt)
+        print('\n'.join(block_lines(outside, dealt.describe())))
     else:
         orders = (args.order,) * len(recording.axes)
         how = 'given by --order'

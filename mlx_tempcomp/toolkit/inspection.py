@@ -128,7 +128,8 @@ def _flight_log_report(args) -> dict:
             msg = f'{args.input}: no IMU instance {args.instance}; the log has {known}'
             raise UserError(msg)
     thermal = {name: value for name, value in sorted(log.parameters.items())
-               if name.startswith(('TC_G', 'INS_TCAL')) or name.endswith('_CALTEMP')}
+               if name.startswith(('TC_G', 'INS_TCAL', 'INS4_TCAL', 'INS5_TCAL'))
+               or name.endswith('_CALTEMP')}
     return {'file': str(args.input), 'format': log.log_format, 'system': log.system,
             'notes': list(log.notes), 'thermal_parameters': thermal,
             'instances': [_instance_report(i.index, i.name, i.device_id, i.time_s,

@@ -1,0 +1,226 @@
+"""
+What ``diagnose`` and ``fit`` say about temperatures beyond the fit, and the error per temperature.
+
+Beyond the temperatures a model was fitted on, the node clamps the
+temperature at the edge of that range (docs/ros.md). These functions turn
+the diagnosis's `OutsideFittedRange` (how much of the test part and of each
+forward held-out block lies outside the range the model predicting it was
+fitted on) and `ErrorByTemperature` (the held-out error of the written model
+per temperature bin) into report.json sections, report.md lines, console
+lines, a plot and the ``model_error.*`` node parameters.
+"""
+
+import math
+
+from ..core.model_error import ModelErrorTable
+from ..model_params import model_error_parameters
+
+OUTSIDE_MEANING = ('rows whose temperature (T_eff with a thermal lag) lies outside the range '
+                   'the model predicting them was fitted on: the node clamps the temperature at '
+                   'the edge there, so the correction holds the edge value')
+ERROR_MEANING = ('RMS per temperature bin of the held-out residual of the model written '
+                 '(corrected - truth, averaged over bins of average_s seconds, as the held-out '
+                 'RMS), rad/s: a bias error, not white noise; params.yaml carries it as '
+                 'model_error.*, which the node adds to rate_noise_rad_s^2 in the Imu covariance')
+
+
+def _number(value):
+    return float(value) if math.isfinite(value) else None
+
+
+def _part(part, axes) -> dict:
+    return {'rows': part.rows, 'range_c': [part.low_c, part.high_c],
+            'fraction': dict(zip(axes, part.fraction)),
+            'furthest_c': dict(zip(axes, part.furthest_c))}
+
+
+def outside_range_json(outside, axes, scheme: str) -> dict:
+    """Return report.json's ``outside_fitted_range``: the test part and each forward block."""
+    blocks = [{'block': k, **_part(part, axes)} for k, part in enumerate(outside.blocks)
+              if part is not None]
+    rows = sum(block['rows'] for block in blocks)
+    overall = {axis: sum(b['rows'] * b['fraction'][axis] for b in blocks) / rows if rows else 0.0
+               for axis in axes}
+    return {'meaning': OUTSIDE_MEANING, 'per_axis': outside.per_axis,
+            'test': None if outside.test is None else _part(outside.test, axes),
+            'forward_scheme': scheme,
+            'forward_blocks': blocks,
+            'forward_all': {'rows': rows, 'fraction': overall}}
+
+
+def _bins(errors, axes) -> list:
+    return [{'low_c': errors.edges_c[k], 'high_c': errors.edges_c[k + 1],
+             'temperature_c': errors.temperature_c[k], 'count': errors.count[k],
+             'rows': errors.weight[k],
+             'rms': {axis: _number(value) for axis, value in zip(axes, errors.rms_rad_s[k])}}
+            for k in errors.filled()]
+
+
+def error_by_temperature_json(errors, axes, average_s: float) -> dict:
+    """Return report.json's ``error_by_temperature``; whether params.yaml has it, and why not."""
+    written, not_written = params_model_error(errors, axes, average_s)
+    return {'meaning': ERROR_MEANING, 'validation': errors.validation,
+            'rows_per_bin': errors.rows_per_bin, 'bins': _bins(errors.held_out, axes),
+            'test_bins': None if errors.test is None else _bins(errors.test, axes),
+            'in_params_yaml': bool(written), 'not_written': not_written}
+
+
+def model_error_table(errors) -> ModelErrorTable:
+    """Give the node's table of the held-out error: the filled bins at their mean T."""
+    held = errors.held_out
+    filled = held.filled()
+    return ModelErrorTable(temperature_c=tuple(held.temperature_c[k] for k in filled),
+                           error_rad_s=tuple(tuple(held.rms_rad_s[k][axis] for k in filled)
+                                             for axis in range(len(held.rms_rad_s[0]))))
+
+
+def params_model_error(errors, axes, average_s: float) -> tuple:
+    """
+    Give (the ``model_error`` node parameters, or {}, and a line saying why not).
+
+    Residuals of single samples (--average-s 0) hold the white noise in full:
+    added to rate_noise_rad_s^2 it would count twice, so no table is written.
+    """
+    if average_s <= 0.0:
+        return {}, ('model_error not written: with --average-s 0 the residuals hold the white '
+                    'noise, which rate_noise_rad_s already counts')
+    if not errors.held_out.filled():
+        return {}, 'model_error not written: no held-out residual'
+    return model_error_parameters(model_error_table(errors), axes), ''
+
+
+def percent(fraction: float) -> str:
+    """Give a share in per cent; a share near but not at 0 or 1 never rounds to it."""
+    if 0.0 < fraction < 0.01:
+        return f'{100.0 * fraction:.2g}%'
+    if 0.99 < fraction < 1.0:
+        return f'{math.floor(1000.0 * fraction) / 10.0:g}%'
+    return f'{100.0 * fraction:.0f}%'
+
+
+def fraction_text(fraction: dict, per_axis: bool) -> str:
+    """One share for all axes, or one per axis when their effective temperatures differ."""
+    if not per_axis:
+        return percent(next(iter(fraction.values())))
+    return ', '.join(f'{axis} {percent(value)}' for axis, value in fraction.items())
+
+
+def _furthest(part: dict) -> float:
+    return max(part['furthest_c'].values())
+
+
+def outside_lines(section: dict) -> list:
+    """report.md lines of ``outside_fitted_range``."""
+    per_axis = section['per_axis']
+    lines = ['## Outside the fitted temperature range', '',
+             'Beyond the temperatures a model was fitted on, the compensation node clamps the '
+             'temperature at the edge (docs/ros.md): the correction there is the one at the '
+             'edge.' + (' Temperatures are per axis (T_eff of its thermal lag).' if per_axis
+                        else ''), '']
+    test = section['test']
+    if test is not None:
+        lo, hi = test['range_c']
+        lines += [f'- test set: {fraction_text(test["fraction"], per_axis)} of {test["rows"]} '
+                  f'rows outside the fitted range {lo:.2f} .. {hi:.2f} C'
+                  + (f', at most {_furthest(test):.2f} C beyond' if _furthest(test) else '')]
+    overall = section['forward_all']
+    lines += [f'- forward held-out blocks: {fraction_text(overall["fraction"], per_axis)} of '
+              f'{overall["rows"]} rows outside the range of the blocks before them', '']
+    rows = [(b['block'], f'{b["range_c"][0]:.2f} .. {b["range_c"][1]:.2f}', b['rows'],
+             fraction_text(b['fraction'], per_axis), f'{_furthest(b):.2f}')
+            for b in section['forward_blocks']]
+    lines += ['| block | range of the blocks before (C) | rows | outside | furthest beyond (C) |',
+              '|---|---|---|---|---|']
+    lines += ['| ' + ' | '.join(str(cell) for cell in row) + ' |' for row in rows]
+    return lines + ['']
+
+
+def _e(value) -> str:
+    return '-' if value is None else f'{value:.3e}'
+
+
+def error_lines(section: dict, axes) -> list:
+    """report.md lines of ``error_by_temperature``."""
+    scheme = section['validation'].replace('_', '-')
+    lines = ['## Error by temperature', '',
+             f'Held-out RMS ({scheme} folds) of the model written, per temperature bin '
+             f'(residuals averaged over bins of {section["rows_per_bin"]:.3g} samples on '
+             'average; count: such bins). It is a bias error, not white noise: '
+             + ('params.yaml carries it as model_error.*, which the node adds to '
+                'rate_noise_rad_s^2 in the angular velocity covariance.'
+                if section['in_params_yaml'] else 'not written into params.yaml.'), '']
+    test = {(b['low_c'], b['high_c']): b for b in section['test_bins'] or ()}
+    header = ('temperature bin (C)', 'mean T (C)', 'count', *(f'{a} RMS' for a in axes))
+    if test:
+        header += ('test count', *(f'{a} test RMS' for a in axes))
+    lines += ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    for b in section['bins']:
+        row = [f'{b["low_c"]:.1f} .. {b["high_c"]:.1f}', f'{b["temperature_c"]:.1f}',
+               b['count'], *(_e(b['rms'][a]) for a in axes)]
+        if test:
+            other = test.get((b['low_c'], b['high_c']))
+            row += [other['count'] if other else 0,
+                    *(_e(other['rms'][a] if other else None) for a in axes)]
+        lines.append('| ' + ' | '.join(str(cell) for cell in row) + ' |')
+    return lines + ['']
+
+
+def console_lines(report: dict) -> list:
+    """Give the console's lines on the fitted range and the error by temperature."""
+    section = report['outside_fitted_range']
+    per_axis = section['per_axis']
+    overall = section['forward_all']
+    outside = [b['block'] for b in section['forward_blocks']
+               if max(b['fraction'].values()) > 0.0]
+    text = (f'outside the fitted temperature range (clamped): forward held-out blocks '
+            f'{fraction_text(overall["fraction"], per_axis)} of {overall["rows"]} rows'
+            + (f' (blocks {", ".join(str(b) for b in outside)})' if outside else ''))
+    test = section['test']
+    if test is not None:
+        text += f'; test set {fraction_text(test["fraction"], per_axis)} of {test["rows"]} rows'
+    errors = report['error_by_temperature']
+    lines = [text]
+    for axis in report['axes']:
+        cells = ', '.join(f'{b["temperature_c"]:.1f} C {_e(b["rms"][axis])}'
+                          for b in errors['bins'])
+        lines.append(f'axis {axis}: {errors["validation"].replace("_", "-")} error by '
+                     f'temperature (rad/s): {cells}')
+    return lines
+
+
+def block_lines(blocks, scheme: str) -> list:
+    """Lines for ``fit``: how much of each held-out block lies outside its training range."""
+    predicted = [(k, part) for k, part in enumerate(blocks) if part is not None]
+    rows = sum(part.rows for _, part in predicted)
+    outside = sum(part.rows * part.fraction[0] for _, part in predicted)
+    lines = [f'held-out rows outside the temperature range of their training blocks '
+             f'(clamped): {percent(outside / rows if rows else 0.0)} of {rows} ({scheme})']
+    lines += [f'  block {k}: {percent(part.fraction[0])} of {part.rows} rows outside '
+              f'{part.low_c:.2f} .. {part.high_c:.2f} C'
+              + (f', at most {part.furthest_c[0]:.2f} C beyond' if part.furthest_c[0] else '')
+              for k, part in predicted if part.fraction[0] > 0.0]
+    return lines
+
+
+def plot_error_by_temperature(path, diagnosis, save) -> None:
+    """Plot each axis's held-out (and test) RMS per temperature bin against the bin's mean T."""
+    from matplotlib import pyplot
+
+    errors = diagnosis.error_by_temperature
+    figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
+    parts = [(errors.held_out, '-', 'o', f'{errors.validation.replace("_", "-")} held-out')]
+    if errors.test is not None:
+        parts.append((errors.test, '--', 'x', 'test set'))
+    for axis, name in enumerate(diagnosis.axes):
+        colour = f'C{axis}'
+        for table, style, marker, label in parts:
+            filled = table.filled()
+            plot.plot([table.temperature_c[k] for k in filled],
+                      [table.rms_rad_s[k][axis] for k in filled], linestyle=style,
+                      marker=marker, color=colour, label=f'{name}, {label}')
+    plot.set_xlabel('temperature (C)')
+    plot.set_ylabel('RMS of the residual (rad/s)')
+    plot.set_title('Error of the written model by temperature')
+    plot.grid(True, alpha=0.3)
+    plot.legend(fontsize='small')
+    save(pyplot, figure, path)
