@@ -5,7 +5,7 @@ On the measured thermal cycle (the diagnosed part of ``diagnose --test 0.25``,
 forward validation over 20 blocks: each block from the sixth on predicted by
 a polynomial fitted on the blocks before it), every fold's polynomial of each
 order is run on its held-out block twice: clamped at its training range, as
-`PolynomialModel` runs it (the baseline), and continued along its tangent at
+the ``polynomial`` model runs it (the baseline), and continued along its tangent at
 the nearer edge. Printed per order and axis: the held-out RMS of the residual
 averaged over 1 s bins, over every predicted block and over the blocks that lie
 outside their training range, for both. docs/ros.md ("Beyond the fitted
@@ -44,7 +44,7 @@ def continued(model, temperature_c: np.ndarray) -> np.ndarray:
     step = (temperature_c - edge_c) / model.temperature_scale_c
     poly = np.polynomial.polynomial
     return np.column_stack([poly.polyval(x_edge, c) + step * poly.polyval(x_edge, poly.polyder(c))
-                            for c in model.bias_coefficients])
+                            for c in (term.bias for term in model.terms)])
 
 
 def binned_squares(time_s, residual) -> tuple:

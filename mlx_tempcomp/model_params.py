@@ -15,9 +15,9 @@ axis names are quoted strings (YAML 1.1 reads a bare y as a boolean).
 import yaml
 
 from .core.chain import ChainModel
-from .core.effects import EffectModel
+from .core.effects import EffectModel, LinearBtc
 from .core.model_error import ModelErrorTable
-from .core.models import AXIS_NAMES, LinearBtcModel, PolynomialModel
+from .core.models import AXIS_NAMES
 from .state_file import atomic_write
 
 
@@ -30,9 +30,9 @@ _QuotingDumper.add_representer(
                                                        style="'"))
 
 
-def polynomial_parameters(model: PolynomialModel, axes) -> dict:
+def polynomial_parameters(model: EffectModel, axes) -> dict:
     """
-    Return the compensation node's parameters for a polynomial bias model.
+    Return the compensation node's parameters for a ``polynomial`` model (`polynomial_model`).
 
     ``axes`` names the Imu axis of each of the model's bias polynomials, in
     order. Only the bias polynomials are written (the toolkit fits no
@@ -42,12 +42,15 @@ def polynomial_parameters(model: PolynomialModel, axes) -> dict:
     part.
     """
     axes = tuple(str(axis) for axis in axes)
-    if len(axes) != len(model.bias_coefficients) or not set(axes) <= set(AXIS_NAMES) or \
+    if len(axes) != model.axes or not set(axes) <= set(AXIS_NAMES) or \
             len(set(axes)) != len(axes):
-        msg = (f'axes {list(axes)} must be {len(model.bias_coefficients)} distinct of '
+        msg = (f'axes {list(axes)} must be {model.axes} distinct of '
                f'{list(AXIS_NAMES)}, one per bias polynomial')
         raise ValueError(msg)
-    if model.scale_coefficients or any(model.zro_offset_rad_s):
+    if model.name != 'polynomial':
+        msg = f'a {model.name} model is not written as polynomial parameters'
+        raise ValueError(msg)
+    if any(term.scale for term in model.terms) or any(model.zro_offset_rad_s):
         msg = 'only the bias polynomials become parameters; the model has a scale or offset'
         raise ValueError(msg)
     return {
@@ -58,8 +61,7 @@ def polynomial_parameters(model: PolynomialModel, axes) -> dict:
             'temperature_scale_c': float(model.temperature_scale_c),
             'temperature_min_c': float(model.temperature_min_c),
             'temperature_max_c': float(model.temperature_max_c),
-            'bias': {axis: [float(c) for c in coefficients]
-                     for axis, coefficients in zip(axes, model.bias_coefficients)},
+            'bias': {axis: [float(c) for c in term.bias] for axis, term in zip(axes, model.terms)},
         },
     }
 
@@ -105,13 +107,14 @@ def model_error_parameters(table: ModelErrorTable, axes) -> dict:
                                for axis, values in zip(axes, table.error_rad_s)}}}
 
 
-def linear_btc_parameters(model: LinearBtcModel, axes) -> dict:
-    """Return the compensation node's parameters for the ADIS16130 linear BTC/PBC model."""
+def linear_btc_parameters(model: EffectModel, axes) -> dict:
+    """Return the compensation node's parameters for the ADIS16130 ``linear_btc`` model."""
     axes = _check_axes(axes, model.axes)
+    line = LinearBtc.of(model)
     return {'model': 'linear_btc', 'axes': list(axes),
-            'linear_btc': {'pbc_rad_s': [float(v) for v in model.pbc_rad_s],
-                           'btc_rad_s_per_c': [float(v) for v in model.btc_rad_s_per_c],
-                           't3_c': float(model.t3_c)}}
+            'linear_btc': {'pbc_rad_s': [float(v) for v in line.pbc_rad_s],
+                           'btc_rad_s_per_c': [float(v) for v in line.btc_rad_s_per_c],
+                           't3_c': float(line.t3_c)}}
 
 
 def chain_parameters(model: ChainModel) -> dict:

@@ -21,12 +21,13 @@ import yaml
 from .core.chain import CalibrationChain, ChainModel
 from .core.compensation import table_compensation
 from .core.conversion import Output, SensorTransfer
-from .core.effects import AxisTerms, EffectModel, PARAMETER_DESCRIPTIONS
+from .core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
+                           polynomial_model)
 from .core.errors import ConfigError
 from .core.interpolation import Interpolation
 from .core.model_error import ModelErrorTable, table_temperatures
 from .core.model_interface import ModelInputs
-from .core.models import AXIS_NAMES, EepromModel, LinearBtcModel, PolynomialModel
+from .core.models import AXIS_NAMES, EepromModel
 from .core.recalibration import RecalibrationLimits
 from .errors import MlxTempCompError
 from .simulation.mlx90609 import Fault
@@ -412,12 +413,13 @@ def check_value(spec: Spec, value) -> None:
 _WILDCARDS = ('/**', '**')
 
 
-def _flatten(tree: dict, prefix: str = '') -> dict:
+def flat_parameters(tree: dict, prefix: str = '') -> dict:
+    """Turn ``{'a': {'b': v}}`` into ``{'a.b': v}``: the names rcl gives a file's keys."""
     flat = {}
     for key, value in tree.items():
         name = f'{prefix}{key}'
         if isinstance(value, dict):
-            flat.update(_flatten(value, name + '.'))
+            flat.update(flat_parameters(value, name + '.'))
         else:
             flat[name] = value
     return flat
@@ -455,7 +457,7 @@ def _read_overrides(path: str, node_name: str) -> dict:
         if not isinstance(parameters, dict):
             msg = f'parameter file {path}: section {name!r} has no ros__parameters mapping'
             raise ParameterError(msg)
-        overrides.update(_flatten(parameters))
+        overrides.update(flat_parameters(parameters))
     return overrides
 
 
@@ -634,9 +636,8 @@ def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
                 msg = ('invalid parameter polynomial.scale: give a scale polynomial for every '
                        'axis or for none')
                 raise ParameterError(msg)
-            return PolynomialModel(
-                bias_coefficients=tuple(bias),
-                reference_temperature_c=values['polynomial.reference_temperature_c'],
+            return polynomial_model(
+                tuple(bias), reference_temperature_c=values['polynomial.reference_temperature_c'],
                 temperature_scale_c=values['polynomial.temperature_scale_c'],
                 scale_coefficients=tuple(scale) if all(scale) else (),
                 temperature_min_c=values['polynomial.temperature_min_c'],
@@ -648,8 +649,8 @@ def _build_model(values: dict, tables: Optional[tuple], full_scale_dps: float):
                     msg = (f'invalid parameter {key}: needs {len(axes)} values (one per axis '
                            f'in {list(axes)}), got {len(array)}')
                     raise ParameterError(msg)
-            return LinearBtcModel(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
-                                  t3_c=values['linear_btc.t3_c'])
+            return LinearBtc(pbc_rad_s=tuple(pbc), btc_rad_s_per_c=tuple(btc),
+                             t3_c=values['linear_btc.t3_c']).model()
         if name == 'effects':
             return _effect_model(values, axes)
         if name == 'chain':

@@ -20,7 +20,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mlx_tempcomp.model_params import nest_parameters, write_parameter_file
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.ros.qos import EEPROM_QOS
+from mlx_tempcomp.ros.qos import EEPROM_QOS, SENSOR_INPUT_QOS
 import pytest
 from rcl_interfaces.srv import GetParameters, SetParameters
 import rclpy
@@ -263,6 +263,17 @@ class Probe:
                 self.subscribe(Temperature, f'imu/temperature_raw/{axis}')
         self.subscribe(UInt8MultiArray, 'imu/eeprom', EEPROM_QOS)
         self.subscribe_diagnostics()
+
+    def raw_publishers(self, timeout: float, logs=None) -> tuple:
+        """Publish imu/data_raw and imu/temperature_raw; give them once a node compensates."""
+        imu = self.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
+        temperature = self.node.create_publisher(Temperature, 'imu/temperature_raw',
+                                                 SENSOR_INPUT_QOS)
+        self.spin_until(lambda: imu.get_subscription_count() and
+                        temperature.get_subscription_count() and
+                        self.node.count_publishers('imu/data'),
+                        timeout, 'the compensation node', logs)
+        return imu, temperature
 
     def clear(self, keep=('imu/eeprom',)) -> None:
         """Forget what was received so far (but the topics in ``keep``)."""

@@ -11,9 +11,9 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.bias_procedure import (averaging_time_s, BiasPoint, BiasProcedure,
                                               btc_rad_s_per_c, MIN_WINDOW_SAMPLES, Phase,
                                               ProcedureSettings, short_window)
+from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import format_btc_table
-from mlx_tempcomp.core.models import LinearBtcModel
 from mlx_tempcomp.core.noise import allan_deviation, NoiseFigures
 from mlx_tempcomp.node_parameters import build_model
 from mlx_tempcomp.simulation.adis16130 import (ADIS16130_NOISE, Adis16130Truth,
@@ -74,7 +74,7 @@ def test_table_6_of_the_note():
     btc = btc_rad_s_per_c(p1, p2)
     assert math.degrees(btc) == pytest.approx(-0.04, rel=1e-12)
     # ... and the correction factors of Table 6, from the model and from the printed table.
-    model = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(btc,), t3_c=26.0)
+    model = LinearBtc(pbc_rad_s=(0.0,), btc_rad_s_per_c=(btc,), t3_c=26.0).model()
     offsets_c = np.array([row[0] for row in TABLE_6])
     corrections = model.correct(np.zeros((len(TABLE_6), 1)), 26.0 + offsets_c).rate_rad_s
     np.testing.assert_allclose(np.degrees(corrections[:, 0]), [row[1] for row in TABLE_6],
@@ -158,9 +158,9 @@ def test_phases_and_points_on_a_known_stream():
     assert result.btc_rad_s_per_c == pytest.approx(-slope, rel=1e-9)
     assert result.t3_c == pytest.approx(29.0) and result.pbc_rad_s == pytest.approx(-6e-3)
     assert result.pbc_point.samples == 400 and result.noise is None
-    assert result.model == LinearBtcModel(pbc_rad_s=(result.pbc_rad_s,),
-                                          btc_rad_s_per_c=(result.btc_rad_s_per_c,),
-                                          t3_c=result.t3_c)
+    assert result.model == LinearBtc(pbc_rad_s=(result.pbc_rad_s,),
+                                     btc_rad_s_per_c=(result.btc_rad_s_per_c,),
+                                     t3_c=result.t3_c).model()
 
 
 @pytest.mark.parametrize('moving', [False, True])
@@ -241,7 +241,7 @@ def test_cli_writes_parameters_that_flatten_the_simulated_bias(tmp_path, capsys)
     assert isinstance(values['rate_noise_rad_s'], float)
     assert math.degrees(values['rate_noise_rad_s']) == pytest.approx(WHITE_DPS, rel=0.1)
     model = build_model(values)
-    assert isinstance(model, LinearBtcModel) and values['axes'] == ['z']
+    assert model.name == 'linear_btc' and values['axes'] == ['z']
     # A fresh warm-up of another part with the same slope (0.04 deg/s/C, 25 -> 30 C) at 50 Hz.
     sensor = simulated(0.04, seed=11)
     record = sensor.record(300.0, 50.0)

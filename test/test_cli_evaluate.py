@@ -8,9 +8,8 @@ import sys
 
 from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel, polynomial_model
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.model_params import (effect_parameters, parameter_file,
                                        polynomial_parameters, write_parameter_file)
 from mlx_tempcomp.sources.bag import RawBagReader, RawBagWriter
@@ -48,9 +47,8 @@ def sweep(tmp_path, samples=2000, reference=False):
 
 
 def polynomial_params(tmp_path) -> str:
-    model = PolynomialModel(bias_coefficients=BIAS, reference_temperature_c=25.0,
-                            temperature_scale_c=10.0, temperature_min_c=-20.0,
-                            temperature_max_c=70.0)
+    model = polynomial_model(BIAS, reference_temperature_c=25.0, temperature_scale_c=10.0,
+                             temperature_min_c=-20.0, temperature_max_c=70.0)
     path = tmp_path / 'poly.yaml'
     write_parameter_file(path, parameter_file('compensation_node',
                                               polynomial_parameters(model, ('x', 'z'))))

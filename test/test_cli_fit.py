@@ -6,16 +6,15 @@ from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.chain import ChainModel, ChainSettings, fit_chain, STAGE_NAMES
-from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
+from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
 from mlx_tempcomp.node_parameters import build_model
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
 from mlx_tempcomp.simulation.turntable import simulate_turntable
 import numpy as np
 from numpy.polynomial.polynomial import polyval
 import pytest
 from ros_harness import by_stamp
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu
 import yaml
 
 TIMEOUT_S = 20.0
@@ -45,12 +44,12 @@ def sweep_csv(tmp_path, samples=4000, seed=0):
 
 
 def model_from_yaml(path, node_name='compensation_node'):
-    """Build the PolynomialModel the parameter file describes; return (axes, model)."""
+    """Build the polynomial model the parameter file describes; return (axes, model)."""
     with open(path) as stream:
         values = yaml.safe_load(stream)[node_name]['ros__parameters']
     polynomial = values['polynomial']
-    model = PolynomialModel(
-        bias_coefficients=tuple(polynomial['bias'][axis] for axis in values['axes']),
+    model = polynomial_model(
+        tuple(polynomial['bias'][axis] for axis in values['axes']),
         reference_temperature_c=polynomial['reference_temperature_c'],
         temperature_scale_c=polynomial['temperature_scale_c'],
         temperature_min_c=polynomial['temperature_min_c'],
@@ -76,7 +75,7 @@ def test_fit_chooses_true_orders_and_reproduces_bias(fitted):
     assert "- 'x'" in text and "- 'z'" in text, 'axes must be quoted for rcl'
     axes, model = model_from_yaml(out_path)
     assert axes == ('x', 'z')
-    assert [len(c) for c in model.bias_coefficients] == [4, 3]
+    assert [len(t.bias) for t in model.terms] == [4, 3]
     section = yaml.safe_load(text)['compensation_node']['ros__parameters']['polynomial']
     numbers = [section[k] for k in section if k != 'bias'] + \
         [c for coefficients in section['bias'].values() for c in coefficients]
@@ -94,7 +93,7 @@ def test_fit_with_fixed_order_and_node_name(tmp_path, capsys):
     assert code == 0
     assert 'orders (given by --order): x 4, z 4' in capsys.readouterr().out
     _, model = model_from_yaml(out_path, 'gyro_comp')
-    assert [len(c) for c in model.bias_coefficients] == [5, 5]
+    assert [len(t.bias) for t in model.terms] == [5, 5]
 
 
 @pytest.mark.ros
@@ -105,13 +104,7 @@ def test_compensation_node_loads_the_fitted_file(fitted, launcher, probe, tmp_pa
         '--params-file', str(out_path),
         '-p', f'recalibration.state_file:={tmp_path / "zro_state.yaml"}'])
     received = probe.subscribe(Imu, 'imu/data')
-    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
-    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
-                                                        SENSOR_INPUT_QOS)
-    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
-                     temperature_publisher.get_subscription_count() and
-                     probe.node.count_publishers('imu/data'),
-                     TIMEOUT_S, 'the compensation node', launcher)
+    imu_publisher, temperature_publisher = probe.raw_publishers(TIMEOUT_S, launcher)
     rng = np.random.default_rng(1)
     indices = messages.axis_indices(axes)
     inputs = {}   # stamp in ns -> (raw rates in rad/s, temperature in degC)
@@ -279,10 +272,11 @@ def test_linear_btc_recovers_the_slope_and_prints_table_6(tmp_path, capsys):
                                       abs=0.12 * tolerance_rad_s_per_c)
         assert dps == pytest.approx(correction_dps, abs=0.12 * math.degrees(tolerance_rad_s_per_c))
     model = build_model(node_values(out_path))
-    assert isinstance(model, LinearBtcModel)
-    assert model.btc_rad_s_per_c[0] == pytest.approx(-slope_rad_s_per_c,
-                                                     abs=tolerance_rad_s_per_c)
-    assert model.pbc_rad_s[0] == pytest.approx(-0.02, abs=2e-4)
+    assert model.name == 'linear_btc'
+    line = LinearBtc.of(model)
+    assert line.btc_rad_s_per_c[0] == pytest.approx(-slope_rad_s_per_c,
+                                                    abs=tolerance_rad_s_per_c)
+    assert line.pbc_rad_s[0] == pytest.approx(-0.02, abs=2e-4)
     corrected = model.correct(gyro_z, temperature_c).rate_rad_s
     assert np.std(corrected) == pytest.approx(NOISE_RAD_S, rel=0.1)
 

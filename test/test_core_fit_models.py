@@ -2,10 +2,10 @@
 
 import math
 
+from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import (fit_linear_btc, fit_polynomial, format_btc_table,
                                        relative_polynomial, table_step_c)
-from mlx_tempcomp.core.models import LinearBtcModel
 import numpy as np
 import pytest
 
@@ -52,7 +52,7 @@ def test_relative_keeps_the_scaling_and_only_moves_the_constant():
     shifted = relative_polynomial(fitted, fitted.temperature_min_c)
     assert shifted.reference_temperature_c == fitted.reference_temperature_c
     assert shifted.temperature_scale_c == fitted.temperature_scale_c
-    for before, after in zip(fitted.bias_coefficients, shifted.bias_coefficients):
+    for before, after in zip((t.bias for t in fitted.terms), (t.bias for t in shifted.terms)):
         assert after[1:] == before[1:]
         assert after[0] != before[0]
 
@@ -78,20 +78,21 @@ def btc_data(samples=2000, bias_at_25_rad_s=0.01, seed=1):
 def test_linear_btc_recovers_the_slope_with_the_note_sign():
     temperature_c, rate_rad_s = btc_data()
     model = fit_linear_btc(temperature_c, rate_rad_s, t3_c=25.0)
+    line = LinearBtc.of(model)
     # Slope error: noise / (sqrt(n) x std(T)) = 1e-3 / (45 x 10.6) = 2e-6 rad/s/C.
-    np.testing.assert_allclose(model.btc_rad_s_per_c,
+    np.testing.assert_allclose(line.btc_rad_s_per_c,
                                [0.5 * SLOPE_RAD_S_PER_C, -SLOPE_RAD_S_PER_C], atol=1e-5)
-    assert model.btc_rad_s_per_c[1] < 0.0, 'BTC is minus the bias slope (Table 6)'
+    assert line.btc_rad_s_per_c[1] < 0.0, 'BTC is minus the bias slope (Table 6)'
     # PBC is minus the bias at T3.
-    np.testing.assert_allclose(model.pbc_rad_s, [0.0, -0.01], atol=1e-4)
-    assert model.t3_c == 25.0
+    np.testing.assert_allclose(line.pbc_rad_s, [0.0, -0.01], atol=1e-4)
+    assert line.t3_c == 25.0
     corrected = model.correct(rate_rad_s, temperature_c).rate_rad_s
     assert np.max(np.abs(np.mean(corrected, axis=0))) < 1e-4
     assert np.std(corrected, axis=0) == pytest.approx([NOISE_RAD_S] * 2, rel=0.1)
 
 
 def test_table_6_of_the_note():
-    model = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(-SLOPE_RAD_S_PER_C,), t3_c=25.0)
+    model = LinearBtc(pbc_rad_s=(0.0,), btc_rad_s_per_c=(-SLOPE_RAD_S_PER_C,), t3_c=25.0).model()
     lines = format_btc_table(model, ('z',), 0.02).splitlines()
     assert lines[0].split() == ['TEMP', '-', 'T3', '(C)', 'z', '(rad/s)', 'z', '(deg/s)']
     rows = [line.split() for line in lines[1:]]
@@ -107,11 +108,11 @@ def test_table_6_of_the_note():
 
 def test_linear_btc_t3_defaults_to_the_mean_temperature():
     temperature_c, rate_rad_s = btc_data()
-    model = fit_linear_btc(temperature_c, rate_rad_s)
-    assert model.t3_c == pytest.approx(np.mean(temperature_c), abs=1e-12)
+    line = LinearBtc.of(fit_linear_btc(temperature_c, rate_rad_s))
+    assert line.t3_c == pytest.approx(np.mean(temperature_c), abs=1e-12)
     # PBC at another T3 moves along the line: -(bias at T3).
-    expected = -(0.01 + SLOPE_RAD_S_PER_C * (model.t3_c - 25.0))
-    assert model.pbc_rad_s[1] == pytest.approx(expected, abs=1e-4)
+    expected = -(0.01 + SLOPE_RAD_S_PER_C * (line.t3_c - 25.0))
+    assert line.pbc_rad_s[1] == pytest.approx(expected, abs=1e-4)
 
 
 def test_linear_btc_needs_a_temperature_span():

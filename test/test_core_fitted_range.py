@@ -12,9 +12,9 @@ from mlx_tempcomp.core.chain import CalibrationChain, ChainModel
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
-from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel, LinearBtc, polynomial_model
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.models import EepromModel, LinearBtcModel, PolynomialModel
+from mlx_tempcomp.core.models import EepromModel
 from mlx_tempcomp.core.table import factory_table
 import numpy as np
 
@@ -48,10 +48,9 @@ def test_eeprom_model_holds_the_correction_of_the_table_ends():
 
 
 def test_polynomial_model_holds_the_correction_of_its_range_ends():
-    model = PolynomialModel(bias_coefficients=((1e-3, 2e-3, -4e-4, 5e-5),),
-                            reference_temperature_c=20.0, temperature_scale_c=30.0,
-                            scale_coefficients=((0.01, -0.02),), temperature_min_c=-10.0,
-                            temperature_max_c=50.0)
+    model = polynomial_model(((1e-3, 2e-3, -4e-4, 5e-5),), reference_temperature_c=20.0,
+                             temperature_scale_c=30.0, scale_coefficients=((0.01, -0.02),),
+                             temperature_min_c=-10.0, temperature_max_c=50.0)
     assert_edge_value(model, [-40.0, -10.5, 50.5, 90.0], [-10.0, -10.0, 50.0, 50.0])
 
 
@@ -77,7 +76,7 @@ def test_effects_model_holds_the_correction_at_the_edge_of_its_effective_tempera
 
 
 def test_linear_btc_continues_its_line_unflagged():
-    model = LinearBtcModel(pbc_rad_s=(0.01,), btc_rad_s_per_c=(2e-4,), t3_c=25.0)
+    model = LinearBtc(pbc_rad_s=(0.01,), btc_rad_s_per_c=(2e-4,), t3_c=25.0).model()
     temperature_c = np.array([-60.0, 25.0, 150.0, 400.0])
     result = model.correct(np.zeros((4, 1)), temperature_c)
     np.testing.assert_allclose(result.rate_rad_s[:, 0], 0.01 + (temperature_c - 25.0) * 2e-4,

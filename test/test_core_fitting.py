@@ -1,9 +1,9 @@
 import warnings
 
+from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import (CHUNK_ROWS, contiguous_blocks, fit_polynomial,
                                        fold_rows, format_order_table, select_orders)
-from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.core.validation import FORWARD, ROUND_ROBIN
 import numpy as np
 import pytest
@@ -126,7 +126,7 @@ def test_error_too_narrow_span_for_the_order():
     with pytest.raises(CalibrationError, match=r'order 2 needs a temperature span of at least'):
         fit_polynomial(temperature_c, np.zeros(100), 2)
     constant = fit_polynomial(temperature_c, np.full(100, 1e-3), 0)
-    assert constant.bias_coefficients[0] == pytest.approx((1e-3,), rel=1e-12)
+    assert constant.terms[0].bias == pytest.approx((1e-3,), rel=1e-12)
 
 
 def test_error_too_few_distinct_temperatures():
@@ -192,7 +192,7 @@ def test_fit_equals_a_direct_lstsq_per_axis():
                                                                   temperature_c[-1])
     for axis, order in enumerate(orders):
         expected = direct_fit(temperature_c, rate_rad_s[:, axis], order)
-        ours = np.asarray(model.bias_coefficients[axis])
+        ours = np.asarray(model.terms[axis].bias)
         assert ours.shape == expected.shape
         error = np.max(np.abs(ours - expected)) / np.max(np.abs(expected))
         print(f'axis {axis} order {order}: relative coefficient difference {error:.1e}')
@@ -206,8 +206,8 @@ def direct_block_rms_rad_s(temperature_c, rate_rad_s, order, blocks, folds, sche
         rows = np.arange(temperature_c.size)
         train = rows[:held_out[0]] if scheme == FORWARD else np.delete(rows, held_out)
         low_c, high_c = np.min(temperature_c[train]), np.max(temperature_c[train])
-        model = PolynomialModel(
-            bias_coefficients=(direct_fit(temperature_c[train], rate_rad_s[train], order),),
+        model = polynomial_model(
+            (direct_fit(temperature_c[train], rate_rad_s[train], order),),
             reference_temperature_c=0.5 * (low_c + high_c),
             temperature_scale_c=0.5 * (high_c - low_c),
             temperature_min_c=low_c, temperature_max_c=high_c)
@@ -250,7 +250,7 @@ def test_distinct_temperatures_are_counted_across_chunks():
     with pytest.raises(CalibrationError, match=message):
         fit_polynomial(temperature_c, rate_rad_s, 3)
     model = fit_polynomial(temperature_c, rate_rad_s, 2)
-    np.testing.assert_allclose(model.bias_coefficients[0], (1.2e-3, 1e-4, 0.0),
+    np.testing.assert_allclose(model.terms[0].bias, (1.2e-3, 1e-4, 0.0),
                                rtol=0.0, atol=1e-15)
 
 

@@ -3,12 +3,12 @@ import math
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
-from mlx_tempcomp.core.effects import AxisTerms, EffectModel
+from mlx_tempcomp.core.effects import AxisTerms, EffectModel, LinearBtc, polynomial_model
 from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.interpolation import Interpolation
 from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,
                                                ModelStream)
-from mlx_tempcomp.core.models import EepromModel, LinearBtcModel, PolynomialModel
+from mlx_tempcomp.core.models import EepromModel
 from mlx_tempcomp.core.table import factory_table
 import numpy as np
 import pytest
@@ -18,9 +18,8 @@ FIELDS = EepromFields(range_code=15, version=2, tc_mv=(1854, 2508, 3114),
 
 
 def test_polynomial_model_removes_its_bias_and_scale():
-    model = PolynomialModel(bias_coefficients=((1e-3, 2e-4, -3e-6),),
-                            reference_temperature_c=25.0, temperature_scale_c=10.0,
-                            scale_coefficients=((0.01, 1e-3),))
+    model = polynomial_model(((1e-3, 2e-4, -3e-6),), reference_temperature_c=25.0,
+                             temperature_scale_c=10.0, scale_coefficients=((0.01, 1e-3),))
     temperature = np.linspace(-20.0, 60.0, 9)
     x = (temperature - 25.0) / 10.0
     true_rate = 0.5
@@ -32,8 +31,7 @@ def test_polynomial_model_removes_its_bias_and_scale():
 
 
 def test_polynomial_model_clamps_outside_its_range():
-    model = PolynomialModel(bias_coefficients=((0.0, 1e-3),), temperature_min_c=0.0,
-                            temperature_max_c=50.0)
+    model = polynomial_model(((0.0, 1e-3),), temperature_min_c=0.0, temperature_max_c=50.0)
     corrected = model.correct(np.zeros(3), np.array([-10.0, 20.0, 70.0]))
     # Clamped to 0 and 50 C: x = -25 and +25 around the default 25 C reference.
     np.testing.assert_allclose(corrected.rate_rad_s[:, 0], [0.025, 0.005, -0.025])
@@ -43,12 +41,12 @@ def test_polynomial_model_clamps_outside_its_range():
 def test_linear_btc_reproduces_table_6_of_the_adis16130_note():
     # Bias slope 0.04 deg/s/C: BTC = -0.04 deg/s/C, so +0.12 C gives -0.0048 deg/s.
     btc = math.radians(-0.04)
-    model = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(btc,), t3_c=30.0)
+    model = LinearBtc(pbc_rad_s=(0.0,), btc_rad_s_per_c=(btc,), t3_c=30.0).model()
     steps = np.array([0.12, 0.10, 0.02, 0.0, -0.02, -0.12])
     corrected = model.correct(np.zeros(len(steps)), 30.0 + steps)
     np.testing.assert_allclose(np.degrees(corrected.rate_rad_s[:, 0]),
                                [-0.0048, -0.0040, -0.0008, 0.0, 0.0008, 0.0048], atol=1e-12)
-    with_pbc = LinearBtcModel(pbc_rad_s=(-0.01,), btc_rad_s_per_c=(btc,), t3_c=30.0)
+    with_pbc = LinearBtc(pbc_rad_s=(-0.01,), btc_rad_s_per_c=(btc,), t3_c=30.0).model()
     np.testing.assert_allclose(with_pbc.correct([0.01], [30.0]).rate_rad_s, [[0.0]])
 
 
@@ -79,8 +77,8 @@ def test_eeprom_model_on_nominal_rate_equals_table_compensation_on_codes(output)
 def test_learned_offsets_zero_the_rest_window_without_double_counting():
     table = factory_table(FIELDS, Output.DIGITAL)
     eeprom = EepromModel(table_compensation([table], 75.0, Output.DIGITAL))
-    polynomial = PolynomialModel(bias_coefficients=((1e-3, 1e-5),))
-    btc = LinearBtcModel(pbc_rad_s=(0.0,), btc_rad_s_per_c=(1e-5,), t3_c=25.0)
+    polynomial = polynomial_model(((1e-3, 1e-5),))
+    btc = LinearBtc(pbc_rad_s=(0.0,), btc_rad_s_per_c=(1e-5,), t3_c=25.0).model()
     temperature = np.full(100, 31.0)
     raw = np.full(100, 0.004) + np.random.default_rng(0).normal(0.0, 1e-4, 100)
     for model in (eeprom, polynomial, btc):
@@ -99,23 +97,23 @@ def test_learned_offsets_zero_the_rest_window_without_double_counting():
 
 
 def test_fingerprint_changes_with_coefficients():
-    a = PolynomialModel(bias_coefficients=((1e-3, 1e-5),))
-    b = PolynomialModel(bias_coefficients=((1e-3, 2e-5),))
+    a = polynomial_model(((1e-3, 1e-5),))
+    b = polynomial_model(((1e-3, 2e-5),))
     assert a.fingerprint() != b.fingerprint()
-    assert a.fingerprint() == PolynomialModel(bias_coefficients=((1e-3, 1e-5),)).fingerprint()
+    assert a.fingerprint() == polynomial_model(((1e-3, 1e-5),)).fingerprint()
 
 
 def test_models_refuse_bad_coefficients():
     with pytest.raises(ConfigError, match='bias coefficients of axis y'):
-        PolynomialModel(bias_coefficients=((1.0,), ()))
+        polynomial_model(((1.0,), ()))
     with pytest.raises(ConfigError, match='scale coefficients given for 1 axes, bias for 2'):
-        PolynomialModel(bias_coefficients=((1.0,), (1.0,)), scale_coefficients=((0.0,),))
+        polynomial_model(((1.0,), (1.0,)), scale_coefficients=((0.0,),))
     with pytest.raises(ConfigError, match='linear_btc.btc needs 2 values'):
-        LinearBtcModel(pbc_rad_s=(0.0, 0.0), btc_rad_s_per_c=(0.0,), t3_c=25.0)
+        LinearBtc(pbc_rad_s=(0.0, 0.0), btc_rad_s_per_c=(0.0,), t3_c=25.0).model()
     with pytest.raises(ConfigError, match=r'rate must have shape \(samples, 1\)'):
-        PolynomialModel(bias_coefficients=((1.0,),)).correct(np.zeros((4, 2)), np.zeros(4))
+        polynomial_model(((1.0,),)).correct(np.zeros((4, 2)), np.zeros(4))
     with pytest.raises(ConfigError, match='must be finite'):
-        PolynomialModel(bias_coefficients=((1.0,),)).with_zro_offset([math.nan])
+        polynomial_model(((1.0,),)).with_zro_offset([math.nan])
 
 
 @pytest.mark.parametrize('interpolation', ['quadratic', 'step'])
@@ -125,9 +123,9 @@ def test_stream_rows_one_by_one_equal_the_array_path(interpolation):
     compensation = table_compensation(tables, 75.0, Output.DIGITAL,
                                       Interpolation(interpolation), zro_shift=(0.5, 1.0, -2.0))
     eeprom = EepromModel(compensation)
-    polynomial = PolynomialModel(bias_coefficients=((1e-3, 1e-5),) * 3,
-                                 temperature_min_c=-10.0, temperature_max_c=60.0)
-    btc = LinearBtcModel(pbc_rad_s=(1e-3,) * 3, btc_rad_s_per_c=(1e-5,) * 3, t3_c=25.0)
+    polynomial = polynomial_model(((1e-3, 1e-5),) * 3, temperature_min_c=-10.0,
+                                  temperature_max_c=60.0)
+    btc = LinearBtc(pbc_rad_s=(1e-3,) * 3, btc_rad_s_per_c=(1e-5,) * 3, t3_c=25.0).model()
     rng = np.random.default_rng(2)
     rates = rng.normal(0.0, 0.5, (300, 3))
     temperatures = np.column_stack([rng.uniform(-60.0, 100.0, 300)] * 3)
@@ -156,7 +154,7 @@ def test_one_row_gives_the_block_bits(interpolation):
     temperatures = rng.uniform(-60.0, 100.0, (300, 3))
     temperatures[0, 1] = np.nan
     for model in (EepromModel(compensation),
-                  PolynomialModel(bias_coefficients=((1e-3, 1e-5),) * 3)):
+                  polynomial_model(((1e-3, 1e-5),) * 3)):
         stream = model.stream()
         for shared in (False, True):
             columns = temperatures[:, :1] if shared else temperatures
@@ -170,8 +168,8 @@ def test_one_row_gives_the_block_bits(interpolation):
 def test_every_model_the_node_runs_has_the_model_interface():
     table = factory_table(FIELDS, Output.DIGITAL)
     models = (EepromModel(table_compensation([table], 75.0, Output.DIGITAL)),
-              PolynomialModel(bias_coefficients=((1e-3, 1e-5),)),
-              LinearBtcModel(pbc_rad_s=(1e-3,), btc_rad_s_per_c=(1e-5,), t3_c=25.0),
+              polynomial_model(((1e-3, 1e-5),)),
+              LinearBtc(pbc_rad_s=(1e-3,), btc_rad_s_per_c=(1e-5,), t3_c=25.0).model(),
               EffectModel(terms=(AxisTerms(bias=(1e-3,), secondary=(1e-4,)),)))
     for model in models:
         assert isinstance(model, CompensationModel), model.name

@@ -2,8 +2,8 @@
 
 import math
 
+from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.models import PolynomialModel
 from mlx_tempcomp.core.offsets import (
     accel_offset_lsb, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb,
     merge_preserving_bit0, OffsetRefresh, recalibrated_offsets, rest_bias, RestBias,
@@ -133,8 +133,7 @@ def test_recalibration_adds_its_correction_to_the_offsets_in_place():
 
 def test_offset_refresh_adds_the_model_change_since_its_base():
     lsb_rad_s = math.radians(GYRO_OFFSET_DPS_PER_LSB)
-    model = PolynomialModel(bias_coefficients=((0.3, lsb_rad_s), (0.0, -2 * lsb_rad_s),
-                                               (0.1, 0.0)))
+    model = polynomial_model(((0.3, lsb_rad_s), (0.0, -2 * lsb_rad_s), (0.1, 0.0)))
     refresh = OffsetRefresh(model, step_c=0.5)
     assert refresh.due(25.0)                          # nothing written yet
     # Without a base the registers cancel the whole bias.

@@ -58,6 +58,23 @@ def test_non_finite_samples_are_skipped():
 def test_limits_are_validated():
     with pytest.raises(ConfigError, match='rate_noise_rad_s must be positive'):
         RecalibrationLimits(rate_noise_rad_s=0.0)
+    with pytest.raises(ConfigError, match='rate_noise_rad_s must be positive, got inf'):
+        RecalibrationLimits(rate_noise_rad_s=math.inf)
+
+
+def test_a_spread_only_check_in_its_own_words():
+    """As the MPU-6000 offset calibration checks: sample spread, no mean or drift limit."""
+    limits = RecalibrationLimits(rate_noise_rad_s=0.005, max_mean_rate_rad_s=math.inf,
+                                 max_temperature_change_c=math.inf, min_samples=2,
+                                 spread_ddof=1)
+    rate, temperature = window(mean=math.radians(5.0), drift_c=2.0, axes=3)
+    stats = check_window(rate, temperature, limits)
+    np.testing.assert_array_equal(stats.spread_rad_s, rate.std(axis=0, ddof=1))
+    rate[:, 2] += np.sin(np.linspace(0.0, 20.0, 500)) * 0.1
+    words = '{axis_name} moved: {spread_rad_s:.3f} > {noise_multiple:g} x {rate_noise_rad_s}'
+    spread = rate[:, 2].std(ddof=1)
+    with pytest.raises(CalibrationError, match=f'^z moved: {spread:.3f} > 3 x 0.005$'):
+        check_window(rate, temperature, limits, words)
 
 
 def test_pairer_pairs_by_stamp_and_drops_what_cannot_complete():

@@ -17,8 +17,8 @@ import tempfile
 
 from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
+from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.models import LinearBtcModel, PolynomialModel
 from mlx_tempcomp.model_params import (linear_btc_parameters, parameter_file,
                                        polynomial_parameters, write_parameter_file)
 from mlx_tempcomp.node_parameters import build_model, node_values, ParameterError
@@ -44,9 +44,8 @@ def polynomial_models(draw):
     high = low + draw(st.floats(1.0, 120.0))
     reference = draw(st.floats(-20.0, 60.0))
     # As fit writes them: x = (T - Tref) / scale within +-1 over the clamped range.
-    model = PolynomialModel(
-        bias_coefficients=tuple(draw(st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=9))
-                                for _ in axes),
+    model = polynomial_model(
+        tuple(draw(st.lists(st.floats(-1.0, 1.0), min_size=1, max_size=9)) for _ in axes),
         reference_temperature_c=reference,
         temperature_scale_c=max(abs(low - reference), abs(high - reference)) *
         draw(st.floats(1.0, 2.0)),
@@ -57,10 +56,10 @@ def polynomial_models(draw):
 @st.composite
 def linear_btc_models(draw):
     axes = draw(axes_sets)
-    model = LinearBtcModel(
+    model = LinearBtc(
         pbc_rad_s=tuple(draw(st.floats(-1.0, 1.0)) for _ in axes),
         btc_rad_s_per_c=tuple(draw(st.floats(-0.01, 0.01)) for _ in axes),
-        t3_c=draw(st.floats(-40.0, 125.0)))
+        t3_c=draw(st.floats(-40.0, 125.0))).model()
     return model, axes
 
 

@@ -7,7 +7,8 @@ state and of the MPU offsets, then, for the ZRO state, through the offset the
 compensation node would apply. Each either loads, with every value of the
 type, length and range its field says and a model whose output is finite, or
 is refused: None, one ERROR naming the reason, the file moved aside. Never an
-exception.
+exception. State files saved for a polynomial and a linear_btc model before
+those became effect models keep loading with their offset.
 """
 
 import logging
@@ -20,8 +21,10 @@ from hypothesis import (currently_in_test_context, event, example, given, settin
 from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import EepromFields
-from mlx_tempcomp.core.models import EepromModel, PolynomialModel
+from mlx_tempcomp.core.effects import polynomial_model
+from mlx_tempcomp.core.models import EepromModel
 from mlx_tempcomp.core.table import factory_table
+from mlx_tempcomp.node_parameters import axes_of, build_model, node_values
 from mlx_tempcomp.ros.compensation_node import saved_offset_model, zro_state_fields
 from mlx_tempcomp.ros.mpu6000_stream import MPU_OFFSETS_FIELDS
 from mlx_tempcomp.state_file import load_state, StateFileError, write_state
@@ -31,8 +34,8 @@ import yaml
 
 FULL_SCALE_RAD_S = math.radians(300.0)
 ZRO_FIELDS = zro_state_fields(FULL_SCALE_RAD_S)
-MODEL = PolynomialModel(bias_coefficients=((0.02, 0.001), (0.0,), (-0.01, 0.0, 1e-5)),
-                        temperature_min_c=-40.0, temperature_max_c=85.0)
+MODEL = polynomial_model(((0.02, 0.001), (0.0,), (-0.01, 0.0, 1e-5)), temperature_min_c=-40.0,
+                         temperature_max_c=85.0)
 ZRO_STATE = {'model': 'polynomial', 'fingerprint': MODEL.fingerprint(), 'axes': ['x', 'y', 'z'],
              'zro_offset': [0.0125, -0.5, 3.25e-4], 'offset_unit': 'rad/s',
              'zro_offset_rad_s': [0.0125, -0.5, 3.25e-4], 'temperature_c': 31.5, 'samples': 500,
@@ -237,3 +240,76 @@ def test_an_eeprom_offset_in_lsb_is_held_to_the_full_scale_as_a_rate():
                                              r'31.5 C\) is beyond the full scale \+-1.309 '
                                              r'rad/s \(75 deg/s\)$'):
         saved_offset_model(model, {**state, 'zro_offset': [1e300]}, full_scale)
+
+
+# ZRO state files as the compensation node saved them after a recalibration at rest when the
+# polynomial and linear_btc models had classes of their own (commit 3765585), each beside the
+# parameter file it ran: the fingerprint hashes those parameters.
+SAVED_BEFORE_EFFECT_MODELS = {
+    'polynomial': ("""\
+compensation_node:
+  ros__parameters:
+    model: 'polynomial'
+    axes: ['z']
+    polynomial:
+      reference_temperature_c: 30.0
+      temperature_scale_c: 20.0
+      temperature_min_c: -20.0
+      temperature_max_c: 80.0
+      bias: {'z': [0.02, 0.001, -3.0e-05]}
+      scale: {'z': [0.01, 0.0001]}
+""", """\
+model: polynomial
+fingerprint: 9d82dede89918148
+axes:
+- z
+zro_offset:
+- 0.011502152120795053
+offset_unit: rad/s
+zro_offset_rad_s:
+- 0.011502152120795053
+temperature_c: 26.802705223880597
+samples: 201
+time: '2026-11-26T13:22:07+00:00'
+"""),
+    'linear_btc': ("""\
+compensation_node:
+  ros__parameters:
+    model: 'linear_btc'
+    axes: ['z']
+    linear_btc: {pbc_rad_s: [-0.03], btc_rad_s_per_c: [-0.0007], t3_c: 22.5}
+""", """\
+model: linear_btc
+fingerprint: dcfb8ddcc4088374
+axes:
+- z
+zro_offset:
+- -0.0018279750799985478
+offset_unit: rad/s
+zro_offset_rad_s:
+- -0.0018279750799985478
+temperature_c: 26.804259950248756
+samples: 201
+time: '2026-11-26T13:22:09+00:00'
+"""),
+}
+
+
+@pytest.mark.parametrize('name', sorted(SAVED_BEFORE_EFFECT_MODELS))
+def test_a_state_saved_before_the_model_became_an_effect_model_keeps_its_offset(tmp_path, name):
+    parameters, saved = SAVED_BEFORE_EFFECT_MODELS[name]
+    (tmp_path / 'params.yaml').write_text(parameters)
+    values = node_values(str(tmp_path / 'params.yaml'), 'compensation_node')
+    model = build_model(values)
+    state, errors, _ = load(saved.encode(), 'zro')
+    assert state is not None and not errors
+    # What the node compares before it applies a saved offset (_with_saved_offset).
+    assert (model.name, model.fingerprint(), axes_of(values)) == \
+        (state['model'], state['fingerprint'], tuple(state['axes']))
+    applied = saved_offset_model(model, state, FULL_SCALE_RAD_S)
+    assert applied.zro_offset == tuple(state['zro_offset'])
+    rate = np.linspace(-1.0, 1.0, 7)[:, None]
+    temperature = np.linspace(-30.0, 90.0, 7)
+    np.testing.assert_allclose(applied.correct(rate, temperature).rate_rad_s,
+                               model.correct(rate, temperature).rate_rad_s
+                               - state['zro_offset'][0], rtol=0.0, atol=1e-15)

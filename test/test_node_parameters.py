@@ -10,8 +10,8 @@ from pathlib import Path
 
 from hypothesis import given, strategies as st
 from mlx_tempcomp.core.model_error import ModelErrorTable
-from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, limits_of,
-                                          model_error_of, node_values, NoDefault,
+from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, flat_parameters,
+                                          limits_of, model_error_of, node_values, NoDefault,
                                           ParameterError, type_of)
 from mlx_tempcomp.ros.params import descriptor
 import pytest
@@ -55,7 +55,7 @@ def test_the_shipped_config_lists_every_parameter():
     """config/mlx_tempcomp.yaml says it lists every parameter: hold it to that."""
     config = Path(__file__).resolve().parents[1] / 'config' / 'mlx_tempcomp.yaml'
     text = config.read_text()
-    listed = set(flat_names(yaml.safe_load(text)['/**']['ros__parameters']))
+    listed = set(flat_parameters(yaml.safe_load(text)['/**']['ros__parameters']))
     specs = {spec.name: spec for spec in DRIVER_SPECS + COMPENSATION_SPECS}
     assert sorted(listed - specs.keys()) == []
     # Coefficients a fit writes (effects, chain) and arrays with no default are given in
@@ -66,14 +66,6 @@ def test_the_shipped_config_lists_every_parameter():
     for name in commented - listed:
         key = name.removesuffix('.x').removesuffix('.y').removesuffix('.z').split('.')[-1]
         assert key in text.replace('#', ''), name
-
-
-def flat_names(tree: dict, prefix: str = ''):
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            yield from flat_names(value, f'{prefix}{key}.')
-        else:
-            yield f'{prefix}{key}'
 
 
 def test_a_file_s_integer_for_a_double_is_read_as_the_nodes_take_it(tmp_path):

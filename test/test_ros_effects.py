@@ -304,13 +304,7 @@ def test_model_needing_acceleration_reports_imu_without_it(launcher, probe, tmp_
                    extra_args=['--params-file', model_file])
     received = probe.subscribe(Imu, 'imu/data')
     probe.subscribe_diagnostics()
-    imu_publisher = probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS)
-    temperature_publisher = probe.node.create_publisher(Temperature, 'imu/temperature_raw',
-                                                        SENSOR_INPUT_QOS)
-    probe.spin_until(lambda: imu_publisher.get_subscription_count() and
-                     temperature_publisher.get_subscription_count() and
-                     probe.node.count_publishers('imu/data'),
-                     TIMEOUT_S, 'the compensation node', launcher)
+    imu_publisher, temperature_publisher = probe.raw_publishers(TIMEOUT_S, launcher)
     sent = []
 
     def publish(with_acceleration: bool) -> None:

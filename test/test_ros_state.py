@@ -6,7 +6,7 @@ state file prepared as a user or a crash could leave it. A file that is damaged 
 a wrong value is logged at ERROR with the reason and moved aside to ``*.bad-<stamp>``; a
 whole file learned on another model is a WARN and stays; a leftover temporary file is
 removed. Every compensated sample is then what the model gives without an offset, sample
-by sample; a good file still applies its offset.
+by sample; a good file (the fingerprint an earlier release saved) still applies its offset.
 """
 
 import math
@@ -24,11 +24,14 @@ TIMEOUT_S = 60.0
 SAMPLES = 100
 MODEL = {'model': 'polynomial', 'polynomial.bias.z': [0.02, 0.001]}
 GOOD_OFFSET_RAD_S = 0.01
+# The fingerprint of MODEL as the node saved it when the polynomial model had a class of its
+# own (commit 3765585): a state file saved then keeps its offset.
+SAVED_FINGERPRINT = '8ac15105e9d77514'
 
 
-def good_state(model) -> dict:
-    """Give a state as the node saves it after a recalibration of ``model``."""
-    return {'model': 'polynomial', 'fingerprint': model.fingerprint(), 'axes': ['z'],
+def good_state() -> dict:
+    """Give a state as the node saves it after a recalibration of MODEL."""
+    return {'model': 'polynomial', 'fingerprint': SAVED_FINGERPRINT, 'axes': ['z'],
             'zro_offset': [GOOD_OFFSET_RAD_S], 'offset_unit': 'rad/s',
             'zro_offset_rad_s': [GOOD_OFFSET_RAD_S], 'temperature_c': 25.0, 'samples': 200,
             'time': '2026-11-25T12:00:00+00:00'}
@@ -89,7 +92,7 @@ def test_unusable_state_files_are_refused_and_the_node_compensates_without_them(
     for case, (level, text, files, offset_rad_s) in CASES.items():
         folder = tmp_path / case.replace(' ', '_')
         folder.mkdir()
-        prepare(case, folder, good_state(model))
+        prepare(case, folder, good_state())
         node = launcher.compensation(
             {**MODEL, 'recalibration.state_file': str(folder / 'zro.yaml')}, label=case)
         probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)

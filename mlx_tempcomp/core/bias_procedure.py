@@ -4,7 +4,7 @@ The ADIS16130 bias procedure of AN-1042, fed one sample at a time.
 The note's steps: average RATE and TEMP for 10 s -> (T1, B1); wait 10 min
 while the part warms itself; average again -> (T2, B2); BTC = -(B2 - B1) /
 (T2 - T1); wait 40 min; average RATE for 150 s, PBC = -mean; read TEMP ->
-T3. The correction is RBC = RATE + PBC + (TEMP - T3) x BTC (`LinearBtcModel`;
+T3. The correction is RBC = RATE + PBC + (TEMP - T3) x BTC (`LinearBtc`;
 Table 6: a +0.04 deg/s/C bias slope gives BTC = -0.04 deg/s/C).
 
 `BiasProcedure` runs the steps on sensor time from ``add(time_s, rate_rad_s,
@@ -26,8 +26,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .effects import EffectModel, LinearBtc
 from .errors import CalibrationError, ConfigError
-from .models import LinearBtcModel
 from .noise import MIN_SAMPLES
 
 # The note's timings (AN-1042 steps 3 to 8).
@@ -209,9 +209,9 @@ class BiasResult:
                           adev_at_rad_s(self.noise, self.point_2.duration_s)[0]) / change_c
 
     @property
-    def model(self) -> LinearBtcModel:
-        return LinearBtcModel(pbc_rad_s=(self.pbc_rad_s,),
-                              btc_rad_s_per_c=(self.btc_rad_s_per_c,), t3_c=self.t3_c)
+    def model(self) -> EffectModel:
+        return LinearBtc(pbc_rad_s=(self.pbc_rad_s,), btc_rad_s_per_c=(self.btc_rad_s_per_c,),
+                         t3_c=self.t3_c).model()
 
 
 class _Window:

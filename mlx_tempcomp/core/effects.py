@@ -40,6 +40,11 @@ the first temperature (the device in equilibrium at power-up).
 Each effect is one `Effect` of the table `EFFECTS`: its coefficient fields,
 the descriptions of its node parameters, the inputs it needs, live or not,
 and its bias term; the model, the diagnosis and the node parameters read it.
+
+The node's ``polynomial`` and ``linear_btc`` models are effect models too, of
+a bias (and scale) polynomial only: `polynomial_model` and `LinearBtc.model`
+build them, named so that their fingerprints hash the parameters of their
+own name (the key of the ZRO state files saved for them).
 """
 
 import collections
@@ -52,7 +57,8 @@ import numpy as np
 
 from .errors import ConfigError
 from .model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from .models import finite_tuple, model_fingerprint, OffsetModel, one_row, rate_temperature_columns
+from .models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel, one_row,
+                     rate_temperature_columns)
 
 MAX_GRADIENT_TERMS = 2
 
@@ -301,22 +307,27 @@ class Effect:
     ``effects.<field>.<axis>``), ``model_fields`` the `EffectModel` fields
     (``effects.<field>``); ``descriptions`` describe each of its node
     parameters, ``{axis}`` standing for the axis. It is present on an axis
-    when its ``marker`` field is non-zero, or holds at least ``count``
-    values when ``count`` is given. ``inputs`` are the `ModelInputs` fields
-    it needs; ``live`` is False when it is tied to the clock of the record it
-    was found in. ``bias(term, model, inputs, history, total)`` adds its term
-    to the bias of an axis (None: the effect acts elsewhere in `_assemble`).
+    when its ``marker`` field (its first field unless given) is non-zero,
+    or holds at least ``count`` values when ``count`` is given. ``inputs``
+    are the `ModelInputs` fields it needs; ``live`` is False when it is tied
+    to the clock of the record it was found in. ``bias(term, model, inputs,
+    history, total)`` adds its term to the bias of an axis (None: the effect
+    acts elsewhere in `_assemble`).
     """
 
     name: str
     fields: tuple
     descriptions: Mapping
-    marker: str
+    marker: str = ''
     model_fields: tuple = ()
     count: int = 0
     inputs: frozenset = frozenset()
     live: bool = True
     bias: Optional[Callable] = None
+
+    def __post_init__(self) -> None:
+        if not self.marker:
+            object.__setattr__(self, 'marker', self.fields[0])
 
     def present(self, term: 'AxisTerms') -> bool:
         value = getattr(term, self.marker)
@@ -368,7 +379,7 @@ def _step_bias(term, model, inputs, history, total):
 _TIME = frozenset({'time_s'})
 # The effects in the order diagnose tries them and reports them; biases add up in it.
 EFFECTS = (
-    Effect('temperature_polynomial', fields=('bias',), marker='bias', count=1,
+    Effect('temperature_polynomial', fields=('bias',), count=1,
            model_fields=('reference_temperature_c', 'temperature_scale_c', 'temperature_min_c',
                          'temperature_max_c'),
            descriptions={
@@ -377,18 +388,18 @@ EFFECTS = (
                'temperature_scale_c': 'scale of x = (T_eff - Tref) / scale',
                'temperature_min_c': 'effective temperatures below are clamped',
                'temperature_max_c': 'effective temperatures above are clamped'}),
-    Effect('thermal_lag', fields=('thermal_lag_s',), marker='thermal_lag_s', inputs=_TIME,
+    Effect('thermal_lag', fields=('thermal_lag_s',), inputs=_TIME,
            model_fields=('temperature_rate_window_s',),
            descriptions={
                'thermal_lag_s': 'axis {axis}: thermal lag; > 0: T_eff = T + lag x dT/dt, < 0: '
                                 'T_eff = first-order lag of T with time constant |lag|',
                'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the '
                                             'slope over this window (s)'}),
-    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',),
-           marker='temperature_rate_rad_s_per_c_s', inputs=_TIME, bias=_rate_bias,
+    Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',), inputs=_TIME,
+           bias=_rate_bias,
            descriptions={'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'}),
     Effect('thermal_gradient', fields=('gradient_time_constants_s', 'gradient_rad_s_per_c'),
-           marker='gradient_time_constants_s', count=1, inputs=_TIME, bias=_gradient_bias,
+           count=1, inputs=_TIME, bias=_gradient_bias,
            descriptions={
                'gradient_time_constants_s': 'axis {axis}: thermal gradient time constants (at '
                                             'most 2)',
@@ -403,14 +414,13 @@ EFFECTS = (
                'hysteresis_half_width_c': 'axis {axis}: half width of the hysteresis play '
                                           'operator',
                'hysteresis_rad_s': 'axis {axis}: hysteresis, bias + h x play state'}),
-    Effect('supply_voltage', fields=('supply_voltage',), marker='supply_voltage',
-           model_fields=('supply_reference_v',), inputs=frozenset({'supply_voltage_v'}),
-           bias=_supply_bias,
+    Effect('supply_voltage', fields=('supply_voltage',), model_fields=('supply_reference_v',),
+           inputs=frozenset({'supply_voltage_v'}), bias=_supply_bias,
            descriptions={
                'supply_voltage': 'axis {axis}: supply voltage polynomial in V - Vref from power '
                                  '1, rad/s',
                'supply_reference_v': 'Vref of the supply voltage terms, in (V - Vref)^k'}),
-    Effect('secondary_temperature', fields=('secondary',), marker='secondary',
+    Effect('secondary_temperature', fields=('secondary',),
            model_fields=('secondary_reference_c', 'secondary_scale_c'),
            inputs=frozenset({'temperature_2_c'}), bias=_secondary_bias,
            descriptions={
@@ -419,27 +429,22 @@ EFFECTS = (
                'secondary_reference_c': 'T2ref of x2 = (T2 - T2ref) / scale_2',
                'secondary_scale_c': 'scale_2 of x2 = (T2 - T2ref) / scale_2'}),
     Effect('acceleration_sensitivity', fields=('acceleration_rad_s_per_m_s2',),
-           marker='acceleration_rad_s_per_m_s2', inputs=frozenset({'acceleration_m_s2'}),
-           bias=_acceleration_bias,
+           inputs=frozenset({'acceleration_m_s2'}), bias=_acceleration_bias,
            descriptions={'acceleration_rad_s_per_m_s2': 'axis {axis}: bias per m/s^2 of x, y, '
                                                         'z acceleration'}),
-    Effect('scale_factor_temperature', fields=('scale',), marker='scale',
-           descriptions={'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: '
-                                  'none)'}),
-    Effect('rate_nonlinearity', fields=('nonlinearity',), marker='nonlinearity',
-           descriptions={'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 '
-                                         'poly(u)'}),
-    Effect('cross_axis', fields=('cross_axis',), marker='cross_axis',
-           descriptions={'cross_axis': 'axis {axis}: cross-axis coefficients, one per model '
-                                       'axis (own: 0)'}),
-    Effect('time_drift', fields=('time_drift_rad_s_per_s',), marker='time_drift_rad_s_per_s',
-           model_fields=('time_reference_s',), inputs=_TIME, live=False, bias=_drift_bias,
+    Effect('scale_factor_temperature', fields=('scale',), descriptions={
+        'scale': 'axis {axis}: relative scale-factor polynomial in x (empty: none)'}),
+    Effect('rate_nonlinearity', fields=('nonlinearity',), descriptions={
+        'nonlinearity': 'axis {axis}: rate nonlinearity from u^2, v = u - u^2 poly(u)'}),
+    Effect('cross_axis', fields=('cross_axis',), descriptions={
+        'cross_axis': 'axis {axis}: cross-axis coefficients, one per model axis (own: 0)'}),
+    Effect('time_drift', fields=('time_drift_rad_s_per_s',), model_fields=('time_reference_s',),
+           inputs=_TIME, live=False, bias=_drift_bias,
            descriptions={
                'time_drift_rad_s_per_s': 'axis {axis}: bias drift per second since '
                                          'time_reference_s',
                'time_reference_s': 'time drift is zero at this stamp (s)'}),
-    Effect('bias_step', fields=('bias_steps',), marker='bias_steps', inputs=_TIME, live=False,
-           bias=_step_bias,
+    Effect('bias_step', fields=('bias_steps',), inputs=_TIME, live=False, bias=_step_bias,
            descriptions={
                'bias_step_time_s': 'axis {axis}: stamps of the bias steps (s)',
                'bias_step_rad_s': 'axis {axis}: bias steps in rad/s, one per bias_step_time_s'}),
@@ -451,14 +456,6 @@ LIVE_EFFECTS = tuple(effect.name for effect in EFFECTS if effect.live)
 # The description of every effects.* node parameter, by its name without the axis.
 PARAMETER_DESCRIPTIONS = {name: text for effect in EFFECTS
                           for name, text in effect.descriptions.items()}
-
-
-def _polynomial(name: str, values) -> tuple:
-    values = tuple(float(v) for v in values)
-    if not all(math.isfinite(v) for v in values):
-        msg = f'{name} must be finite, got {list(values)}'
-        raise ConfigError(msg)
-    return values
 
 
 @dataclass(frozen=True)
@@ -493,7 +490,7 @@ class AxisTerms:
     cross_axis: tuple = ()
 
     def __post_init__(self) -> None:
-        bias = _polynomial('bias', self.bias)
+        bias = finite_tuple('bias', self.bias)
         if not bias:
             raise ConfigError('bias needs at least one coefficient')
         object.__setattr__(self, 'bias', bias)
@@ -509,12 +506,12 @@ class AxisTerms:
             raise ConfigError(msg)
         if self.hysteresis_rad_s and not self.hysteresis_half_width_c:
             raise ConfigError('hysteresis_rad_s needs a positive hysteresis_half_width_c')
-        steps = tuple(_polynomial('bias_steps', pair) for pair in self.bias_steps)
+        steps = tuple(finite_tuple('bias_steps', pair) for pair in self.bias_steps)
         if any(len(pair) != 2 for pair in steps):
             raise ConfigError('bias_steps must be (time_s, rad_s) pairs')
         object.__setattr__(self, 'bias_steps', steps)
         for name in _AXIS_LISTS:
-            object.__setattr__(self, name, _polynomial(name, getattr(self, name)))
+            object.__setattr__(self, name, finite_tuple(name, getattr(self, name)))
         taus, gains = self.gradient_time_constants_s, self.gradient_rad_s_per_c
         if len(taus) != len(gains) or len(taus) > MAX_GRADIENT_TERMS:
             msg = (f'gradient_time_constants_s and gradient_rad_s_per_c need the same number '
@@ -544,7 +541,10 @@ class EffectModel(OffsetModel):
     Temperature polynomial plus diagnosed effects, per axis; see the module docstring.
 
     ``terms`` holds one `AxisTerms` per axis. Temperatures (T_eff) outside
-    [temperature_min_c, temperature_max_c] are clamped and flagged.
+    [temperature_min_c, temperature_max_c] are clamped and flagged. ``name``
+    is the node's ``model`` parameter that gives it: 'effects', or
+    'polynomial' and 'linear_btc' for a model that holds no more than their
+    parameters (`polynomial_model`, `LinearBtc`).
     """
 
     terms: tuple
@@ -558,8 +558,7 @@ class EffectModel(OffsetModel):
     secondary_scale_c: float = 1.0
     supply_reference_v: float = DEFAULT_SUPPLY_REFERENCE_V
     zro_offset_rad_s: tuple = field(default=())
-
-    name = 'effects'
+    name: str = 'effects'
 
     def __post_init__(self) -> None:
         terms = tuple(self.terms)
@@ -596,6 +595,26 @@ class EffectModel(OffsetModel):
         offset = self.zro_offset_rad_s or (0.0,) * len(terms)
         object.__setattr__(self, 'zro_offset_rad_s',
                            finite_tuple('zro_offset_rad_s', offset, len(terms)))
+        self._check_name()
+
+    def _check_name(self) -> None:
+        """Refuse a polynomial or linear_btc model holding what their parameters cannot."""
+        if self.name == 'effects':
+            return
+        if self.name not in MODEL_NAMES:
+            msg = f'an effect model is named one of {list(MODEL_NAMES)}, got {self.name!r}'
+            raise ConfigError(msg)
+        held = {name for term in self.terms for name in term.effects}
+        extra = held - {'temperature_polynomial', 'scale_factor_temperature'}
+        if self.name == 'linear_btc':
+            extra |= held & {'scale_factor_temperature'}
+        if extra:
+            msg = f'a {self.name} model holds no {", ".join(sorted(extra))}'
+            raise ConfigError(msg)
+        if self.name == 'linear_btc' and (
+                any(len(term.bias) != 2 for term in self.terms) or self.temperature_scale_c != 1.0
+                or math.isfinite(self.temperature_min_c) or math.isfinite(self.temperature_max_c)):
+            raise ConfigError('a linear_btc model is a line in T - T3 per axis, not clamped')
 
     @property
     def axes(self) -> int:
@@ -623,9 +642,20 @@ class EffectModel(OffsetModel):
         return tuple(sorted({e for t in self.terms for e in t.effects} & RECORD_EFFECTS))
 
     def fingerprint(self) -> str:
-        content = {f.name: getattr(self, f.name) for f in fields(self)
-                   if f.name not in ('terms', 'zro_offset_rad_s')}
-        content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)} for t in self.terms]
+        """Hash the parameters of the model's name, the ZRO offset left out."""
+        if self.name == 'polynomial':
+            scale = tuple(term.scale for term in self.terms)
+            content = {'bias': tuple(term.bias for term in self.terms),
+                       'scale': scale if any(scale) else (),
+                       'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
+                       'range': [self.temperature_min_c, self.temperature_max_c]}
+        elif self.name == 'linear_btc':
+            line = LinearBtc.of(self)
+            content = {'pbc': line.pbc_rad_s, 'btc': line.btc_rad_s_per_c, 't3': line.t3_c}
+        else:
+            content = {name: getattr(self, name) for name in _SCALARS}
+            content['terms'] = [{f.name: getattr(t, f.name) for f in fields(t)}
+                                for t in self.terms]
         return model_fingerprint(self.name, content)
 
     def correct(self, rate_rad_s, temperature_c,
@@ -785,13 +815,91 @@ class EffectModel(OffsetModel):
 # The parameters of `to_parameters`, in field order: float fields are scalars, tuples
 # lists; bias_steps, (time, step) pairs, becomes two lists.
 _SCALARS = tuple(f.name for f in fields(EffectModel)
-                 if f.name not in ('terms', 'zro_offset_rad_s'))
+                 if f.name not in ('terms', 'zro_offset_rad_s', 'name'))
 # Scalars a parameter file written before they existed may lack.
 _SCALAR_DEFAULTS = {'supply_reference_v': DEFAULT_SUPPLY_REFERENCE_V}
 _AXIS_SCALARS = tuple(f.name for f in fields(AxisTerms) if f.type is float)
 _AXIS_LISTS = tuple(f.name for f in fields(AxisTerms)
                     if f.type is tuple and f.name != 'bias_steps')
 _BIAS_EFFECTS = tuple(effect for effect in EFFECTS if effect.bias is not None)
+# The node's model parameters that give an effect model.
+MODEL_NAMES = ('effects', 'polynomial', 'linear_btc')
+
+
+def polynomial_model(bias_coefficients, reference_temperature_c: float = 25.0,
+                     temperature_scale_c: float = 1.0, scale_coefficients=(),
+                     temperature_min_c: float = -math.inf,
+                     temperature_max_c: float = math.inf) -> EffectModel:
+    """
+    Give the ``polynomial`` model: a bias polynomial per axis, optional scale-factor polynomials.
+
+    corrected = (raw - bias(x)) / (1 + sf(x)) - offset, x = (T - Tref) / scale;
+    coefficients lowest order first, bias in rad/s, sf relative (0 = nominal),
+    scale-factor polynomials for every axis or none. Temperatures outside
+    [min, max] are clamped and flagged, as PX4 and ArduPilot do.
+    """
+    bias = tuple(tuple(float(c) for c in axis) for axis in bias_coefficients)
+    if not 1 <= len(bias) <= 3:
+        msg = f'polynomial needs bias coefficients for 1 to 3 axes, got {len(bias)}'
+        raise ConfigError(msg)
+    for axis, coefficients in zip(AXIS_NAMES, bias):
+        if not coefficients or not all(math.isfinite(c) for c in coefficients):
+            msg = f'polynomial bias coefficients of axis {axis} must be finite and non-empty'
+            raise ConfigError(msg)
+    scale = tuple(tuple(float(c) for c in axis) for axis in scale_coefficients)
+    if scale and len(scale) != len(bias):
+        msg = f'polynomial scale coefficients given for {len(scale)} axes, bias for {len(bias)}'
+        raise ConfigError(msg)
+    if not all(math.isfinite(c) for axis in scale for c in axis):
+        raise ConfigError('polynomial scale coefficients must be finite')
+    terms = tuple(AxisTerms(bias=b, scale=s) for b, s in zip(bias, scale or ((),) * len(bias)))
+    return EffectModel(terms=terms, reference_temperature_c=reference_temperature_c,
+                       temperature_scale_c=temperature_scale_c,
+                       temperature_min_c=temperature_min_c, temperature_max_c=temperature_max_c,
+                       name='polynomial')
+
+
+@dataclass(frozen=True)
+class LinearBtc:
+    """
+    The ADIS16130 first-order bias correction: RBC = RATE + PBC + (TEMP - T3) x BTC.
+
+    PBC is minus the bias at T3 (rad/s), BTC minus the bias slope (rad/s/degC),
+    as the note's Table 6 shows (+0.12 C at a 0.04 deg/s/C slope gives -0.0048 deg/s).
+    `model` runs it as the ``linear_btc`` effect model: the bias polynomial
+    (-PBC, -BTC) in x = T - T3, which `of` reads back exactly.
+    """
+
+    pbc_rad_s: tuple
+    btc_rad_s_per_c: tuple
+    t3_c: float
+
+    def __post_init__(self) -> None:
+        pbc = tuple(float(v) for v in self.pbc_rad_s)
+        if not 1 <= len(pbc) <= 3:
+            msg = f'linear_btc needs PBC for 1 to 3 axes, got {len(pbc)}'
+            raise ConfigError(msg)
+        object.__setattr__(self, 'pbc_rad_s', finite_tuple('linear_btc.pbc', pbc, len(pbc)))
+        object.__setattr__(self, 'btc_rad_s_per_c',
+                           finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
+        if not math.isfinite(self.t3_c):
+            msg = f'linear_btc.t3_c must be finite, got {self.t3_c}'
+            raise ConfigError(msg)
+
+    def model(self) -> EffectModel:
+        return EffectModel(terms=tuple(AxisTerms(bias=(-pbc, -btc)) for pbc, btc in
+                                       zip(self.pbc_rad_s, self.btc_rad_s_per_c)),
+                           reference_temperature_c=self.t3_c, name='linear_btc')
+
+    @classmethod
+    def of(cls, model: EffectModel) -> 'LinearBtc':
+        """Give the coefficients of a ``linear_btc`` model."""
+        if model.name != 'linear_btc':
+            msg = f'a {model.name} model has no PBC and BTC'
+            raise ConfigError(msg)
+        return cls(pbc_rad_s=tuple(-term.bias[0] for term in model.terms),
+                   btc_rad_s_per_c=tuple(-term.bias[1] for term in model.terms),
+                   t3_c=model.reference_temperature_c)
 
 
 @dataclass(frozen=True)
@@ -804,6 +912,9 @@ class _History:
     play: Optional[np.ndarray]
 
 
+_NO_HISTORY = _History(slope=None, lagged=None, gradients=[], play=None)
+
+
 class _AxisRunner:
     """The history operators of one axis, run one sample at a time across blocks."""
 
@@ -813,8 +924,11 @@ class _AxisRunner:
         self.gradients = [_LagRunner(tau) for tau in term.gradient_time_constants_s]
         self.play = _PlayRunner(term.hysteresis_half_width_c) if term.hysteresis_rad_s \
             else None
+        self.idle = self.slope is self.lag is self.play is None and not self.gradients
 
     def run(self, time, temperature: np.ndarray) -> _History:
+        if self.idle:
+            return _NO_HISTORY
         values = temperature.tolist()
         times = None if time is None else time.tolist()
 

@@ -18,8 +18,9 @@ import operator
 
 import numpy as np
 
+from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
-from .models import AXIS_NAMES, LinearBtcModel, PolynomialModel
+from .models import AXIS_NAMES
 from .validation import (best_score, block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
                          DEFAULT_MIN_PAST, FORWARD, ONE_SE_RULE, one_standard_error,
                          order_score, split)
@@ -185,9 +186,9 @@ def _power_coefficients(legendre: np.ndarray) -> tuple:
     return tuple(float(c) for c in np.pad(power, (0, legendre.size - power.size)))
 
 
-def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
+def fit_polynomial(temperature_c, rate_rad_s, orders) -> EffectModel:
     """
-    Fit a bias polynomial per axis by least squares in float64.
+    Fit a bias polynomial per axis by least squares in float64: a ``polynomial`` model.
 
     temperature_c has shape (samples,), rate_rad_s (samples,) or (samples, axes),
     orders is one int for every axis or one per axis. The model works in
@@ -217,9 +218,9 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> PolynomialModel:
             raise CalibrationError(msg)
         coefficients.append(_power_coefficients(solution[:, axis]))
     centre_c, half_span_c = scaling
-    return PolynomialModel(bias_coefficients=tuple(coefficients),
-                           reference_temperature_c=centre_c, temperature_scale_c=half_span_c,
-                           temperature_min_c=low_c, temperature_max_c=high_c)
+    return polynomial_model(tuple(coefficients), reference_temperature_c=centre_c,
+                            temperature_scale_c=half_span_c, temperature_min_c=low_c,
+                            temperature_max_c=high_c)
 
 
 def fold_rows(samples: int, blocks: int, folds: int = DEFAULT_FOLDS, scheme: str = FORWARD,
@@ -238,7 +239,7 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     Each fold's polynomial is the least-squares fit on its training blocks
     (the sum of their normal equations), clamped to their temperature range;
     it is evaluated, clamped so, in the Legendre basis it was solved in (the
-    same polynomial as PolynomialModel.correct would evaluate in powers of
+    same polynomial as the fitted model would evaluate in powers of
     the training x).
     """
     highest = orders[-1]
@@ -341,7 +342,7 @@ def format_order_table(selections) -> str:
     return '\n'.join(lines)
 
 
-def relative_polynomial(model: PolynomialModel, true_temperature_c: float) -> PolynomialModel:
+def relative_polynomial(model: EffectModel, true_temperature_c: float) -> EffectModel:
     """
     Shift each bias polynomial so that it is zero at ``true_temperature_c``.
 
@@ -359,14 +360,14 @@ def relative_polynomial(model: PolynomialModel, true_temperature_c: float) -> Po
                'where the polynomial would be extrapolated')
         raise CalibrationError(msg)
     x = (true_c - model.reference_temperature_c) / model.temperature_scale_c
-    shifted = tuple((c[0] - np.polynomial.polynomial.polyval(x, c),) + c[1:]
-                    for c in model.bias_coefficients)
-    return replace(model, bias_coefficients=shifted)
+    return replace(model, terms=tuple(
+        replace(term, bias=(term.bias[0] - np.polynomial.polynomial.polyval(x, term.bias),)
+                + term.bias[1:]) for term in model.terms))
 
 
-def fit_linear_btc(temperature_c, rate_rad_s, t3_c=None) -> LinearBtcModel:
+def fit_linear_btc(temperature_c, rate_rad_s, t3_c=None) -> EffectModel:
     """
-    Fit the ADIS16130 note's first-order bias correction per axis by least squares.
+    Fit the ADIS16130 note's first-order bias correction per axis: a ``linear_btc`` model.
 
     The line bias(T) = B3 + slope (T - T3) is fitted in float64 on
     (T - T3) / half_span; BTC = -slope and PBC = -B3, the signs of the note's
@@ -388,8 +389,8 @@ def fit_linear_btc(temperature_c, rate_rad_s, t3_c=None) -> LinearBtcModel:
     half_span_c = 0.5 * (high_c - low_c)
     design = np.polynomial.polynomial.polyvander((temperature - t3) / half_span_c, 1)
     solution = np.linalg.lstsq(design, rate, rcond=None)[0]
-    return LinearBtcModel(pbc_rad_s=tuple(-solution[0]),
-                          btc_rad_s_per_c=tuple(-solution[1] / half_span_c), t3_c=t3)
+    return LinearBtc(pbc_rad_s=tuple(-solution[0]),
+                     btc_rad_s_per_c=tuple(-solution[1] / half_span_c), t3_c=t3).model()
 
 
 def table_step_c(extent_c: float, rows_each_side: int) -> float:
@@ -402,9 +403,9 @@ def table_step_c(extent_c: float, rows_each_side: int) -> float:
     return next(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= raw * (1 - 1e-12))
 
 
-def format_btc_table(model: LinearBtcModel, axes, step_c: float, rows_each_side: int = 6) -> str:
+def format_btc_table(model: EffectModel, axes, step_c: float, rows_each_side: int = 6) -> str:
     """
-    Return the ADIS16130 note's Table 6 for the model: (TEMP - T3) and (TEMP - T3) x BTC.
+    Return the ADIS16130 note's Table 6 for a linear_btc model: (TEMP - T3) and (TEMP - T3) x BTC.
 
     Rows run from +rows_each_side to -rows_each_side steps of ``step_c``; the
     columns after the first give the correction per axis in rad/s and, beside
@@ -416,9 +417,10 @@ def format_btc_table(model: LinearBtcModel, axes, step_c: float, rows_each_side:
     header = ('TEMP - T3 (C)', *(f'{axis} ({unit})' for axis in axes
                                  for unit in ('rad/s', 'deg/s')))
     rows = []
+    slopes = LinearBtc.of(model).btc_rad_s_per_c
     for k in range(rows_each_side, -rows_each_side - 1, -1):
         offset_c = k * step_c
-        rows.append((text(offset_c, 6), *(text(value, 4) for btc in model.btc_rad_s_per_c
+        rows.append((text(offset_c, 6), *(text(value, 4) for btc in slopes
                                           for value in (offset_c * btc,
                                                         math.degrees(offset_c * btc)))))
     widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]

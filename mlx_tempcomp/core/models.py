@@ -6,15 +6,17 @@ degC of shape (samples,) or (samples, axes), and carries a ZRO offset per axis:
 the residual learned at rest on top of the thermal model (the ZRO recalibration),
 so recalibration and temperature model never count the same bias twice.
 
-- `PolynomialModel`: bias(T) per axis, optional scale factor(T).
-- `LinearBtcModel`: ADIS16130 note, RBC = RATE + PBC + (TEMP - T3) x BTC.
-- `EepromModel`: the MLX90609 factory table (AN2 method 4) with its ZRO shift.
+- `EepromModel`: the MLX90609 factory table (AN2 method 4) with its ZRO shift;
+- `OffsetModel`: the ZRO offset in rad/s of the others, the effect model
+  (`core.effects`, which also runs the ``polynomial`` and ``linear_btc``
+  models) and the calibration chain (`core.chain`).
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import hashlib
 import json
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -44,10 +46,10 @@ def rate_temperature_columns(rate_rad_s, temperature_c, axes: int) -> tuple:
     return rate, np.broadcast_to(temperature, rate.shape)
 
 
-def finite_tuple(name: str, values, length: int) -> tuple:
-    """Give ``length`` finite floats of ``values``; ConfigError naming ``name`` otherwise."""
+def finite_tuple(name: str, values, length: Optional[int] = None) -> tuple:
+    """Give the finite floats of ``values``, ``length`` of them if given; else ConfigError."""
     values = tuple(float(v) for v in values)
-    if len(values) != length:
+    if length is not None and len(values) != length:
         msg = f'{name} needs {length} values (one per axis), got {len(values)}'
         raise ConfigError(msg)
     if not all(math.isfinite(v) for v in values):
@@ -133,133 +135,6 @@ class OffsetModel(_Streamed):
 
     def offset_rad_s(self, temperature_c: float) -> np.ndarray:
         return np.asarray(self.zro_offset_rad_s)
-
-
-@dataclass(frozen=True)
-class PolynomialModel(OffsetModel):
-    """
-    Bias polynomial per axis, optional scale factor polynomial, in x = (T - Tref) / scale.
-
-    corrected = (raw - bias(x)) / (1 + sf(x)) - offset; coefficients lowest order
-    first, bias in rad/s, sf relative (0 = nominal). Temperatures outside
-    [min, max] are clamped and flagged, as PX4 and ArduPilot do.
-    """
-
-    bias_coefficients: tuple
-    reference_temperature_c: float = 25.0
-    temperature_scale_c: float = 1.0
-    scale_coefficients: tuple = ()
-    temperature_min_c: float = -math.inf
-    temperature_max_c: float = math.inf
-    zro_offset_rad_s: tuple = field(default=())
-
-    name = 'polynomial'
-
-    def __post_init__(self) -> None:
-        bias = tuple(tuple(float(c) for c in axis) for axis in self.bias_coefficients)
-        if not 1 <= len(bias) <= 3:
-            msg = f'polynomial needs bias coefficients for 1 to 3 axes, got {len(bias)}'
-            raise ConfigError(msg)
-        for axis, coefficients in zip(AXIS_NAMES, bias):
-            if not coefficients or not all(math.isfinite(c) for c in coefficients):
-                msg = f'polynomial bias coefficients of axis {axis} must be finite and non-empty'
-                raise ConfigError(msg)
-        object.__setattr__(self, 'bias_coefficients', bias)
-        scale = tuple(tuple(float(c) for c in axis) for axis in self.scale_coefficients)
-        if scale and len(scale) != len(bias):
-            msg = (f'polynomial scale coefficients given for {len(scale)} axes, '
-                   f'bias for {len(bias)}')
-            raise ConfigError(msg)
-        if not all(math.isfinite(c) for axis in scale for c in axis):
-            msg = 'polynomial scale coefficients must be finite'
-            raise ConfigError(msg)
-        object.__setattr__(self, 'scale_coefficients', scale)
-        if not (math.isfinite(self.temperature_scale_c) and self.temperature_scale_c > 0.0):
-            msg = f'temperature_scale_c must be positive, got {self.temperature_scale_c}'
-            raise ConfigError(msg)
-        if not math.isfinite(self.reference_temperature_c):
-            msg = 'reference_temperature_c must be finite'
-            raise ConfigError(msg)
-        if not self.temperature_min_c < self.temperature_max_c:
-            msg = (f'temperature_min_c ({self.temperature_min_c}) must be below '
-                   f'temperature_max_c ({self.temperature_max_c})')
-            raise ConfigError(msg)
-        offset = self.zro_offset_rad_s or (0.0,) * len(bias)
-        object.__setattr__(self, 'zro_offset_rad_s',
-                           finite_tuple('zro_offset_rad_s', offset, len(bias)))
-
-    @property
-    def axes(self) -> int:
-        return len(self.bias_coefficients)
-
-    def fingerprint(self) -> str:
-        return model_fingerprint(self.name, {
-            'bias': self.bias_coefficients, 'scale': self.scale_coefficients,
-            'tref': self.reference_temperature_c, 'tscale': self.temperature_scale_c,
-            'range': [self.temperature_min_c, self.temperature_max_c]})
-
-    def correct(self, rate_rad_s, temperature_c,
-                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
-        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
-        clamped_t = np.clip(temperature, self.temperature_min_c, self.temperature_max_c)
-        x = (clamped_t - self.reference_temperature_c) / self.temperature_scale_c
-        out = np.empty(rate.shape)
-        for axis in range(self.axes):
-            bias = np.polynomial.polynomial.polyval(x[:, axis], self.bias_coefficients[axis])
-            corrected = rate[:, axis] - bias
-            if self.scale_coefficients:
-                corrected = corrected / (1.0 + np.polynomial.polynomial.polyval(
-                    x[:, axis], self.scale_coefficients[axis]))
-            out[:, axis] = corrected - self.zro_offset_rad_s[axis]
-        return CorrectedRate(out, (clamped_t != temperature) | np.isnan(temperature))
-
-
-@dataclass(frozen=True)
-class LinearBtcModel(OffsetModel):
-    """
-    ADIS16130 first-order bias correction: RBC = RATE + PBC + (TEMP - T3) x BTC.
-
-    PBC is minus the bias at T3 (rad/s), BTC minus the bias slope (rad/s/degC),
-    as the note's Table 6 shows (+0.12 C at a 0.04 deg/s/C slope gives -0.0048 deg/s).
-    """
-
-    pbc_rad_s: tuple
-    btc_rad_s_per_c: tuple
-    t3_c: float
-    zro_offset_rad_s: tuple = field(default=())
-
-    name = 'linear_btc'
-
-    def __post_init__(self) -> None:
-        pbc = tuple(float(v) for v in self.pbc_rad_s)
-        if not 1 <= len(pbc) <= 3:
-            msg = f'linear_btc needs PBC for 1 to 3 axes, got {len(pbc)}'
-            raise ConfigError(msg)
-        object.__setattr__(self, 'pbc_rad_s', finite_tuple('linear_btc.pbc', pbc, len(pbc)))
-        object.__setattr__(self, 'btc_rad_s_per_c',
-                           finite_tuple('linear_btc.btc', self.btc_rad_s_per_c, len(pbc)))
-        if not math.isfinite(self.t3_c):
-            msg = f'linear_btc.t3_c must be finite, got {self.t3_c}'
-            raise ConfigError(msg)
-        offset = self.zro_offset_rad_s or (0.0,) * len(pbc)
-        object.__setattr__(self, 'zro_offset_rad_s',
-                           finite_tuple('zro_offset_rad_s', offset, len(pbc)))
-
-    @property
-    def axes(self) -> int:
-        return len(self.pbc_rad_s)
-
-    def fingerprint(self) -> str:
-        return model_fingerprint(self.name, {'pbc': self.pbc_rad_s,
-                                             'btc': self.btc_rad_s_per_c, 't3': self.t3_c})
-
-    def correct(self, rate_rad_s, temperature_c,
-                inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
-        rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
-        corrected = rate + np.asarray(self.pbc_rad_s) + \
-            (temperature - self.t3_c) * np.asarray(self.btc_rad_s_per_c) - \
-            np.asarray(self.zro_offset_rad_s)
-        return CorrectedRate(corrected, np.isnan(temperature))
 
 
 @dataclass(frozen=True)

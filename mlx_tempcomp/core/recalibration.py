@@ -1,8 +1,9 @@
 """
-Checks of a ZRO recalibration window: was the sensor at rest and the temperature steady.
+Checks of a window of rates taken at rest: was the sensor still and the temperature steady.
 
-The window holds the rate corrected by the running model (offset included), so
-its mean is the residual the recalibration would remove.
+The ZRO recalibration's window holds the rate corrected by the running model
+(offset included), so its mean is the residual the recalibration would remove;
+the MPU-6000 offset calibration's holds the raw rate, and checks only its spread.
 """
 
 from dataclasses import dataclass
@@ -13,22 +14,34 @@ import numpy as np
 
 from .errors import CalibrationError, ConfigError
 
+# How `check_window` words a window that moved: ``axis`` is the axis's index, ``axis_name``
+# its x, y or z.
+SENSOR_MOVED = ('sensor moved: rate spread {spread_rad_s:.4g} rad/s on axis {axis} > '
+                '{noise_multiple:g} x noise {rate_noise_rad_s:.4g}')
+
 
 @dataclass(frozen=True)
 class RecalibrationLimits:
-    """When a window counts as 'at rest'."""
+    """
+    When a window counts as 'at rest'.
+
+    ``max_mean_rate_rad_s`` and ``max_temperature_change_c`` may be inf: no
+    limit. ``spread_ddof`` 1 takes the spread as the sample standard deviation.
+    """
 
     rate_noise_rad_s: float          # 1-sigma noise of one sample
     noise_multiple: float = 3.0      # spread above multiple x noise means motion
     max_mean_rate_rad_s: float = math.radians(2.0)
     max_temperature_change_c: float = 0.5
     min_samples: int = 10
+    spread_ddof: int = 0
 
     def __post_init__(self) -> None:
         for name in ('rate_noise_rad_s', 'noise_multiple', 'max_mean_rate_rad_s',
                      'max_temperature_change_c'):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
+            unlimited = name.startswith('max_') and value == math.inf
+            if not (math.isfinite(value) and value > 0.0 or unlimited):
                 msg = f'recalibration {name} must be positive, got {value}'
                 raise ConfigError(msg)
         if self.min_samples < 2:
@@ -70,14 +83,15 @@ def moving_axis(spread_rad_s, rate_noise_rad_s: float, noise_multiple: float
     return worst if spread_rad_s[worst] > noise_multiple * rate_noise_rad_s else None
 
 
-def check_window(corrected_rate_rad_s, temperature_c,
-                 limits: RecalibrationLimits) -> WindowStatistics:
+def check_window(corrected_rate_rad_s, temperature_c, limits: RecalibrationLimits,
+                 moved: str = SENSOR_MOVED) -> WindowStatistics:
     """
     Return the window's statistics, or raise `CalibrationError` saying why it is refused.
 
-    Motion shows as a spread above ``noise_multiple`` x the sample noise on any axis,
-    or a mean rate above ``max_mean_rate_rad_s``; a drifting temperature as a change
-    (max - min) above ``max_temperature_change_c``.
+    Motion shows as a spread above ``noise_multiple`` x the sample noise on any axis
+    (worded by ``moved``, a format of the fields of `SENSOR_MOVED`), or a mean rate
+    above ``max_mean_rate_rad_s``; a drifting temperature as a change (max - min)
+    above ``max_temperature_change_c``.
     """
     rate = np.asarray(corrected_rate_rad_s, dtype=np.float64)
     rate = rate[:, None] if rate.ndim == 1 else rate
@@ -90,14 +104,14 @@ def check_window(corrected_rate_rad_s, temperature_c,
     rate = rate[finite]
     temperature = temperature[:len(finite)][finite]
     stats = WindowStatistics(samples=len(rate), mean_rate_rad_s=rate.mean(axis=0),
-                             spread_rad_s=rate_spread_rad_s(rate),
+                             spread_rad_s=rate_spread_rad_s(rate, limits.spread_ddof),
                              temperature_c=float(temperature.mean()),
                              temperature_change_c=float(np.ptp(temperature)))
     worst = moving_axis(stats.spread_rad_s, limits.rate_noise_rad_s, limits.noise_multiple)
     if worst is not None:
-        msg = (f'sensor moved: rate spread {stats.spread_rad_s[worst]:.4g} rad/s on axis '
-               f'{worst} > {limits.noise_multiple:g} x noise {limits.rate_noise_rad_s:.4g}')
-        raise CalibrationError(msg)
+        raise CalibrationError(moved.format(
+            axis=worst, axis_name='xyz'[worst], spread_rad_s=stats.spread_rad_s[worst],
+            noise_multiple=limits.noise_multiple, rate_noise_rad_s=limits.rate_noise_rad_s))
     worst = int(np.argmax(np.abs(stats.mean_rate_rad_s)))
     if abs(stats.mean_rate_rad_s[worst]) > limits.max_mean_rate_rad_s:
         msg = (f'sensor moved: mean rate {stats.mean_rate_rad_s[worst]:.4g} rad/s on axis '

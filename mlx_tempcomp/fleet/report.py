@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from .unit import UNIT_FILE
+from ..node_parameters import flat_parameters
 from ..toolkit.common import write_json, write_result
 
 OUTLIER_Z = 3.5
@@ -42,23 +43,12 @@ METRICS = ('bias_rad_s', 'slope_rad_s_per_c', 'held_out_rms_rad_s', 'effects')
 COUNT_METRICS = {'effects': 1.0}
 
 
-def _flatten(tree, prefix: str = '') -> dict:
-    flat = {}
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            flat.update(_flatten(value, name + '.'))
-        else:
-            flat[name] = value
-    return flat
-
-
 def _model_values(params_path: Path) -> tuple:
     """Give (model name, axes, flattened section of the model) of a parameter file."""
     content = yaml.safe_load(params_path.read_text(encoding='utf-8'))
     values = next(iter(content.values()))['ros__parameters']
     model = values['model']
-    return model, list(values['axes']), _flatten(values.get(model, {}))
+    return model, list(values['axes']), flat_parameters(values.get(model, {}))
 
 
 def _bias_and_slope(section: dict, axis: str, temperature_c: float) -> tuple:

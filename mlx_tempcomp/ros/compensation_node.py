@@ -46,7 +46,7 @@ from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION
                                limits_of, model_error_of, ParameterError, state_file_of,
                                transfer_of)
 from ..sources.bag import BagError, eeprom_images_from_multiarray
-from ..state_file import Field, load_state, reject_state, StateFileError, write_state
+from ..state_file import Field, load_state, reject_state, StateFileError
 
 # Parameters whose change rebuilds the model: model and those under these prefixes.
 _MODEL_PREFIXES = ('eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
@@ -537,11 +537,7 @@ class CompensationNode(Node):
                                                                          offset_rad_s))
         text = (f'ZRO offset {summary} rad/s at {stats.temperature_c:.2f} C from '
                 f'{stats.samples} samples over {duration_s:g} s')
-        try:
-            write_state(self.state_path, state)
-        except StateFileError as err:
-            return f'applied but not saved: {text}; {err}'
-        return f'{text}; saved to {self.state_path}'
+        return messages.saved_reply(self.state_path, state, text)
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:

@@ -10,6 +10,7 @@ from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
 from ..core.eeprom import EEPROM_SIZE
 from ..core.models import AXIS_NAMES
+from ..state_file import StateFileError, write_state
 
 NAN = float('nan')
 
@@ -130,6 +131,15 @@ def _format(value) -> str:
         return '[' + ', '.join(_format(float(v)) if isinstance(v, (float, np.floating))
                                else str(v) for v in value) + ']'
     return str(value)
+
+
+def saved_reply(path: str, state: dict, text: str) -> str:
+    """Save ``state`` at ``path``; give the answer: ``text`` and where it went, or why not."""
+    try:
+        write_state(path, state)
+    except StateFileError as err:
+        return f'applied but not saved: {text}; {err}'
+    return f'{text}; saved to {path}'
 
 
 def trigger_succeeded(message: str) -> bool:

@@ -23,14 +23,14 @@ from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, ther
 from ..core.errors import CalibrationError
 from ..core.models import AXIS_NAMES
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
-from ..core.recalibration import moving_axis, rate_spread_rad_s
+from ..core.recalibration import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
 from ..node_parameters import axes_of, build_model, node_values, ParameterError
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000
-from ..state_file import Field, load_state, StateFileError, write_state
+from ..state_file import Field, load_state
 
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 _INT16 = {'low': INT16_MIN, 'high': INT16_MAX}
@@ -48,6 +48,11 @@ MPU_OFFSETS_FIELDS = (
     Field('samples', 'integer', low=1),
     Field('time', 'text'))
 _MPU_OFFSETS = 'saved offsets'
+# The offset calibration's refusal of a window that moved (fields of core.recalibration's
+# SENSOR_MOVED).
+_BOARD_MOVES = ('the board moves: the {axis_name} gyro rate spread (standard deviation) '
+                '{spread_rad_s:.4g} rad/s is above {noise_multiple:g} x rate_noise_rad_s '
+                '{rate_noise_rad_s:.4g}; keep it still, face up or down, and call again')
 
 
 def offsets_state(variant: str, gyro_lsb, accel_lsb, registers, bias, temperature_c: float
@@ -84,8 +89,9 @@ def _offset_refresh(values: dict):
         msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
         raise ParameterError(msg) from None
     # A register can only add: the scale polynomial does not apply at rest.
-    return _OffsetRefresh(dataclasses.replace(model, scale_coefficients=()), path,
-                          values['mpu6000.offset_refresh_c'])
+    bias_only = dataclasses.replace(model, terms=tuple(
+        dataclasses.replace(term, scale=()) for term in model.terms))
+    return _OffsetRefresh(bias_only, path, values['mpu6000.offset_refresh_c'])
 
 
 class _OffsetRefresh(OffsetRefresh):
@@ -318,14 +324,13 @@ class MpuStream(DeviceStream):
 
     def _finish(self, window: SampleWindow, noise_rad_s: float, multiple: float) -> str:
         gyro, acceleration, temperature = window.columns()
-        spread = rate_spread_rad_s(gyro, ddof=1)
-        worst = moving_axis(spread, noise_rad_s, multiple)
-        if worst is not None:
-            return (f'refused: the board moves: the {"xyz"[worst]} gyro rate spread '
-                    f'(standard deviation) {spread[worst]:.4g} rad/s is above '
-                    f'{multiple:g} x rate_noise_rad_s {noise_rad_s:.4g}; keep it still, face '
-                    'up or down, and call again')
+        # Only the spread: the mean is the bias to cancel, the temperature free to move.
+        limits = RecalibrationLimits(rate_noise_rad_s=noise_rad_s, noise_multiple=multiple,
+                                     max_mean_rate_rad_s=math.inf,
+                                     max_temperature_change_c=math.inf, min_samples=2,
+                                     spread_ddof=1)
         try:
+            check_window(gyro, temperature, limits, _BOARD_MOVES)
             bias = rest_bias(gyro, acceleration)
             gyro_lsb, accel_lsb = recalibrated_offsets(self.gyro_lsb, self.accel_bias_lsb, bias)
             registers = self.source.write_offsets(gyro_lsb, accel_lsb)
@@ -345,8 +350,4 @@ class MpuStream(DeviceStream):
                 f'(bias {list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '
                 f'from {bias.samples} samples at {temperature_c:.2f} C (gyro bias before '
                 f'{residual} deg/s)')
-        try:
-            write_state(self.offsets_path, state)
-        except StateFileError as err:
-            return f'applied but not saved: {text}; {err}'
-        return f'{text}; saved to {self.offsets_path}'
+        return messages.saved_reply(self.offsets_path, state, text)

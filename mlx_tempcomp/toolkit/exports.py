@@ -42,11 +42,12 @@ from typing import Optional
 import numpy as np
 
 from .common import check_output_file, UserError, write_result
+from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
-from ..core.models import AXIS_NAMES, PolynomialModel
-from ..node_parameters import build_model, COMPENSATION_SPECS
+from ..core.models import AXIS_NAMES
+from ..node_parameters import build_model, COMPENSATION_SPECS, flat_parameters
 from ..sources.dataflash import board_rotation
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
 
@@ -119,24 +120,24 @@ class ExportedImu:
 class ExportedCubics:
     """The cubics fitted for the files: gyro, and accelerometer with its median (or None)."""
 
-    gyro: PolynomialModel
-    accel: Optional[PolynomialModel] = None
+    gyro: EffectModel
+    accel: Optional[EffectModel] = None
     accel_median: Optional[np.ndarray] = None
 
 
-def _rebased(model: PolynomialModel, reference_c: float) -> tuple:
+def _rebased(model: EffectModel, reference_c: float) -> tuple:
     """Re-expand each bias polynomial of ``model`` in powers of (T - reference_c)."""
     scale = model.temperature_scale_c
     x_of_delta = np.polynomial.Polynomial([(reference_c - model.reference_temperature_c) / scale,
                                            1.0 / scale])
     rebased = []
-    for coefficients in model.bias_coefficients:
-        power = np.polynomial.Polynomial(coefficients)(x_of_delta).coef
+    for term in model.terms:
+        power = np.polynomial.Polynomial(term.bias)(x_of_delta).coef
         rebased.append(tuple(float(c) for c in np.pad(power, (0, EXPORT_ORDER + 1 - power.size))))
     return tuple(rebased)
 
 
-def px4_cubic(model: PolynomialModel, baseline=(0.0, 0.0, 0.0)) -> FirmwareCubic:
+def px4_cubic(model: EffectModel, baseline=(0.0, 0.0, 0.0)) -> FirmwareCubic:
     """
     Give the PX4 form of a fitted cubic: TREF the middle of its range, TMIN/TMAX the range.
 
@@ -150,7 +151,7 @@ def px4_cubic(model: PolynomialModel, baseline=(0.0, 0.0, 0.0)) -> FirmwareCubic
                          model.temperature_max_c)
 
 
-def ardupilot_cubic(model: PolynomialModel) -> FirmwareCubic:
+def ardupilot_cubic(model: EffectModel) -> FirmwareCubic:
     """
     Give the ArduPilot form of a fitted cubic, as the .parm file's digits hold it.
 
@@ -298,7 +299,7 @@ def _rate_error(recording) -> np.ndarray:
     return recording.gyro_rad_s - recording.reference_rad_s
 
 
-def _cubic(args, temperature_c, values, what: str = 'cubic') -> PolynomialModel:
+def _cubic(args, temperature_c, values, what: str = 'cubic') -> EffectModel:
     try:
         return fit_polynomial(temperature_c, values, EXPORT_ORDER)
     except TempCompError as err:
@@ -325,16 +326,7 @@ def _corrected(model, recording) -> np.ndarray:
 
 def node_model(parameters: dict):
     """Build the model the compensation node runs from a command's (nested) parameters."""
-    flat = {}
-
-    def walk(prefix: str, tree: dict) -> None:
-        for key, value in tree.items():
-            if isinstance(value, dict):
-                walk(f'{prefix}{key}.', value)
-            else:
-                flat[prefix + key] = value
-
-    walk('', parameters)
+    flat = flat_parameters(parameters)
     return build_model({spec.name: flat.get(spec.name, spec.initial_value)
                         for spec in COMPENSATION_SPECS})
 
@@ -462,7 +454,7 @@ def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
         print(f'  TC_A{index}_* left out: the record has no acceleration')
 
 
-def _rounding(model: PolynomialModel, written: FirmwareCubic) -> float:
+def _rounding(model: EffectModel, written: FirmwareCubic) -> float:
     """Give how far the written digits move a cubic over its fitted range."""
     exact = px4_cubic(model)
     grid_c = np.linspace(exact.temperature_min_c, exact.temperature_max_c, 1001)

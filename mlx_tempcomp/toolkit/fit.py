@@ -21,6 +21,7 @@ from .common import (add_parameter_file_options, add_recording_options,
 from .exports import add_export_options, check_export_outputs, node_model, write_exports
 from .uncertainty import block_lines
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
+from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
                             format_order_table, relative_polynomial, select_orders, table_step_c)
@@ -105,8 +106,8 @@ def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
     _print_range(model)
     print(f'T_true = {true_c:.2f} C ({how})')
     x = (true_c - fitted.reference_temperature_c) / fitted.temperature_scale_c
-    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, c):.3e}'
-                        for axis, c in zip(recording.axes, fitted.bias_coefficients))
+    removed = ', '.join(f'{axis} {np.polynomial.polynomial.polyval(x, term.bias):.3e}'
+                        for axis, term in zip(recording.axes, fitted.terms))
     print(f'p(T_true) taken off the constant terms (rad/s): {removed}')
     print("written as model 'polynomial' whose bias is zero at T_true; the compensation "
           'node runs it unchanged')
@@ -118,21 +119,22 @@ def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
 def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
     rate_rad_s, formed = _rate_error(recording)
     model = fit_linear_btc(recording.temperature_c, rate_rad_s, args.t3)
+    line = LinearBtc.of(model)
     how = 'given by --t3' if args.t3 is not None else 'mean temperature of the data'
     print('model linear_btc (ADIS16130 AN-1042): RBC = RATE + PBC + (TEMP - T3) x BTC, '
           f'line fitted to the {formed}')
-    print(f'T3 = {model.t3_c:.2f} C ({how})')
+    print(f'T3 = {line.t3_c:.2f} C ({how})')
     corrected = model.correct(rate_rad_s, recording.temperature_c).rate_rad_s
     rms = np.sqrt(np.mean(np.square(corrected), axis=0))
     print(f'{"axis":<6}{"BTC":>12}{"PBC":>12}{"RMS after":>12}{"bias slope":>14}')
     print(f'{"":<6}{"rad/s/C":>12}{"rad/s":>12}{"rad/s":>12}{"deg/s/C":>14}')
     for i, axis in enumerate(recording.axes):
-        btc = model.btc_rad_s_per_c[i]
-        print(f'{axis:<6}{btc:>12.3e}{model.pbc_rad_s[i]:>12.3e}{rms[i]:>12.3e}'
+        btc = line.btc_rad_s_per_c[i]
+        print(f'{axis:<6}{btc:>12.3e}{line.pbc_rad_s[i]:>12.3e}{rms[i]:>12.3e}'
               f'{math.degrees(-btc):>14.6g}')
     if args.table_step is None:
-        extent_c = max(abs(float(np.min(recording.temperature_c)) - model.t3_c),
-                       abs(float(np.max(recording.temperature_c)) - model.t3_c))
+        extent_c = max(abs(float(np.min(recording.temperature_c)) - line.t3_c),
+                       abs(float(np.max(recording.temperature_c)) - line.t3_c))
         step_c = table_step_c(extent_c, BTC_TABLE_ROWS)
     else:
         step_c = args.table_step
