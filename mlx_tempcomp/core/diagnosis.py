@@ -87,17 +87,17 @@ from .metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 from .model_interface import INPUTS, ModelInputs
 from .recalibration import RecalibrationLimits
 from .records import join_records
-from .validation import (DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, error_by_temperature,
-                         FORWARD, held_out_outside_range, one_standard_error, order_score,
-                         outside_range, OutsideRange, record_block_bounds, ROUND_ROBIN, split,
-                         temperature_bin_edges, TemperatureErrors,
+from .validation import (BASELINE_MARGIN, cubic_instead, DEFAULT_BLOCKS, DEFAULT_FOLDS,
+                         DEFAULT_MIN_PAST, error_by_temperature, FORWARD,
+                         held_out_outside_range, one_standard_error, order_score,
+                         outside_range, OutsideRange, PX4_ORDER, record_block_bounds,
+                         ROUND_ROBIN, split, temperature_bin_edges, TemperatureErrors,
                          training_sums)
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
 RECORD_SEARCH = ('time_drift', 'bias_step')
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
-PX4_ORDER = 3
 # Log grids of the 1-D searches: ratio 2^(1/4) between neighbours. The coarse pass
 # visits every COARSE-th point within the bounds, the fine pass the neighbours of the best.
 GRID_RATIO = 2.0 ** 0.25
@@ -150,7 +150,7 @@ class DiagnosisSettings:
     record_effects: bool = False
     validation: str = FORWARD
     min_past: float = DEFAULT_MIN_PAST
-    baseline_margin: float = 0.05
+    baseline_margin: float = BASELINE_MARGIN
     error_bins: int = DEFAULT_ERROR_BINS
 
     def __post_init__(self) -> None:
@@ -1407,7 +1407,7 @@ def _findings(problem: _Problem, axis: int, spec: _Spec, number: int) -> tuple:
 
 def _choose_model(settings: DiagnosisSettings, found: tuple, cubic: tuple) -> ModelChoice:
     """
-    Write the found model if it beats the cubic by the margin and loses beside, else the cubic.
+    Write the found model if it beats the cubic (`cubic_instead`) and loses beside, else the cubic.
 
     ``found`` and ``cubic`` are (deciding, beside) held-out errors.
     """
@@ -1415,15 +1415,12 @@ def _choose_model(settings: DiagnosisSettings, found: tuple, cubic: tuple) -> Mo
     choice = ModelChoice('diagnosed', found[0], cubic[0], margin, found[1], cubic[1])
     deciding, beside = (scheme.replace('_', '-') for scheme in (settings.validation,
                                                                 settings.other_validation))
-    if choice.ratio > 1.0 - margin:
-        reason = (f'the model found has {deciding} held-out RMS {choice.found.rms_rad_s:.3e} '
-                  f"rad/s, {choice.ratio:.2f}x the PX4-style cubic's "
-                  f'{choice.cubic.rms_rad_s:.3e} rad/s: not {margin:.0%} better')
-    elif choice.other_ratio > 1.0:
+    reason = cubic_instead(choice.found.rms_rad_s, choice.cubic.rms_rad_s, margin, deciding)
+    if not reason and choice.other_ratio > 1.0:
         reason = (f'the model found has {beside} held-out RMS '
                   f'{choice.other_found.rms_rad_s:.3e} rad/s, {choice.other_ratio:.2f}x the '
                   f"PX4-style cubic's {choice.other_cubic.rms_rad_s:.3e} rad/s: worse there")
-    else:
+    if not reason:
         return choice
     return replace(choice, written='px4_cubic',
                    reason=reason + ', so the simpler cubic is written')

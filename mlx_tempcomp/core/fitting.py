@@ -21,9 +21,9 @@ import numpy as np
 from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
 from .models import AXIS_NAMES
-from .validation import (best_score, block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
-                         DEFAULT_MIN_PAST, FORWARD, ONE_SE_RULE, one_standard_error,
-                         order_score, split)
+from .validation import (BASELINE_MARGIN, best_score, block_bounds, cubic_instead,
+                         DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD, ONE_SE_RULE,
+                         one_standard_error, order_score, PX4_ORDER, split)
 
 MIN_SPAN_C = 1.0
 DISTINCT_DECIMALS = 2
@@ -275,7 +275,8 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
 
 def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),
                   blocks: int = DEFAULT_BLOCKS, folds: int = DEFAULT_FOLDS,
-                  validation: str = FORWARD, min_past: float = DEFAULT_MIN_PAST) -> tuple:
+                  validation: str = FORWARD, min_past: float = DEFAULT_MIN_PAST,
+                  baseline_margin: float = BASELINE_MARGIN) -> tuple:
     """
     Choose the bias polynomial order per axis on held-out contiguous blocks.
 
@@ -286,7 +287,10 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
     held-out blocks. Blocks are contiguous because neighbouring samples are
     correlated. The chosen order is the lowest whose mean held-out RMS is
     within one standard error of the best; orders the training data cannot
-    support score inf and are never chosen. Each block is summarised once
+    support score inf and are never chosen. The cubic (PX4's model) is the
+    baseline: another order is chosen only when its mean held-out RMS is at
+    least ``baseline_margin`` below the cubic's (`validation.cubic_instead`),
+    else the cubic, the rule saying why. Each block is summarised once
     (normal equations up to the highest order), so the cost hardly grows with
     the number of orders and folds.
     """
@@ -315,6 +319,13 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
         best = best_score(scores)
         rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS ({dealt.describe()}) '
                 f'is within one standard error of the best (order {best.order})')
+        cubic = next((s for s in scores if s.order == PX4_ORDER), None)
+        reason = '' if cubic is None or chosen == PX4_ORDER else cubic_instead(
+            scores[orders.index(chosen)].mean_rms_rad_s, cubic.mean_rms_rad_s,
+            baseline_margin, dealt.scheme.replace('_', '-'))
+        if reason:
+            chosen = PX4_ORDER
+            rule += f'; order {PX4_ORDER} written instead: {reason}'
         selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
     return tuple(selections)
 

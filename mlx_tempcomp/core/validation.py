@@ -21,7 +21,11 @@ own future, nor from nothing of it).
 
 Each fold's held-out RMS is one score; an order (or effect) is summarised
 by the mean over the folds and its standard error, and the order is chosen
-by the one-standard-error rule. Least squares on the folds adds up the
+by the one-standard-error rule. The PX4-style cubic is the baseline, a
+candidate like any other (`cubic_instead`): a model other than it is written
+only when its held-out RMS is at least ``BASELINE_MARGIN`` below the
+cubic's, so neither `fit` nor `diagnose` writes a model the validation does
+not find clearly better than what a PX4 user already has. Least squares on the folds adds up the
 normal equations of the training blocks (`training_sums`), so every fold
 costs one small solve.
 
@@ -47,6 +51,10 @@ ONE_SE_RULE = 'one-standard-error'
 DEFAULT_BLOCKS = 20
 DEFAULT_FOLDS = 5
 DEFAULT_MIN_PAST = 0.25
+# The baseline: PX4's thermal calibration fits a cubic in temperature, and a model other
+# than it is written only when its held-out RMS is this fraction below the cubic's.
+PX4_ORDER = 3
+BASELINE_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -215,6 +223,23 @@ def one_standard_error(scores) -> int:
         raise CalibrationError(msg)
     threshold = best.mean_rms_rad_s + best.standard_error_rad_s
     return next(s.order for s in scores if s.mean_rms_rad_s <= threshold)
+
+
+def cubic_instead(found_rms_rad_s: float, cubic_rms_rad_s: float, margin: float,
+                  scheme: str) -> str:
+    """
+    Say why the PX4-style cubic is written instead of the model found ('' to keep it).
+
+    The model found must have a held-out RMS (under ``scheme``) at least
+    ``margin`` below the cubic's; a cubic the data cannot support (inf) is
+    no baseline.
+    """
+    ratio = found_rms_rad_s / cubic_rms_rad_s if cubic_rms_rad_s else math.inf
+    if ratio <= 1.0 - margin:
+        return ''
+    return (f'the model found has {scheme} held-out RMS {found_rms_rad_s:.3e} rad/s, '
+            f"{ratio:.2f}x the PX4-style cubic's {cubic_rms_rad_s:.3e} rad/s: not "
+            f'{margin:.0%} better')
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from ..core.validation import DEFAULT_MIN_PAST, FORWARD, SCHEMES
+from ..core.validation import BASELINE_MARGIN, DEFAULT_MIN_PAST, FORWARD, SCHEMES
 from ..errors import MlxTempCompError
 from ..model_params import parameter_file, write_parameter_file
 from ..sources.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
@@ -77,7 +77,7 @@ VALIDATION_OPTIONS = {scheme.replace('_', '-'): scheme for scheme in SCHEMES}
 
 
 def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> None:
-    """Add --validation and --min-past (core.validation); None when not given."""
+    """Add --validation, --min-past, --baseline-margin (core.validation); None if not given."""
     default = FORWARD.replace('_', '-')
     parser.add_argument('--validation', choices=tuple(VALIDATION_OPTIONS),
                         help=f'{when}which held-out scheme decides: forward predicts each '
@@ -87,12 +87,18 @@ def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> N
     parser.add_argument('--min-past', type=fraction, metavar='F',
                         help=f'{when}forward: the first predicted block starts after this '
                              f'fraction of the record (default: {DEFAULT_MIN_PAST})')
+    parser.add_argument('--baseline-margin', type=fraction, metavar='F',
+                        help=f'{when}write a model other than the PX4-style cubic only when '
+                             "its held-out RMS is at least F below the cubic's, else write the "
+                             f'cubic (default: {BASELINE_MARGIN})')
 
 
 def validation_settings(args: argparse.Namespace) -> dict:
-    """Return the validation and min_past the options ask for, defaults where not given."""
+    """Return the validation, min_past and baseline_margin asked for, defaults where not given."""
     return {'validation': VALIDATION_OPTIONS[args.validation or FORWARD.replace('_', '-')],
-            'min_past': DEFAULT_MIN_PAST if args.min_past is None else args.min_past}
+            'min_past': DEFAULT_MIN_PAST if args.min_past is None else args.min_past,
+            'baseline_margin': (BASELINE_MARGIN if args.baseline_margin is None
+                                else args.baseline_margin)}
 
 
 def instance_option(text: str):

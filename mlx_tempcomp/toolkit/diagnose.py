@@ -92,11 +92,6 @@ def add_parser(commands) -> None:
     parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
-    parser.add_argument('--baseline-margin', type=fraction, default=defaults.baseline_margin,
-                        metavar='F', help='write the model found on an axis only when its '
-                                          'held-out RMS is at least F below the PX4-style '
-                                          "cubic's, else write the cubic (default: "
-                                          '%(default)s)')
     parser.add_argument('--block-tolerance', type=non_negative_float,
                         default=defaults.block_tolerance, metavar='F',
                         help='refuse an effect when a held-out block gets worse by more than F '
@@ -228,7 +223,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
-            block_tolerance=args.block_tolerance, baseline_margin=args.baseline_margin,
+            block_tolerance=args.block_tolerance,
             error_bins=args.error_bins,
             test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
             test_fraction=test if isinstance(test, float) else 0.0,

@@ -242,9 +242,9 @@ def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
 
 _FIT_MODELS = {
     'polynomial': (_fit_polynomial_model, ('order', 'max_order', 'blocks', 'folds',
-                                           'validation', 'min_past')),
+                                           'validation', 'min_past', 'baseline_margin')),
     'relative': (_fit_relative_model, ('order', 'max_order', 'blocks', 'folds', 'validation',
-                                       'min_past', 'true_temperature')),
+                                       'min_past', 'baseline_margin', 'true_temperature')),
     'linear_btc': (_fit_linear_btc_model, ('t3', 'table_step')),
     'chain': (_fit_chain_model, ('order', 'full_scale_dps', 'reference_temperature',
                                  'reference_temperature_2')),
