@@ -105,29 +105,25 @@ def unit_files(folder: Path) -> dict:
             if p.is_file()}
 
 
-def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
-    out, (code, _, _) = fleet_run
-    single = tmp_path / 'single'
-    assert run_cli(['diagnose', records / 'a1.csv', '--out', single])[0] == 0
-    unit = out / 'units' / 'a1'
+def same_as_diagnose(paths: list, unit: Path, single: Path) -> dict:
+    """Run diagnose on ``paths`` into ``single``; check the unit folder has its files."""
+    assert run_cli(['diagnose', *paths, '--out', single])[0] == 0
     fleet, alone = unit_files(unit), unit_files(single)
     assert set(fleet) == set(alone) | {'unit.json', 'log.txt', MOMENTS_FILE, SHRUNK_PARAMS}
     assert json.loads(fleet['report.json']) == json.loads(alone['report.json'])
     for name in ('params.yaml', 'report.md'):
         assert fleet[name].decode() == alone[name].decode().replace(str(single), str(unit))
     assert fleet['residual_vs_temperature.png'] == alone['residual_vs_temperature.png']
+    return fleet
+
+
+def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
+    same_as_diagnose([records / 'a1.csv'], fleet_run[0] / 'units' / 'a1', tmp_path / 'single')
 
 
 def test_a_unit_of_several_records_is_one_diagnose_of_them(records, fleet_run, tmp_path):
-    out = fleet_run[0]
-    single = tmp_path / 'single'
-    assert run_cli(['diagnose', *(records / name for name in PAIR), '--out', single])[0] == 0
-    unit = out / 'units' / 'pair'
-    fleet, alone = unit_files(unit), unit_files(single)
-    assert set(fleet) == set(alone) | {'unit.json', 'log.txt', MOMENTS_FILE, SHRUNK_PARAMS}
-    assert json.loads(fleet['report.json']) == json.loads(alone['report.json'])
-    for name in ('params.yaml', 'report.md'):
-        assert fleet[name].decode() == alone[name].decode().replace(str(single), str(unit))
+    fleet = same_as_diagnose([records / name for name in PAIR], fleet_run[0] / 'units' / 'pair',
+                             tmp_path / 'single')
     assert f'Bias offset of {records / PAIR[1]}' in fleet['params.yaml'].decode()
     moments = json.loads(fleet[MOMENTS_FILE])['records']
     assert [m['path'] for m in moments] == [str(records / name) for name in PAIR]
