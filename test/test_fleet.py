@@ -4,12 +4,14 @@
 Records are CSV files of a two-cycle -20..70 C chamber run, one axis, a
 quadratic bias whose coefficients differ unit to unit; one unit's slope is ten
 times the others' (the outlier the report must flag), two records are bad (a
-missing file, a file that is no CSV). One fleet run on a LocalCluster of two
-workers serves most tests; the kill test starts a real ``dask scheduler`` and
-two ``dask worker`` processes and kills one while units run.
+missing file, a file that is no CSV), one unit has two records (diagnosed as
+one). One fleet run on a LocalCluster of two workers serves most tests; the
+kill test starts a real ``dask scheduler`` and two ``dask worker`` processes
+and kills one while units run.
 """
 
 import contextlib
+from dataclasses import replace
 import io
 import json
 from pathlib import Path
@@ -19,9 +21,11 @@ import sys
 import time
 
 from mlx_tempcomp.cli import main
+from mlx_tempcomp.fleet.manifest import read_manifest, RecordSpec, UnitSpec
 from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
-from mlx_tempcomp.fleet.report import COUNT_METRICS, OUTLIER_Z, robust_z
-from mlx_tempcomp.fleet.unit import MOMENTS_FILE
+from mlx_tempcomp.fleet.report import COUNT_METRICS, fleet_summary, OUTLIER_Z, robust_z
+from mlx_tempcomp.fleet.run import finished, store_unit
+from mlx_tempcomp.fleet.unit import MOMENTS_FILE, run_unit, UnitJob
 from mlx_tempcomp.node_parameters import build_model, node_values
 import numpy as np
 import pytest
@@ -30,22 +34,31 @@ GOOD_UNITS = ('a1', 'a2', 'a3', 'a4', 'a5', 'odd')
 BAD_UNITS = {'gone': 'missing.csv', 'junk': 'junk.csv'}
 SLOPE_RAD_S_PER_C = 2e-4
 ROWS = 600
-# A unit of two records: one row per record in the report (one model: issue 15 item 3).
-PAIR = ('a1.csv', 'a2.csv')
+# A unit of two records (one chip, re-mounted: the second PAIR_OFFSET_RAD_S off): one
+# diagnosis of both, as mlx-tempcomp diagnose pair-1.csv pair-2.csv.
+PAIR = ('pair-1.csv', 'pair-2.csv')
+PAIR_OFFSET_RAD_S = 0.002
 DASK = Path(sys.executable).with_name('dask')
 
 
-def write_record(path: Path, seed: int, slope_factor: float = 1.0) -> str:
-    """Write a CSV record of one gyro: two -20..70 C cycles, bias(T) of this unit, noise."""
+def write_record(path: Path, seed: int, slope_factor: float = 1.0, noise_seed=None,
+                 offset_rad_s: float = 0.0) -> str:
+    """
+    Write a CSV record of one gyro: two -20..70 C cycles, bias(T) of this unit, noise.
+
+    ``seed`` draws the unit (and the noise, unless ``noise_seed`` draws it: another
+    record of the same unit), ``offset_rad_s`` is added (a re-mount).
+    """
     rng = np.random.default_rng(seed)
+    noise = rng if noise_seed is None else np.random.default_rng(noise_seed)
     time_s = np.arange(ROWS) * 12.0
     phase = (2.0 * np.arange(ROWS) / ROWS) % 1.0
     temperature_c = 25.0 + 45.0 * (1.0 - 4.0 * np.abs(phase - 0.5)) + \
-        rng.normal(0.0, 0.02, ROWS)
+        noise.normal(0.0, 0.02, ROWS)
     slope = SLOPE_RAD_S_PER_C * slope_factor * (1.0 + 0.1 * rng.standard_normal())
     bias = 0.01 * (1.0 + 0.2 * rng.standard_normal()) + slope * (temperature_c - 25.0) + \
         2e-6 * (1.0 + 0.2 * rng.standard_normal()) * (temperature_c - 25.0) ** 2
-    rate = bias + rng.normal(0.0, 5e-4, ROWS)
+    rate = bias + offset_rad_s + noise.normal(0.0, 5e-4, ROWS)
     np.savetxt(path, np.column_stack([time_s, temperature_c, rate]), delimiter=',',
                header='time,temperature,gyro_z', comments='', fmt='%.17g')
     return str(path)
@@ -67,6 +80,9 @@ def records(tmp_path_factory) -> Path:
     for seed, unit in enumerate(GOOD_UNITS):
         write_record(folder / f'{unit}.csv', seed, 10.0 if unit == 'odd' else 1.0)
         rows.append(f'{unit},{unit}.csv')
+    for k, name in enumerate(PAIR):
+        write_record(folder / name, len(GOOD_UNITS), noise_seed=100 + k,
+                     offset_rad_s=k * PAIR_OFFSET_RAD_S)
     (folder / 'junk.csv').write_text('this is not\na recording\n', encoding='utf-8')
     rows += [f'{unit},{name}' for unit, name in BAD_UNITS.items()]
     rows += [f'pair,{name}' for name in PAIR]
@@ -89,17 +105,31 @@ def unit_files(folder: Path) -> dict:
             if p.is_file()}
 
 
-def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
-    out, (code, _, _) = fleet_run
-    single = tmp_path / 'single'
-    assert run_cli(['diagnose', records / 'a1.csv', '--out', single])[0] == 0
-    unit = out / 'units' / 'a1'
+def same_as_diagnose(paths: list, unit: Path, single: Path) -> dict:
+    """Run diagnose on ``paths`` into ``single``; check the unit folder has its files."""
+    assert run_cli(['diagnose', *paths, '--out', single])[0] == 0
     fleet, alone = unit_files(unit), unit_files(single)
     assert set(fleet) == set(alone) | {'unit.json', 'log.txt', MOMENTS_FILE, SHRUNK_PARAMS}
     assert json.loads(fleet['report.json']) == json.loads(alone['report.json'])
     for name in ('params.yaml', 'report.md'):
         assert fleet[name].decode() == alone[name].decode().replace(str(single), str(unit))
     assert fleet['residual_vs_temperature.png'] == alone['residual_vs_temperature.png']
+    return fleet
+
+
+def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
+    same_as_diagnose([records / 'a1.csv'], fleet_run[0] / 'units' / 'a1', tmp_path / 'single')
+
+
+def test_a_unit_of_several_records_is_one_diagnose_of_them(records, fleet_run, tmp_path):
+    fleet = same_as_diagnose([records / name for name in PAIR], fleet_run[0] / 'units' / 'pair',
+                             tmp_path / 'single')
+    assert f'Bias offset of {records / PAIR[1]}' in fleet['params.yaml'].decode()
+    moments = json.loads(fleet[MOMENTS_FILE])['records']
+    assert [m['path'] for m in moments] == [str(records / name) for name in PAIR]
+    assert all(m['moments']['rows'] == ROWS for m in moments)
+    entry = json.loads(fleet['unit.json'])
+    assert entry['results'] == [{'folder': '', 'records': [m['path'] for m in moments]}]
 
 
 def test_fleet_fit_is_the_single_record_command(records, tmp_path):
@@ -117,6 +147,73 @@ def test_fleet_fit_is_the_single_record_command(records, tmp_path):
     assert fleet.replace('file://', '') == \
         single.read_text().replace(str(single), str(out / 'units/a2/params.yaml'))
     assert 'orders (chosen on held-out blocks' in (out / 'units' / 'a2' / 'log.txt').read_text()
+
+
+def test_held_out_records_give_the_units_row_its_figures(records, tmp_path):
+    # Several files per unit from a URL pattern; a unit of one record cannot hold one out.
+    for unit, names in (('two', ('a3.csv', 'a4.csv')), ('one', ('a5.csv',))):
+        (tmp_path / unit).mkdir()
+        for k, name in enumerate(names, start=1):
+            (tmp_path / unit / f'{k}.csv').write_bytes((records / name).read_bytes())
+    out = tmp_path / 'out'
+    code, _, stderr = run_cli(['fleet', 'diagnose', '--records',
+                               f'file://{tmp_path}/{{unit}}/*.csv', '--out', out, '--workers', 1,
+                               '--options=--test each'])
+    assert code == 1
+    assert f'failed: one: file://{tmp_path}/one/1.csv: --test each holds out whole records' \
+        in stderr
+    urls = [f'file://{tmp_path}/two/{k}.csv' for k in (1, 2)]
+    unit = out / 'units' / 'two'
+    report = json.loads((unit / 'report.json').read_text())
+    assert report['source'] == ', '.join(urls)
+    assert [r['record'] for r in report['held_out_records']] == urls
+    for name, data in unit_files(unit).items():
+        if name.endswith(('.json', '.md', '.yaml', '.txt')):
+            assert b'mlx-fleet-' not in data, f"{name} names the worker's cache"
+    (row,) = json.loads((out / 'fleet.json').read_text())['rows']
+    assert row['unit'] == 'two' and row['records'] == urls
+    assert row['held_out'] == 'held_out_records' and row['held_out_records'] == urls
+    held, summary = report['held_out_records'], report['held_out_summary']
+    for kind, key in (('as_written', 'held_out_rms_rad_s'),
+                      ('after_rezero', 'held_out_rms_after_rezero_rad_s')):
+        pooled = sum(r['rows'] * r[kind]['diagnosed']['z']['rms'] ** 2 for r in held) / \
+            sum(r['rows'] for r in held)
+        assert row[key]['z'] == pytest.approx(np.sqrt(pooled), rel=1e-12)
+    assert row['gain_over_cubic'] == summary['gain_as_written']
+    assert row['gain_after_rezero'] == summary['gain_after_rezero']
+    # Not the fold figure of the diagnosis over both records that wrote params.yaml.
+    validation = report['settings']['validation']
+    assert row['held_out_rms_rad_s'] != \
+        {'z': report['comparison'][validation]['diagnosed']['z']['rms']}
+    markdown = (out / 'fleet.md').read_text()
+    assert '| after a re-zero: RMS | gain |' in markdown and '| two | 2 |' in markdown
+
+
+def test_fit_runs_per_record_and_a_unit_read_two_ways_is_refused(records, tmp_path):
+    """The worker's task itself (no cluster): what a unit of several records gives."""
+    first, second = (str(records / name) for name in PAIR)
+    job = UnitJob('fit', UnitSpec('pair', (RecordSpec(first), RecordSpec(second))), (),
+                  str(tmp_path / 'out' / 'units' / 'pair'))
+    outcome = run_unit(job)
+    assert outcome['status'] == 'ok', outcome['error']
+    assert {'record-1/params.yaml', 'record-2/params.yaml', 'record-1/log.txt',
+            MOMENTS_FILE} <= set(outcome['files'])
+    (tmp_path / 'out' / 'units').mkdir(parents=True)
+    store_unit(job, outcome)
+    rows = fleet_summary(tmp_path / 'out')['rows']
+    assert [(r['unit'], r['record'], r['records']) for r in rows] == \
+        [('pair', 'record-1', [first]), ('pair', 'record-2', [second])]
+    mixed = UnitSpec('mixed', (RecordSpec(first), RecordSpec(second, columns='time=time')))
+    outcome = run_unit(UnitJob('diagnose', mixed, (), str(tmp_path / 'mixed')))
+    assert outcome['status'] == 'error' and outcome['error'] == \
+        f"unit mixed: {second} has columns 'time=time', {first} no columns: diagnose reads " \
+        'the records of a unit with one columns; give its rows the same, or make them units ' \
+        'of their own'
+    missing = str(records / 'missing.csv')
+    broken = UnitSpec('broken', (RecordSpec(first), RecordSpec(missing)))
+    outcome = run_unit(UnitJob('diagnose', broken, (), str(tmp_path / 'broken')))
+    assert outcome['status'] == 'error' and f'{missing}: No such file' in outcome['error']
+    assert '\n' not in outcome['error'] and first not in outcome['error']
 
 
 def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
@@ -139,27 +236,26 @@ def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
     assert not [p for p in (out / 'units').iterdir() if p.name.startswith('.')]
 
 
-def test_the_report_has_a_row_per_unit_and_flags_the_outlier(fleet_run):
+def test_the_report_has_a_row_per_unit_and_flags_the_outlier(records, fleet_run):
     out = fleet_run[0]
     fleet = json.loads((out / 'fleet.json').read_text())
-    assert [(r['unit'], r['record']) for r in fleet['records']] == \
-        [(u, '') for u in GOOD_UNITS] + [('pair', 'record-1'), ('pair', 'record-2')]
-    pair = out / 'units' / 'pair'
-    for k, name in enumerate(PAIR, start=1):
-        assert (pair / f'record-{k}' / 'report.json').read_text() == \
-            (out / 'units' / name[:2] / 'report.json').read_text()
-    for row in fleet['records']:
+    assert [(r['unit'], r['record']) for r in fleet['rows']] == \
+        [(u, '') for u in (*GOOD_UNITS, 'pair')]
+    assert fleet['rows'][-1]['records'] == [str(records / name) for name in PAIR]
+    for row in fleet['rows']:
+        assert row['held_out'] == 'forward'
         assert row['held_out_rms_rad_s']['z'] > 0.0 and row['gain_over_cubic']['z'] > 0.0
         assert isinstance(row['effects']['z'], list)
     slopes = fleet['coefficients']['z']['slope_rad_s_per_c']
-    assert slopes['units'] == len(GOOD_UNITS) + len(PAIR)
+    assert slopes['units'] == len(GOOD_UNITS) + 1
     assert 0.8 * SLOPE_RAD_S_PER_C < slopes['median'] < 1.3 * SLOPE_RAD_S_PER_C
     flagged = {(o['unit'], o['metric']) for o in fleet['outliers']}
     assert ('odd', 'slope_rad_s_per_c') in flagged
     assert {unit for unit, _ in flagged} == {'odd'}, fleet['outliers']
     markdown = (out / 'fleet.md').read_text()
     assert '| odd |' in markdown and 'slope_rad_s_per_c' in markdown
-    assert 'issue 15 item 3' in markdown
+    assert "diagnose fits one model over all of a unit's records (one row per unit" in markdown
+    assert '| pair | 2 | effects |' in markdown and '| record |' not in markdown
     assert (out / 'fleet_coefficients.png').read_bytes()[:4] == b'\x89PNG'
     (out / 'fleet.json').unlink()
     assert run_cli(['fleet', 'report', '--out', out])[0] == 0
@@ -176,6 +272,13 @@ def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tm
     assert prior['units']['odd']['axes']['z']['t_weight'] < 0.2
     design = prior['axes']['z']['design']
     assert design['order'] == 2 and not design['temperature_rate'], 'the records are quadratic'
+    # The pair's own coefficients carry its last record's offset, as its params.yaml does.
+    fleet = json.loads((out / 'fleet.json').read_text())
+    row = fleet['rows'][-1]
+    own = np.polynomial.polynomial.polyval(
+        (fleet['reference_temperature_c'] - design['reference_temperature_c'])
+        / design['temperature_scale_c'], prior['units']['pair']['axes']['z']['own'])
+    assert row['unit'] == 'pair' and abs(own - row['bias_rad_s']['z']) < 0.1 * PAIR_OFFSET_RAD_S
     assert prior['axes']['z']['population']['converged']
     for path in [out / FLEET_PARAMS] + [out / 'units' / u / SHRUNK_PARAMS
                                         for u in (*GOOD_UNITS, 'pair')]:
@@ -218,6 +321,13 @@ def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
         in stdout
     assert inode == {unit: (out / 'units' / unit / 'unit.json').stat().st_ino
                      for unit in GOOD_UNITS}
+    # A unit is finished for the very records and options it ran with, and only for them.
+    pair = {unit.unit: unit for unit in read_manifest(manifest)}['pair']
+    job = UnitJob('diagnose', pair, (), str(out / 'units' / 'pair'))
+    assert finished(job)
+    assert not finished(replace(job, unit=UnitSpec('pair', pair.records[1:])))
+    assert not finished(replace(job, unit=UnitSpec('pair', pair.records[::-1])))
+    assert not finished(replace(job, options=('--test', 'each')))
     one = records / 'a1_only.csv'
     one.write_text('unit,path\na1,a1.csv\n', encoding='utf-8')
     code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', one, '--out', out,
@@ -250,7 +360,7 @@ def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
                                '--workers', 2])
     assert code == 0
     assert f'{len(GOOD_UNITS) - finished} done, {finished} finished before (skipped)' in stdout
-    assert len(json.loads((out / 'fleet.json').read_text())['records']) == len(GOOD_UNITS)
+    assert len(json.loads((out / 'fleet.json').read_text())['rows']) == len(GOOD_UNITS)
 
 
 def test_mistakes_are_one_line_errors(records, tmp_path):

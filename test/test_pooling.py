@@ -15,7 +15,7 @@ import math
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.pooling import (fit_population, information, MOMENT_ORDER, moments_of,
                                        pool_fleet, PoolingDesign, record_moments, shrink,
-                                       unit_data)
+                                       unit_data, unit_moments)
 import numpy as np
 import pytest
 
@@ -175,6 +175,35 @@ def test_the_design_transform_is_least_squares_in_the_fleet_basis():
     both = moments + moments
     assert both.rows == 2 * moments.rows and both.block_record.max() == 1
     assert np.allclose(unit_data(both, design).coefficients, direct, rtol=1e-7, atol=1e-12)
+
+
+def test_each_record_of_a_unit_has_its_own_offset_and_the_last_ones_is_the_units():
+    rng = np.random.default_rng(10)
+    truth = draw_unit(rng)
+    time_s, temperature_c, rate = record(rng, truth, 1.0)
+    # Two runs of one unit, the first re-mounted 0.03 rad/s off (its second half cooling).
+    half = ROWS // 2 + ROWS // 8
+    offset = np.where(np.arange(ROWS) < half, 0.03, 0.0)
+    runs = [moments_of(record_moments(time_s[rows], temperature_c[rows],
+                                      (rate + offset)[rows, None], ['z']))['z']
+            for rows in (slice(0, half), slice(half, None))]
+    unit = unit_moments(runs)
+    assert unit.rows == ROWS and unit.offsets == 1 and unit.block_record.max() == 1
+    design = PoolingDesign(3, 25.0, 45.0, rate=False)
+    x = (temperature_c - 25.0) / 45.0
+    # Least squares with an indicator column of the first run: its offset a nuisance.
+    columns = np.column_stack([x[:, None] ** np.arange(4), offset > 0.0])
+    direct, residual, _, _ = np.linalg.lstsq(columns, rate + offset, rcond=None)
+    fit = unit_data(unit, design)
+    assert np.allclose(fit.coefficients, direct[:4], rtol=1e-7, atol=1e-12)
+    assert direct[4] == pytest.approx(0.03, abs=2e-4)
+    assert fit.sigma2 == pytest.approx(residual[0] / (ROWS - 5), rel=1e-6)
+    # The constant is the last run's: the truth's at 25 C, not a mean over the two mounts.
+    assert fit.coefficients[0] == pytest.approx(truth[0], abs=5e-4)
+    summed = unit_data(runs[0] + runs[1], design)
+    assert abs(summed.coefficients[0] - truth[0]) > 0.01
+    # One record is itself.
+    assert unit_moments(runs[1:]) is runs[1]
 
 
 def test_a_record_shorter_than_the_design_takes_the_fleets_noise():

@@ -13,8 +13,12 @@ the normal equations of a wider design (powers 0 to `MOMENT_ORDER` of
 and the sums of the rate and of the columns (`DesignMoments`). Any fleet
 design of order <= MOMENT_ORDER is a linear map of those columns
 (`PoolingDesign.transform`), so the fleet chooses its order and reference
-after seeing every unit without reading a record again, and the records of a
-unit add up.
+after seeing every unit without reading a record again. A unit of several
+records (`unit_moments`) has, as in ``diagnose``, a bias offset of its own per
+record (a power cycle or a re-mount): an indicator column per record but the
+last, profiled out of the normal equations (each such record's sums taken
+about its own means), so the unit's coefficients are those of its last record's
+mount, as the params.yaml ``diagnose`` writes carries the last record's offset.
 
 A unit's own estimate is least squares in the fleet design, with information
 J = X'X / (kappa sigma^2): sigma^2 its residual variance, kappa >= 1 the
@@ -35,7 +39,7 @@ long record (large J) keeps its own fit, a short one takes the fleet's where
 its data is silent. Numpy only.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -78,7 +82,8 @@ class DesignMoments:
     per block, ``block_rows`` rows, ``block_sum_y`` the sum of y and
     ``block_sum_x`` the column sums of X; ``block_record`` numbers the record
     of each block (blocks of two records are never merged); ``rate_varies``
-    whether a record's dT/dt varies after its first rate window (`RATE_VARIATION`).
+    whether a record's dT/dt varies after its first rate window (`RATE_VARIATION`);
+    ``offsets`` the records whose own bias offset is profiled out (`own_offset`).
     """
 
     rows: int
@@ -93,6 +98,30 @@ class DesignMoments:
     temperature_min_c: float
     temperature_max_c: float
     rate_varies: bool
+    offsets: int = 0
+
+    def own_offset(self) -> 'DesignMoments':
+        """
+        Give these moments with a bias offset of the record's own profiled out.
+
+        An indicator column d of the record's rows beside X leaves, for the
+        other coefficients, the normal equations of the rows about their
+        means: X'X - s s' / n and X'y - s sum(y) / n (s = X'1, the first row
+        of X'X, whose column 0 is 1), y'y - sum(y)^2 / n; each block's sums
+        less its rows times the record's means.
+        """
+        rows = self.gram[0, 0]
+        if not rows > 0.0:
+            return self
+        column_mean = self.gram[0] / rows
+        mean_y = self.moment[0] / rows
+        return replace(
+            self, gram=self.gram - rows * np.outer(column_mean, column_mean),
+            moment=self.moment - column_mean * self.moment[0],
+            sum_y2=float(self.sum_y2 - mean_y * self.moment[0]),
+            block_sum_y=self.block_sum_y - self.block_rows * mean_y,
+            block_sum_x=self.block_sum_x - np.outer(self.block_rows, column_mean),
+            offsets=self.offsets + 1)
 
     def __add__(self, other: 'DesignMoments') -> 'DesignMoments':
         return DesignMoments(
@@ -106,7 +135,25 @@ class DesignMoments:
                                          other.block_record + self.block_record.max() + 1]),
             temperature_min_c=min(self.temperature_min_c, other.temperature_min_c),
             temperature_max_c=max(self.temperature_max_c, other.temperature_max_c),
-            rate_varies=self.rate_varies or other.rate_varies)
+            rate_varies=self.rate_varies or other.rate_varies,
+            offsets=self.offsets + other.offsets)
+
+
+def unit_moments(records) -> 'DesignMoments':
+    """
+    Give the moments of a unit's records (DesignMoments of one axis, in order).
+
+    Each record but the last has its own bias offset profiled out
+    (`DesignMoments.own_offset`): the constant of a fit is the last record's,
+    the one the robot runs on after it, as ``diagnose`` writes it.
+    """
+    records = list(records)
+    if not records:
+        raise CalibrationError('design moments: a unit needs a record')
+    total = records[-1]
+    for record in reversed(records[:-1]):
+        total = record.own_offset() + total
+    return total
 
 
 def record_moments(time_s, temperature_c, rate_rad_s, axes) -> dict:
@@ -255,6 +302,8 @@ class UnitData:
     # Rows and residual sums of stretches of about KAPPA_STRETCH_S, for kappa.
     stretch_rows: np.ndarray
     stretch_residual: np.ndarray
+    # Records' own offsets profiled out: each leaves its stretches summing to zero.
+    offsets: int = 0
 
 
 def unit_data(moments: DesignMoments, design: PoolingDesign) -> UnitData:
@@ -264,7 +313,7 @@ def unit_data(moments: DesignMoments, design: PoolingDesign) -> UnitData:
     moment = matrix.T @ moments.moment
     coefficients, rank = _solve(gram, moment)
     residual = max(moments.sum_y2 - float(coefficients @ moment), 0.0)
-    dof = moments.rows - rank
+    dof = moments.rows - rank - moments.offsets
     per = max(1, int(round(KAPPA_STRETCH_S / moments.block_s)))
     _, stretch = np.unique(moments.block_record * (moments.block_rows.size + 1)
                            + np.arange(moments.block_rows.size) // per, return_inverse=True)
@@ -274,7 +323,8 @@ def unit_data(moments: DesignMoments, design: PoolingDesign) -> UnitData:
     kept = rows > 0
     return UnitData(gram=gram, moment=moment, coefficients=coefficients, rank=rank,
                     residual=residual, sigma2=residual / dof if dof > 0 else math.nan,
-                    stretch_rows=rows[kept], stretch_residual=sums[kept])
+                    stretch_rows=rows[kept], stretch_residual=sums[kept],
+                    offsets=moments.offsets)
 
 
 def fleet_kappa(units, size: int) -> tuple:
@@ -283,12 +333,13 @@ def fleet_kappa(units, size: int) -> tuple:
 
     White noise gives a stretch's residual sum a variance of rows x sigma^2;
     kappa is what the stretches show over that, pooled over the units with
-    more stretches than coefficients; at least 1, and 1 with no such unit.
+    more stretches than coefficients and profiled offsets; at least 1, and 1
+    with no such unit.
     """
     observed = expected = 0.0
     dof = 0
     for unit in units:
-        free = unit.stretch_rows.size - size
+        free = unit.stretch_rows.size - size - unit.offsets
         if free <= 0 or not unit.sigma2 > 0.0:
             continue
         observed += float(np.sum(unit.stretch_residual ** 2 / unit.stretch_rows))

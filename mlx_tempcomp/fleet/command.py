@@ -2,7 +2,8 @@
 ``mlx-tempcomp fleet diagnose|fit|report``: the command line of the fleet job.
 
 ``diagnose`` and ``fit`` run the single-record command on every unit of a
-manifest or records pattern (`run.run_fleet`), then write the fleet report;
+manifest or records pattern (`run.run_fleet`; ``diagnose`` over all of a
+unit's records at once, ``fit`` per record), then write the fleet report;
 ``report`` writes it again from what ``OUT`` holds. The options of the
 single-record command come in ``--options`` and are checked once, here,
 before any work is sent.
@@ -16,7 +17,8 @@ import sys
 from .manifest import find_records, read_manifest
 from .prior import write_fleet_prior
 from .report import write_fleet_report
-from .unit import command_argv, COMMANDS, parse_command, UnitError, UnitJob
+from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitError,
+                   UnitJob)
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
 from ..toolkit.progress import add_progress_option
 
@@ -37,8 +39,10 @@ def add_parser(commands) -> None:
     for name in COMMANDS:
         action = actions.add_parser(
             name, help=f'run mlx-tempcomp {name} on every unit',
-            description=f'Run mlx-tempcomp {name} on every record of every unit, one Dask '
-                        'task per unit; a rerun skips the finished units.')
+            description=(f'Run mlx-tempcomp {name} on every unit, one Dask task per unit: '
+                         + ('all records of a unit at once (one model, as diagnose A B does)'
+                            if name in SEVERAL_RECORDS else 'once per record')
+                         + '; a rerun skips the finished units.'))
         records = action.add_mutually_exclusive_group(required=True)
         records.add_argument('--manifest', metavar='CSV',
                              help='CSV with columns unit,path and optional preset, columns, '
@@ -49,7 +53,7 @@ def add_parser(commands) -> None:
         action.add_argument('--out', required=True, metavar='OUT',
                             help='folder of the results (created; reused by a rerun)')
         action.add_argument('--options', default='', metavar='ARGS',
-                            help=f'options of mlx-tempcomp {name} for every record, one '
+                            help=f'options of mlx-tempcomp {name} for every unit, one '
                                  "string, e.g. --options='--folds 4'")
         action.add_argument('--scheduler', metavar='ADDRESS',
                             help='Dask scheduler to run on, e.g. tcp://host:8786 (default: '
@@ -79,7 +83,7 @@ def _options(command: str, text: str) -> tuple:
     if {'--out', '--progress'} & {option.split('=')[0] for option in options}:
         raise UserError('--options: --out and --progress belong to the fleet command')
     try:
-        parse_command(command_argv(command, 'RECORD', 'OUT', [], options))
+        parse_command(command_argv(command, ['RECORD'], 'OUT', [], options))
     except UnitError as err:
         msg = f'--options {text!r}: {err}'
         raise UserError(msg) from None

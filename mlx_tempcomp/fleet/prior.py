@@ -2,10 +2,12 @@
 The fleet prior: a population model for units without a record, unit fits shrunk toward it.
 
 Written after the fleet report, from what ``OUT`` holds: each finished unit's
-`MOMENTS_FILE` per record (the worker's summary of the record, added up over
-a unit's records), and the report's outlier units, which are left out of the
-population (they are still shrunk, with the small weight their distance
-gives them). The math is `core.pooling`, per axis; here the files:
+`MOMENTS_FILE` (the worker's summary of each of its records, added up over a
+unit's records with a bias offset per record, the unit's constant its last
+record's: `core.pooling.unit_moments`), and the report's outlier units, which
+are left out of the population (they are still shrunk, with the small weight
+their distance gives them). The math is `core.pooling`, per axis; here the
+files:
 
 - ``OUT/fleet_params.yaml``: the population mean, an effects model the
   compensation node loads as is, for a unit that has no record of its own;
@@ -31,7 +33,8 @@ import numpy as np
 from .unit import command_argv, MOMENTS_FILE, parse_command, UNIT_FILE, UnitError
 from ..core.effects import AxisTerms, EffectModel
 from ..core.errors import TempCompError
-from ..core.pooling import MIN_POOLED_UNITS, moments_of, pool_fleet, RATE_WINDOW_S
+from ..core.pooling import (MIN_POOLED_UNITS, moments_of, pool_fleet, RATE_WINDOW_S,
+                            unit_moments)
 from ..model_params import effect_parameters, parameter_file, write_parameter_file
 from ..node_parameters import build_model, node_values, ParameterError
 from ..sources.recording import AXES
@@ -61,22 +64,29 @@ def _read_json(path: Path):
         return None
 
 
-def _unit_moments(folder: Path, entry: dict) -> tuple:
-    """Give ({axis: DesignMoments} over the unit's records, None) or (None, why not)."""
-    total = {}
-    for record in entry['records']:
-        document = _read_json(folder / record['folder'] / MOMENTS_FILE)
-        if document is None:
-            return None, f'no {MOMENTS_FILE} (written before the fleet prior: rerun with --force)'
-        if 'error' in document:
-            return None, f'{record["path"]}: {document["error"]}'
+def _unit_moments(folder: Path) -> tuple:
+    """
+    Give ({axis: DesignMoments} of the unit, None) or (None, why not).
+
+    The unit's records in its order, each with its own bias offset but the
+    last (`unit_moments`): the fleet's coefficients of a unit carry the
+    offset of its last record, as its params.yaml from diagnose does.
+    """
+    document = _read_json(folder / MOMENTS_FILE)
+    if not isinstance(document, dict) or 'records' not in document:
+        return None, (f'no {MOMENTS_FILE} of this version (written before the fleet prior '
+                      'or before one model per unit: rerun with --force)')
+    per_axis = {}
+    for record in document['records']:
+        if 'error' in record:
+            return None, f'{record["path"]}: {record["error"]}'
         try:
-            found = moments_of(document)
+            found = moments_of(record.get('moments', {}))
         except TempCompError as err:
             return None, f'{record["path"]}: {err}'
         for axis, moments in found.items():
-            total[axis] = total[axis] + moments if axis in total else moments
-    return total, None
+            per_axis.setdefault(axis, []).append(moments)
+    return {axis: unit_moments(records) for axis, records in per_axis.items()}, None
 
 
 def _node_name(entry: dict, names: dict) -> str:
@@ -84,8 +94,8 @@ def _node_name(entry: dict, names: dict) -> str:
     options = tuple(entry['options'])
     if options not in names:
         try:
-            names[options] = parse_command(command_argv(entry['command'], 'RECORD', 'OUT', [],
-                                                        options)).node_name
+            names[options] = parse_command(command_argv(entry['command'], ['RECORD'], 'OUT',
+                                                        [], options)).node_name
         except UnitError:
             names[options] = DEFAULT_NODE_NAME
     return names[options]
@@ -157,7 +167,7 @@ def _gather(out: Path) -> _Fleet:
             continue
         unit = entry['unit']
         fleet.folders[unit], fleet.records[unit] = path.parent, len(entry['records'])
-        found, why = _unit_moments(path.parent, entry)
+        found, why = _unit_moments(path.parent)
         if found is None:
             fleet.excluded[unit] = why
             continue
@@ -248,7 +258,7 @@ def write_fleet_prior(out: Path) -> list:
     report = _read_json(out / 'fleet.json') or {}
     flagged = {o['unit'] for o in report.get('outliers', [])}
     own_effects = {}
-    for row in report.get('records', []):
+    for row in report.get('rows', []):
         for axis, effects in row.get('effects', {}).items():
             own_effects.setdefault(row['unit'], {}).setdefault(axis, set()).update(effects)
     fleet = _gather(out)

@@ -3,22 +3,25 @@ The fleet report: one row per unit, each coefficient over the fleet, the outlier
 
 Read from what ``OUT/units/`` holds (each unit's unit.json, params.yaml and,
 from diagnose, report.json), so ``fleet report`` can write it again at any
-time. Per record: the effects the diagnosis added per axis, the held-out RMS
-of the diagnosed model (the test set when one was kept, else the fold
-cross-validation) and its gain over the PX4-style cubic (cubic RMS /
-diagnosed RMS). The bias polynomials of units differ in order and reference,
-so they are compared as the bias and its slope at one fleet temperature (the
-median of the records' mid-range temperatures). Outliers: the robust z-score
-0.6745 (x - median) / MAD of the bias, slope, held-out RMS and number of
-effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and Hoaglin's 3.5).
-The number of effects is a count: its MAD is 0 whenever more than half the
-records agree, and its smallest nonzero MAD is half a step, so the MAD is
-taken as at least half a step (`COUNT_METRICS`): a count flags 3 or more away
-from the fleet's median (z 4.0), never 1 or 2 (z 1.3, 2.7), however many
-records share the median. A measured metric with MAD 0 (more than half the
-records equal) takes the mean absolute deviation times 1.2533.
-A unit of several records has one row per record: one model over several
-records of a unit arrives with issue 15 item 3.
+time. A row is one run of the command (unit.json ``results``): a unit, whose
+records ``diagnose`` fitted as one, or one record of a ``fit`` unit of
+several. Per row: the effects the diagnosis added per axis, the held-out RMS
+of the diagnosed model and its gain over the PX4-style cubic (cubic RMS /
+diagnosed RMS): on the held-out records when ``--test record|each`` kept
+some (as written, and after a re-zero beside; over several held-out records
+the RMS pooled, each weighted by its rows, and the gains diagnose's
+geometric mean), else on the test set when one was kept, else in the fold
+cross-validation. The bias polynomials of units differ in order and
+reference, so they are compared as the bias and its slope at one fleet
+temperature (the median of the rows' mid-range temperatures). Outliers: the
+robust z-score 0.6745 (x - median) / MAD of the bias, slope, held-out RMS
+and number of effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and
+Hoaglin's 3.5). The number of effects is a count: its MAD is 0 whenever more
+than half the rows agree, and its smallest nonzero MAD is half a step, so
+the MAD is taken as at least half a step (`COUNT_METRICS`): a count flags 3
+or more away from the fleet's median (z 4.0), never 1 or 2 (z 1.3, 2.7),
+however many rows share the median. A measured metric with MAD 0 (more than
+half the rows equal) takes the mean absolute deviation times 1.2533.
 """
 
 import json
@@ -78,24 +81,48 @@ def _coefficients(section: dict, axis: str) -> dict:
     return found
 
 
-def _record_row(unit: str, folder: Path, record: dict) -> dict:
-    """Read one record's results: effects, held-out error, gain, model section."""
-    row = {'unit': unit, 'record': record['folder'], 'path': record['path']}
+def _held_out(report: dict, axes: list) -> dict:
+    """Give a diagnosis's effects per axis and its held-out figures (see the module)."""
+    figures = {'effects': {a: [s['effect'] for s in report['axes'][a]['steps'][1:]]
+                           for a in axes}}
+    held = report.get('held_out_records') or []
+    if held:
+        summary = report['held_out_summary']
+        return {**figures, 'scope': 'held_out_records',
+                'held_out_records': [record['record'] for record in held],
+                'held_out_rms_rad_s': {a: _pooled_rms(held, 'as_written', a) for a in axes},
+                'gain_over_cubic': {a: summary['gain_as_written'][a] for a in axes},
+                'held_out_rms_after_rezero_rad_s': {a: _pooled_rms(held, 'after_rezero', a)
+                                                    for a in axes},
+                'gain_after_rezero': {a: summary['gain_after_rezero'][a] for a in axes}}
+    # The test part when held out, else the validation scheme that decided.
+    scope = 'test' if 'test' in report['comparison'] else report['settings']['validation']
+    methods = report['comparison'][scope]
+    return {**figures, 'scope': scope,
+            'held_out_rms_rad_s': {a: methods['diagnosed'][a]['rms'] for a in axes},
+            'gain_over_cubic': {a: _ratio(methods['px4_cubic'][a]['rms'],
+                                          methods['diagnosed'][a]['rms']) for a in axes}}
+
+
+def _pooled_rms(held: list, kind: str, axis: str):
+    """Give the diagnosed model's RMS over held-out records, each weighted by its rows."""
+    pairs = [(record['rows'], record[kind]['diagnosed'][axis]['rms']) for record in held]
+    pairs = [(rows, rms) for rows, rms in pairs if rms is not None]
+    if not pairs:
+        return None
+    return math.sqrt(sum(rows * rms ** 2 for rows, rms in pairs)
+                     / sum(rows for rows, _ in pairs))
+
+
+def _result_row(unit: str, folder: Path, result: dict) -> dict:
+    """Read one run's results: model section and, from diagnose, the held-out figures."""
+    row = {'unit': unit, 'record': result['folder'], 'paths': result['records']}
     model, axes, section = _model_values(folder / 'params.yaml')
     row.update(model=model, axes=axes, section=section)
     report_path = folder / 'report.json'
     row['report'] = None
     if report_path.exists():
-        report = json.loads(report_path.read_text(encoding='utf-8'))
-        # The test part when held out, else the validation scheme that decided.
-        scope = 'test' if 'test' in report['comparison'] else report['settings']['validation']
-        methods = report['comparison'][scope]
-        row['report'] = {
-            'scope': scope,
-            'effects': {a: [s['effect'] for s in report['axes'][a]['steps'][1:]]
-                        for a in axes},
-            'held_out_rms_rad_s': {a: methods['diagnosed'][a]['rms'] for a in axes},
-            'cubic_rms_rad_s': {a: methods['px4_cubic'][a]['rms'] for a in axes}}
+        row['report'] = _held_out(json.loads(report_path.read_text(encoding='utf-8')), axes)
     return row
 
 
@@ -158,7 +185,7 @@ def _distribution(values) -> dict:
 
 
 def _distributions(rows: list, axes: list) -> dict:
-    """Give each coefficient's distribution over the records that have it, per axis."""
+    """Give each coefficient's distribution over the rows that have it, per axis."""
     found = {}
     for axis in axes:
         names = {}
@@ -177,12 +204,18 @@ def _distributions(rows: list, axes: list) -> dict:
 
 
 def _unit_entries(units: Path) -> list:
+    """Read each unit.json; one of an earlier version (no ``results``) is a failed unit."""
     entries = []
     for path in sorted(units.glob(f'*/{UNIT_FILE}')):
         try:
-            entries.append(json.loads(path.read_text(encoding='utf-8')))
+            entry = json.loads(path.read_text(encoding='utf-8'))
         except (OSError, ValueError):
             continue
+        if entry.get('status') == 'ok' and 'results' not in entry:
+            entry = {**entry, 'status': 'error',
+                     'error': 'written by an earlier mlx-tempcomp fleet: run the fleet '
+                              'command again to redo it'}
+        entries.append(entry)
     return entries
 
 
@@ -196,9 +229,9 @@ def fleet_summary(out: Path) -> dict:
     rows = []
     for entry in entries:
         if entry['status'] == 'ok':
-            for record in entry['records']:
-                rows.append(_record_row(entry['unit'], out / 'units' / entry['unit']
-                                        / record['folder'], record))
+            for result in entry['results']:
+                rows.append(_result_row(entry['unit'], out / 'units' / entry['unit']
+                                        / result['folder'], result))
     mid_c = [(row['section']['temperature_min_c'] + row['section']['temperature_max_c']) / 2
              for row in rows if math.isfinite(row['section'].get('temperature_min_c', math.nan))
              and math.isfinite(row['section'].get('temperature_max_c', math.nan))]
@@ -212,17 +245,14 @@ def fleet_summary(out: Path) -> dict:
     table = []
     for row in rows:
         report = row['report']
-        item = {'unit': row['unit'], 'record': row['record'], 'path': row['path'],
+        item = {'unit': row['unit'], 'record': row['record'], 'records': row['paths'],
                 'model': row['model'], 'axes': row['axes'],
                 'bias_rad_s': row['bias'], 'slope_rad_s_per_c': row['slope'],
                 'outlier': [o['reason'] for o in outliers
                             if (o['unit'], o['record']) == (row['unit'], row['record'])]}
         if report is not None:
-            item.update(held_out=report['scope'], effects=report['effects'],
-                        held_out_rms_rad_s=report['held_out_rms_rad_s'],
-                        gain_over_cubic={a: _ratio(report['cubic_rms_rad_s'][a],
-                                                   report['held_out_rms_rad_s'][a])
-                                         for a in row['axes']})
+            item.update(held_out=report['scope'],
+                        **{key: value for key, value in report.items() if key != 'scope'})
         table.append(item)
     return {
         'units': len(entries),
@@ -231,11 +261,12 @@ def fleet_summary(out: Path) -> dict:
                    if e['status'] != 'ok'],
         'reference_temperature_c': reference_c,
         'outlier_rule': f'|robust z| > {OUTLIER_Z} over at least {MIN_UNITS_FOR_OUTLIERS} '
-                        'records, robust z = 0.6745 (x - median) / MAD, the MAD of the number '
+                        'rows, robust z = 0.6745 (x - median) / MAD, the MAD of the number '
                         'of effects at least half an effect',
-        'several_records': 'a unit of several records has one row per record; one model over '
-                           'several records of a unit arrives with issue 15 item 3',
-        'records': table,
+        'several_records': "diagnose fits one model over all of a unit's records (one row per "
+                           "unit; params.yaml carries the last record's offset); fit takes "
+                           'one record, so a fit unit of several has a row per record',
+        'rows': table,
         'coefficients': _distributions(rows, axes),
         'outliers': outliers,
         'plot': PLOT,
@@ -255,26 +286,44 @@ def _markdown(summary: dict) -> str:
              f'- units: {summary["units"]}, finished {summary["finished"]}, failed '
              f'{len(summary["failed"])}.',
              f'- bias and slope compared at {summary["reference_temperature_c"]:.2f} C (the '
-             "median of the records' mid-range temperatures); errors in rad/s.",
-             '- held-out RMS: of the diagnosed model on the test set when one was kept, else '
-             'in fold cross-validation; gain over the cubic: PX4-style cubic RMS / diagnosed '
-             'RMS on the same rows.',
+             "median of the rows' mid-range temperatures); errors in rad/s.",
+             '- held-out RMS: of the diagnosed model on the held-out records as written (with '
+             'the written offset: theirs is unknown) when --test record|each kept some, '
+             'pooled over them, each weighted by its rows (after a re-zero beside); else on '
+             'the test set when one was kept, else in fold cross-validation; gain over the '
+             'cubic: PX4-style cubic RMS / diagnosed RMS on the same rows (over several '
+             "held-out records diagnose's geometric mean of their gains).",
              f'- outliers: {summary["outlier_rule"]}.',
-             f'- {summary["several_records"]}.', '', '## Units', '',
-             '| unit | record | model | effects found | held-out RMS | gain over cubic | '
-             'bias | slope (rad/s/C) | outlier |', '|---|---|---|---|---|---|---|---|---|']
-    for row in summary['records']:
-        effects = _per_axis(row['effects'], lambda v: '+'.join(v) or 'none') \
-            if 'effects' in row else '-'
-        rms = _per_axis(row['held_out_rms_rad_s'], _e) if 'effects' in row else '-'
-        gain = _per_axis(row['gain_over_cubic'], lambda v: '-' if v is None else f'{v:.2f}x') \
-            if 'effects' in row else '-'
-        lines.append(f'| {row["unit"]} | {row["record"] or "-"} | {row["model"]} | {effects} '
-                     f'| {rms} | {gain} | {_per_axis(row["bias_rad_s"], _e)} | '
-                     f'{_per_axis(row["slope_rad_s_per_c"], _e)} | '
-                     f'{"yes" if row["outlier"] else ""} |')
+             f'- {summary["several_records"]}.', '', '## Units', '']
+    rows = summary['rows']
+    by_record = any(row['record'] for row in rows)
+    rezeroed = any('gain_after_rezero' in row for row in rows)
+    header = ['unit', *(['record'] if by_record else []), 'records', 'model', 'effects found',
+              'held-out RMS', 'gain over cubic',
+              *(['after a re-zero: RMS', 'gain'] if rezeroed else []), 'bias',
+              'slope (rad/s/C)', 'outlier']
+    lines += ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+
+    def gains(values: dict) -> str:
+        return _per_axis(values, lambda v: '-' if v is None else f'{v:.2f}x')
+
+    for row in rows:
+        diagnosed = 'effects' in row
+        cells = [row['unit'], *([row['record'] or '-'] if by_record else []),
+                 str(len(row['records'])), row['model'],
+                 _per_axis(row['effects'], lambda v: '+'.join(v) or 'none')
+                 if diagnosed else '-',
+                 _per_axis(row['held_out_rms_rad_s'], _e) if diagnosed else '-',
+                 gains(row['gain_over_cubic']) if diagnosed else '-']
+        if rezeroed:
+            cells += ([_per_axis(row['held_out_rms_after_rezero_rad_s'], _e),
+                       gains(row['gain_after_rezero'])]
+                      if 'gain_after_rezero' in row else ['-', '-'])
+        cells += [_per_axis(row['bias_rad_s'], _e), _per_axis(row['slope_rad_s_per_c'], _e),
+                  'yes' if row['outlier'] else '']
+        lines.append('| ' + ' | '.join(cells) + ' |')
     lines += ['', '## Coefficients over the fleet', '',
-              '| axis | coefficient | records | nonzero | median | MAD | 5 % | 95 % | min | '
+              '| axis | coefficient | rows | nonzero | median | MAD | 5 % | 95 % | min | '
               'max |', '|---|---|---|---|---|---|---|---|---|---|']
     for axis, names in summary['coefficients'].items():
         for name, d in names.items():
@@ -305,7 +354,7 @@ def _plot(path: Path, summary: dict) -> None:
         for column, metric in enumerate(metrics):
             plot = grid[row][column]
             pairs = [(r[metric][axis], (r['unit'], r['record'], axis, metric) in flagged)
-                     for r in summary['records'] if metric in r and axis in r[metric]
+                     for r in summary['rows'] if metric in r and axis in r[metric]
                      and r[metric][axis] is not None]
             if pairs:
                 plot.hist([v for v, _ in pairs], bins=min(30, max(5, len(pairs) // 3)),
@@ -313,7 +362,7 @@ def _plot(path: Path, summary: dict) -> None:
                 for value in (v for v, out in pairs if out):
                     plot.axvline(value, color='tab:red', linewidth=1.0)
             plot.set_title(f'{axis}: {metric}', fontsize='small')
-            plot.set_ylabel('records')
+            plot.set_ylabel('rows')
     figure.suptitle('Fleet distribution (red: outlier units)')
     try:
         figure.tight_layout()

@@ -43,11 +43,19 @@ class FleetRun:
 
 
 def unit_entry(job: UnitJob, status: str, error=None) -> dict:
-    """Give the content of a unit's unit.json."""
+    """
+    Give the content of a unit's unit.json.
+
+    ``results``: the folder of each run of the command (`UnitJob.runs`) and
+    the records it ran on: the unit's folder and all its records for
+    ``diagnose``, ``record-K`` per record for ``fit`` on several.
+    """
     return {'unit': job.unit.unit, 'status': status, 'error': error, 'command': job.command,
             'options': list(job.options),
-            'records': [{**asdict(record), 'folder': job.record_folder(k)}
-                        for k, record in enumerate(job.unit.records)],
+            'records': [asdict(record) for record in job.unit.records],
+            'results': [{'folder': job.run_folder(run),
+                         'records': [job.unit.records[index].path for index in indices]}
+                        for run, indices in enumerate(job.runs())],
             'log': LOG_FILE}
 
 

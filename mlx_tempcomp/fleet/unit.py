@@ -1,18 +1,20 @@
 """
-One unit of a fleet job, as a Dask worker runs it: the single-record command on each record.
+One unit of a fleet job, as a Dask worker runs it: the single-record command on its records.
 
 `run_unit` parses the same argument list ``mlx-tempcomp diagnose|fit`` would
 get and calls that command's handler, so a unit's files are those of the
-single-record command on the same record (one code path). The record is
-opened here, on the worker: a local or shared path as it is, an fsspec URL
-through a local cache. The command writes into a temporary folder; its files
-come back as bytes for the client to store under ``OUT/units/<unit>/``
-(so the workers need no view of OUT), with the temporary paths in their text
-replaced by where the files will live. A record the command refuses gives the
-unit an error entry with the command's one-line reason. Beside the command's
-files, each record's `MOMENTS_FILE` summarises it for the fleet prior
-(`core.pooling.record_moments`), so the prior never reads a record again. No
-Dask in here.
+command on the same records (one code path): ``diagnose A B ...`` over all of
+a unit's records at once (one model, each record its own history and bias
+offset), ``fit`` once per record (it takes one). The records are opened here,
+on the worker: a local or shared path as it is, an fsspec URL through a local
+cache. The command writes into a temporary folder; its files come back as
+bytes for the client to store under ``OUT/units/<unit>/`` (so the workers
+need no view of OUT), with the temporary paths and cached copies in their
+text replaced by where the files will live and the records' own names. A
+record the command refuses gives the unit an error entry with the command's
+one-line reason. Beside the command's files, `MOMENTS_FILE` summarises each
+record for the fleet prior (`core.pooling.record_moments`), so the prior never
+reads a record again. No Dask in here.
 """
 
 import argparse
@@ -24,13 +26,15 @@ from pathlib import Path
 import tempfile
 import threading
 
-from .manifest import is_url, UnitSpec
+from .manifest import is_url, OPTIONAL_COLUMNS, RecordSpec, UnitSpec
 from ..core.pooling import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
 from ..toolkit.common import load
 
 COMMANDS = ('diagnose', 'fit')
+# The commands that fit one model over several records of a unit.
+SEVERAL_RECORDS = frozenset({'diagnose'})
 UNIT_FILE = 'unit.json'
 LOG_FILE = 'log.txt'
 MOMENTS_FILE = 'design_moments.json'
@@ -41,7 +45,7 @@ _ONE_AT_A_TIME = threading.Lock()
 
 
 class UnitError(MlxTempCompError):
-    """A record of a unit the single-record command refused; its one-line reason."""
+    """A unit the command refused, or whose records cannot run as one; a one-line reason."""
 
 
 @dataclass(frozen=True)
@@ -53,9 +57,19 @@ class UnitJob:
     options: tuple
     folder: str
 
-    def record_folder(self, index: int) -> str:
-        """Give the sub-folder of the unit's record ``index`` ('' for a unit of one record)."""
-        return '' if len(self.unit.records) == 1 else f'record-{index + 1}'
+    def runs(self) -> tuple:
+        """
+        Give the record indices of each run of the command on this unit.
+
+        ``diagnose`` fits one model over all of a unit's records (one run),
+        ``fit`` takes one record (a run per record).
+        """
+        indices = tuple(range(len(self.unit.records)))
+        return (indices,) if self.command in SEVERAL_RECORDS else tuple((k,) for k in indices)
+
+    def run_folder(self, run: int) -> str:
+        """Give the sub-folder of run ``run`` ('' for a unit of one run, else record-K)."""
+        return '' if len(self.runs()) == 1 else f'record-{run + 1}'
 
 
 def single_record_parser() -> argparse.ArgumentParser:
@@ -67,11 +81,11 @@ def single_record_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def command_argv(command: str, record_path: str, out: str, record_options: list,
+def command_argv(command: str, record_paths: list, out: str, record_options: list,
                  options) -> list:
-    """Give the argument list of the single-record command on one record."""
+    """Give the argument list of the single-record command on ``record_paths``."""
     target = out if command == 'diagnose' else str(Path(out) / 'params.yaml')
-    return [command, record_path, '--out', target, *record_options, *options]
+    return [command, *record_paths, '--out', target, *record_options, *options]
 
 
 def parse_command(argv: list) -> argparse.Namespace:
@@ -106,67 +120,123 @@ def one_line(err: BaseException) -> str:
     return text[0] if text else type(err).__name__
 
 
-def _moments(args: argparse.Namespace) -> dict:
-    """Give the record's design moments for the fleet prior, or why there are none."""
+def _moments(args: argparse.Namespace, local: str) -> dict:
+    """Give one record's design moments for the fleet prior, or why there are none."""
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            recording = load(args)
+            recording = load(argparse.Namespace(**{**vars(args), 'input': local}))
         rate = recording.gyro_rad_s if recording.reference_rad_s is None else \
             recording.gyro_rad_s - recording.reference_rad_s
-        return record_moments(recording.time_s, recording.temperature_c, rate, recording.axes)
+        return {'moments': record_moments(recording.time_s, recording.temperature_c, rate,
+                                          recording.axes)}
     except MlxTempCompError as err:
         return {'error': one_line(err)}
 
 
-def _run_record(job: UnitJob, index: int, work: Path, files: dict) -> None:
-    """Run the command on record ``index`` in ``work``; add its files to ``files``."""
-    record = job.unit.records[index]
-    out = work / f'out-{index}'
+def _read_option(record: RecordSpec, name: str) -> str:
+    value = getattr(record, name)
+    return f'{name} {value!r}' if value is not None else f'no {name}'
+
+
+def _read_options(job: UnitJob, indices: tuple) -> list:
+    """
+    Give the read options of the records of one run; UnitError when their rows differ.
+
+    ``diagnose A B`` reads its records with one set of options; a unit whose
+    manifest rows differ would need a run per record, which is not one model.
+    """
+    first = job.unit.records[indices[0]]
+    for index in indices[1:]:
+        other = job.unit.records[index]
+        for name in OPTIONAL_COLUMNS:
+            if getattr(other, name) != getattr(first, name):
+                msg = (f'unit {job.unit.unit}: {other.path} has {_read_option(other, name)}, '
+                       f'{first.path} {_read_option(first, name)}: {job.command} reads the '
+                       f'records of a unit with one {name}; give its rows the same, or make '
+                       'them units of their own')
+                raise UnitError(msg)
+    return first.options()
+
+
+class _Names:
+    """Replace the worker's temporary names (output folder, cached copies) in a text."""
+
+    def __init__(self, names: dict):
+        self.names = sorted(((old, new) for old, new in names.items() if old != new),
+                            key=lambda pair: -len(pair[0]))
+
+    def __call__(self, text: str) -> str:
+        for old, new in self.names:
+            text = text.replace(old, new)
+        return text
+
+
+def _run(job: UnitJob, run: int, work: Path, files: dict, moments: dict) -> None:
+    """
+    Run the command once on the records of run ``run``, in ``work``.
+
+    Add its files to ``files`` and each record's design moments to
+    ``moments`` (by record index).
+    """
+    indices = job.runs()[run]
+    records = [job.unit.records[index] for index in indices]
+    record_options = _read_options(job, indices)
+    locals_ = [_local_copy(record.path, work / 'cache') for record in records]
+    out = work / f'out-{run}'
     out.mkdir()
-    local = _local_copy(record.path, work / 'cache')
-    args = parse_command(command_argv(job.command, local, str(out), record.options(),
+    args = parse_command(command_argv(job.command, locals_, str(out), record_options,
                                       job.options))
-    folder = job.record_folder(index)
-    destination = str(Path(job.folder) / folder)
+    folder = job.run_folder(run)
+    named = _Names({str(out): str(Path(job.folder) / folder),
+                    **{local: record.path for local, record in zip(locals_, records)}})
     log = io.StringIO()
     try:
         with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
             args.handler(args)
     except MlxTempCompError as err:
-        msg = str(err).replace(str(out), destination).replace(local, record.path)
-        raise UnitError(msg) from None
+        raise UnitError(named(str(err))) from None
+    except Exception as err:  # a crash of the command is this unit's, in the user's names
+        raise UnitError(named(f'{type(err).__name__}: {one_line(err)}')) from None
     (out / LOG_FILE).write_text(log.getvalue(), encoding='utf-8')
-    (out / MOMENTS_FILE).write_text(json.dumps(_moments(args)), encoding='utf-8')
+    for index, local in zip(indices, locals_):
+        found = _moments(args, local)
+        moments[index] = {key: named(value) if key == 'error' else value
+                          for key, value in found.items()}
     for path in sorted(out.rglob('*')):
         if not path.is_file():
             continue
         data = path.read_bytes()
         if path.suffix in _TEXT_SUFFIXES:
-            data = data.decode('utf-8').replace(str(out), destination) \
-                .replace(local, record.path).encode('utf-8')
+            data = named(data.decode('utf-8')).encode('utf-8')
         files[str(Path(folder) / path.relative_to(out))] = data
 
 
 def run_unit(job: UnitJob) -> dict:
     """
-    Run every record of a unit through the single-record command; give its outcome.
+    Run the command on a unit's records (`UnitJob.runs`); give its outcome.
 
     The outcome: ``unit``, ``status`` ('ok' or 'error'), ``error`` (one line,
-    naming the record) and ``files`` ({path in the unit folder: bytes}, empty
-    on error).
+    naming the record, or the records of the run when it is about none in
+    particular) and ``files`` ({path in the unit folder: bytes}, empty on
+    error), among them `MOMENTS_FILE`: each record's design moments, in the
+    unit's order.
     """
-    files = {}
+    files, moments = {}, {}
     with _ONE_AT_A_TIME, tempfile.TemporaryDirectory(prefix='mlx-fleet-') as work:
-        for index, record in enumerate(job.unit.records):
+        for run, indices in enumerate(job.runs()):
+            paths = [job.unit.records[index].path for index in indices]
             try:
-                _run_record(job, index, Path(work), files)
+                _run(job, run, Path(work), files, moments)
             except MlxTempCompError as err:
                 error = str(err)
             except Exception as err:  # any failure is this unit's, not the fleet's
-                error = f'{record.path}: {type(err).__name__}: {one_line(err)}'
+                error = f'{type(err).__name__}: {one_line(err)}'
             else:
                 continue
-            if not error.startswith(record.path):
-                error = f'{record.path}: {error}'
+            if not any(path in error for path in paths):
+                error = f'{", ".join(paths)}: {error}'
             return {'unit': job.unit.unit, 'status': 'error', 'error': error, 'files': {}}
+    files[MOMENTS_FILE] = json.dumps({'records': [
+        {'path': record.path, **moments[index]}
+        for index, record in enumerate(job.unit.records)]}).encode('utf-8')
     return {'unit': job.unit.unit, 'status': 'ok', 'error': None, 'files': files}
