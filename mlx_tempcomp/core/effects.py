@@ -51,7 +51,7 @@ import collections
 from dataclasses import dataclass, field, fields, replace
 import functools
 import math
-from typing import Callable, Mapping, Optional
+from typing import Any, Callable, Mapping, NamedTuple, Optional
 
 import numpy as np
 
@@ -312,7 +312,8 @@ class Effect:
     are the `ModelInputs` fields it needs; ``live`` is False when it is tied
     to the clock of the record it was found in. ``bias(term, model, inputs,
     history, total)`` adds its term to the bias of an axis (None: the effect
-    acts elsewhere in `_assemble`).
+    acts elsewhere in `EffectModel._correct_axes`); its values are columns of
+    a block or one row's floats, with the same operations for both.
     """
 
     name: str
@@ -352,17 +353,18 @@ def _hysteresis_bias(term, model, inputs, history, total):
 
 def _supply_bias(term, model, inputs, history, total):
     dv = inputs.supply_voltage_v - model.supply_reference_v
-    return total + dv * np.polynomial.polynomial.polyval(dv, term.supply_voltage)
+    return total + dv * _polyval(dv, term.supply_voltage)
 
 
 def _secondary_bias(term, model, inputs, history, total):
     x2 = (inputs.temperature_2_c - model.secondary_reference_c) / model.secondary_scale_c
-    return total + x2 * np.polynomial.polynomial.polyval(x2, term.secondary)
+    return total + x2 * _polyval(x2, term.secondary)
 
 
 def _acceleration_bias(term, model, inputs, history, total):
-    for column, gain in enumerate(term.acceleration_rad_s_per_m_s2):
-        total = total + gain * inputs.acceleration_m_s2[:, column]
+    # Acceleration by component first: a column of the block, or a float of the row.
+    for component, gain in enumerate(term.acceleration_rad_s_per_m_s2):
+        total = total + gain * inputs.acceleration_m_s2[component]
     return total
 
 
@@ -371,9 +373,41 @@ def _drift_bias(term, model, inputs, history, total):
 
 
 def _step_bias(term, model, inputs, history, total):
+    time_s = inputs.time_s
     for when_s, step_rad_s in term.bias_steps:
-        total = total + np.where(inputs.time_s >= when_s, step_rad_s, 0.0)
+        if isinstance(time_s, np.ndarray):
+            total = total + np.where(time_s >= when_s, step_rad_s, 0.0)
+        else:
+            total = total + (step_rad_s if time_s >= when_s else 0.0)
     return total
+
+
+def _polyval(x, coefficients: tuple):
+    """
+    Give the polynomial (lowest order first) at x, a column or a float.
+
+    numpy's polyval's operations in its order: a float gives, bit for bit, the
+    element of a column.
+    """
+    total = coefficients[-1] + x * 0.0
+    for coefficient in coefficients[-2::-1]:
+        total = coefficient + total * x
+    return total
+
+
+def _clip(value, low: float, high: float):
+    """Give np.clip of a column, or of a float by comparisons: NaN passes, a tie keeps it."""
+    if isinstance(value, np.ndarray):
+        return np.clip(value, low, high)
+    return low if value < low else high if value > high else value
+
+
+def _quotient(numerator, denominator):
+    """Give numerator / denominator; a float divided by zero as numpy does (inf or NaN)."""
+    try:
+        return numerator / denominator
+    except ZeroDivisionError:
+        return float(np.float64(numerator) / denominator)
 
 
 _TIME = frozenset({'time_s'})
@@ -692,44 +726,51 @@ class EffectModel(OffsetModel):
 
     def _assemble(self, rate: np.ndarray, temperature: np.ndarray, inputs: ModelInputs,
                   histories: list) -> CorrectedRate:
-        """
-        Correct rows from their inputs and the history operators' outputs per axis.
+        """Correct a block from its inputs and the history operators' outputs per axis."""
+        if inputs.acceleration_m_s2 is not None:
+            inputs = replace(inputs, acceleration_m_s2=inputs.acceleration_m_s2.T)
+        corrected, clamped = self._correct_axes(list(rate.T), list(temperature.T), inputs,
+                                                histories)
+        return CorrectedRate(np.stack(corrected, axis=1), np.stack(clamped, axis=1))
 
-        Element by element only (no matrix products), so a block gives, bit for
-        bit, what its rows give one at a time.
+    def _correct_axes(self, rates: list, temperatures: list, inputs: ModelInputs,
+                      histories: list) -> tuple:
         """
-        bias = np.empty(rate.shape)
-        x = np.empty(rate.shape)
-        clamped = np.isnan(temperature)
-        for axis, (term, history, biases) in enumerate(zip(self.terms, histories,
-                                                           self._biases)):
-            effective = temperature[:, axis]
+        Correct each axis from its rate, measured temperature and history: (corrected, clamped).
+
+        The values are the columns of a block or the floats of one row
+        (acceleration by component first); element by element only, with the
+        same operations for both, so a row gives, bit for bit, what a block
+        gives for it.
+        """
+        corrected, clamped = [], []
+        for term, rate, measured, history, biases in zip(self.terms, rates, temperatures,
+                                                         histories, self._biases):
+            effective = measured
             if term.thermal_lag_s > 0.0:
-                effective = effective + term.thermal_lag_s * history.slope
+                effective = measured + term.thermal_lag_s * history.slope
             elif term.thermal_lag_s < 0.0:
                 effective = history.lagged
-            limited = np.clip(effective, self.temperature_min_c, self.temperature_max_c)
-            clamped[:, axis] |= limited != effective
-            x[:, axis] = (limited - self.reference_temperature_c) / self.temperature_scale_c
-            total = np.polynomial.polynomial.polyval(x[:, axis], term.bias)
+            limited = _clip(effective, self.temperature_min_c, self.temperature_max_c)
+            clamped.append((measured != measured) | (limited != effective))   # NaN or clamped
+            x = (limited - self.reference_temperature_c) / self.temperature_scale_c
+            total = _polyval(x, term.bias)
             for effect in biases:
                 total = effect.bias(term, self, inputs, history, total)
-            bias[:, axis] = total
-        corrected = rate - bias
-        for axis, term in enumerate(self.terms):
+            u = rate - total
             if any(term.scale):
-                scale = np.polynomial.polynomial.polyval(x[:, axis], term.scale)
-                corrected[:, axis] /= 1.0 + scale
+                u = _quotient(u, 1.0 + _polyval(x, term.scale))
             if any(term.nonlinearity):
-                u = corrected[:, axis]
-                corrected[:, axis] = u - u * u * np.polynomial.polynomial.polyval(
-                    u, term.nonlinearity)
+                u = u - u * u * _polyval(u, term.nonlinearity)
+            corrected.append(u)
         if self.has_cross_axis:
-            before = corrected.copy()
-            for axis, term in enumerate(self.terms):
-                for other, gain in enumerate(term.cross_axis):
-                    corrected[:, axis] -= gain * before[:, other]
-        return CorrectedRate(corrected - np.asarray(self.zro_offset_rad_s), clamped)
+            before = corrected
+            corrected = []
+            for term, v in zip(self.terms, before):
+                for gain, other in zip(term.cross_axis, before):
+                    v = v - gain * other
+                corrected.append(v)
+        return [w - offset for w, offset in zip(corrected, self.zro_offset_rad_s)], clamped
 
     def _input(self, name: str, value, shape: tuple) -> Optional[np.ndarray]:
         if value is None:
@@ -902,14 +943,13 @@ class LinearBtc:
                    t3_c=model.reference_temperature_c)
 
 
-@dataclass(frozen=True)
-class _History:
-    """What the history operators give one axis for a block of rows (None: not needed)."""
+class _History(NamedTuple):
+    """What the history operators give one axis: columns of a block or one row's floats."""
 
-    slope: Optional[np.ndarray]
-    lagged: Optional[np.ndarray]
+    slope: Any        # None: not needed
+    lagged: Any
     gradients: list
-    play: Optional[np.ndarray]
+    play: Any
 
 
 _NO_HISTORY = _History(slope=None, lagged=None, gradients=[], play=None)
@@ -941,16 +981,27 @@ class _AxisRunner:
             gradients=[temperature - each(lag.step, times, values) for lag in self.gradients],
             play=None if self.play is None else each(self.play.step, values))
 
+    def step(self, time_s: Optional[float], temperature_c: float) -> _History:
+        """Run one row: the operators' floats."""
+        if self.idle:
+            return _NO_HISTORY
+        return _History(
+            slope=None if self.slope is None else self.slope.step(time_s, temperature_c),
+            lagged=None if self.lag is None else self.lag.step(time_s, temperature_c),
+            gradients=[temperature_c - lag.step(time_s, temperature_c)
+                       for lag in self.gradients],
+            play=None if self.play is None else self.play.step(temperature_c))
+
 
 class EffectStream:
     """
     Runs an `EffectModel` block by block, keeping the temperature history and play state.
 
     The history operators step sample by sample (their runners); the rest is
-    numpy on the block, element by element, so any split of a stream into
-    blocks gives the same numbers bit for bit. The whole stream gives what
-    `EffectModel.correct` gives on it as one batch, to rounding (the batch
-    first-order lag sums in another order).
+    element by element on the block, so any split of a stream into blocks, or
+    rows one at a time, gives the same numbers bit for bit. The whole stream
+    gives what `EffectModel.correct` gives on it as one batch, to rounding
+    (the batch first-order lag sums in another order).
     """
 
     def __init__(self, model: EffectModel):
@@ -971,6 +1022,62 @@ class EffectStream:
                      for axis, runner in enumerate(self.runners)]
         return model._assemble(rate, temperature, inputs, histories)
 
-    def correct_one(self, *row) -> tuple:
-        """Correct one row: (rad/s per axis as a list, any clamped); as `correct_block`."""
-        return one_row(self, *row)
+    def correct_one(self, rates_rad_s, temperatures_c, inputs: ModelInputs = NO_INPUTS) -> tuple:
+        """
+        Correct one row: (rad/s per axis as a list, any clamped); bit for bit as `correct_block`.
+
+        In plain floats, numpy's per-call cost being most of a row's. A row that
+        is not plain numbers in the model's shape goes through `correct_block`,
+        which names what is wrong.
+        """
+        row = self._row(rates_rad_s, temperatures_c, inputs)
+        if row is None:
+            return one_row(self, rates_rad_s, temperatures_c, inputs)
+        rates, temperatures, inputs = row
+        histories = [runner.step(inputs.time_s, temperature)
+                     for runner, temperature in zip(self.runners, temperatures)]
+        corrected, clamped = self.model._correct_axes(rates, temperatures, inputs, histories)
+        return corrected, any(clamped)
+
+    def _row(self, rates_rad_s, temperatures_c, inputs: ModelInputs) -> Optional[tuple]:
+        """Give (rates, temperatures per axis, inputs) of one row in floats; None if it is not."""
+        axes = self.model.axes
+        rates = _row_floats(rates_rad_s, (axes,))
+        temperatures = _row_floats(temperatures_c, (1, axes))
+        if rates is None or temperatures is None:
+            return None
+        values, converted = {}, False
+        for name, spec in INPUTS.items():
+            given = getattr(inputs, name)
+            if given is None:
+                if name in self.model.inputs:
+                    return None
+                continue
+            value = _row_floats(given, spec.shape) if spec.shape else _row_float(given)
+            if value is None:
+                return None
+            values[name] = value
+            converted = converted or value is not given
+        return (rates, temperatures * (axes // len(temperatures)),
+                ModelInputs(**values) if converted else inputs)
+
+
+def _row_float(value) -> Optional[float]:
+    """Give a plain number as a float, as numpy would convert it; None for anything else."""
+    if type(value) is float:
+        return value
+    try:
+        return float(value) if np.ndim(value) == 0 else None
+    except (TypeError, ValueError):
+        return None
+
+
+def _row_floats(values, lengths: tuple) -> Optional[list]:
+    """Give a row of plain numbers, as many as one of ``lengths``, as floats; else None."""
+    try:
+        if len(values) not in lengths:
+            return None
+    except TypeError:
+        return None
+    floats = [value if type(value) is float else _row_float(value) for value in values]
+    return None if None in floats else floats
