@@ -161,6 +161,17 @@ def summary_line(label: str, found: dict) -> str:
                    f', kappa {found["kappa"]:.2f}')
 
 
+def worst_line(label: str, found: dict) -> str:
+    """Say the unit whose shrunk fit does worst against its unshrunk one; its own fit's rank."""
+    good = {unit: e for unit, e in found['errors'].items() if not e['flagged']}
+    unit = max(good, key=lambda u: good[u]['shrunk'] / good[u]['own (fleet design)'])
+    e = good[unit]
+    rank = sorted(f['own (fleet design)'] for f in good.values()).index(e['own (fleet design)'])
+    return (f'  {label}: {unit}, own (fleet design) {e["own (fleet design)"]:.2e} (rank '
+            f'{rank + 1} of {len(good)} from the best), shrunk {e["shrunk"]:.2e}, q '
+            f'{e["conflict"]["chi2"]:.2f} of {e["conflict"]["threshold"]:.2f}')
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--units', type=int, default=40)
@@ -188,7 +199,7 @@ def main() -> int:
               'over the units not flagged')
         header = f'{"record, fleet":<34}{"units":>5}' + ''.join(f'  {m:^21}' for m in MODELS)
         print(header + '  shrunk<diag worst  shrunk<own worst  fleet share  kept own  q/limit')
-        flagged_lines = []
+        flagged_lines, worst_lines = [], []
         for fraction in FRACTIONS:
             scenarios = [('whole fleet', set(units))]
             if fraction < 1.0:
@@ -199,11 +210,14 @@ def main() -> int:
                                      name)
                 label = f'{fraction:.0%} of a cycle, {scenario}'
                 print(summary_line(label, found), flush=True)
+                worst_lines.append(worst_line(label, found))
                 for unit, e in found['errors'].items():
                     if e['flagged']:
                         flagged_lines.append(
                             f'  {label}: {unit} ' + ', '.join(f'{m} {e[m]:.2e}' for m in MODELS)
                             + (' (kept own)' if e['conflict']['rejected'] else ''))
+        print('worst unit against its unshrunk fit in the fleet design:')
+        print('\n'.join(worst_lines))
         print('flagged by the fleet report (left out of the prior; shrunk with their t weight):')
         print('\n'.join(flagged_lines) or '  none')
     print(f'({time.perf_counter() - start:.0f} s)')
