@@ -20,7 +20,10 @@ the truth as raw rate): its own params.yaml (diagnose), its own least-squares
 fit in the fleet design (from fleet_prior.json, not shrunk), fleet_params.yaml
 (the prior) and its shrunk_params.yaml. Figures are RMS over the cycle in
 rad/s, median and mean over the units the report did not flag; flagged
-outliers are listed apart. Nothing is asserted: the table is printed.
+outliers are listed apart. A unit whose record rejects its shrunk fit has no
+shrunk_params.yaml: its params.yaml counts as its shrunk fit, and the table
+counts such units ("kept own") and gives the largest q of the test over its
+threshold. Nothing is asserted: the table is printed.
 
     .venv/bin/python bench/bench_fleet_prior.py [--units 40] [--outliers 3] [--workers 2]
 """
@@ -128,11 +131,14 @@ def fleet_errors(folder: Path, units: list, truths: dict, fraction: float, cut_u
         folder_of = out / 'units' / unit
         own_design = own_design_file(prior, unit, prior['node_name'],
                                      folder / f'{name}-{unit}-own.yaml')
-        files = (folder_of / 'params.yaml', own_design, out / 'fleet_params.yaml',
-                 folder_of / 'shrunk_params.yaml')
+        fit = prior['units'][unit]['axes']['z']
+        # A unit whose record rejects its shrunk fit has none: it keeps its params.yaml.
+        shrunk = folder_of / ('params.yaml' if fit['conflict']['rejected'] else
+                              'shrunk_params.yaml')
+        files = (folder_of / 'params.yaml', own_design, out / 'fleet_params.yaml', shrunk)
         errors[unit] = {'flagged': unit in flagged,
                         **{model: rms(path, truths[unit]) for model, path in zip(MODELS, files)},
-                        'prior_share': prior['units'][unit]['axes']['z']['prior_share']}
+                        'prior_share': fit['prior_share'], 'conflict': fit['conflict']}
     return {'errors': errors, 'design': prior['axes']['z']['design'],
             'kappa': prior['axes']['z']['kappa']}
 
@@ -147,10 +153,23 @@ def summary_line(label: str, found: dict) -> str:
     design_ratio = [e['shrunk'] / e['own (fleet design)'] for e in good]
     line += (f'  {np.mean(np.less(ratio, 1.0)):5.0%} {max(ratio):5.2f}'
              f'  {np.mean(np.less(design_ratio, 1.0)):5.0%} {max(design_ratio):5.2f}'
-             f'  {np.median([e["prior_share"] for e in good]):4.2f}')
+             f'  {np.median([e["prior_share"] for e in good]):4.2f}'
+             f'  {sum(e["conflict"]["rejected"] for e in good):4d}'
+             f'  {max(e["conflict"]["chi2"] / e["conflict"]["threshold"] for e in good):5.2f}')
     design = found['design']
     return line + (f'   order {design["order"]}{" + rate" if design["temperature_rate"] else ""}'
                    f', kappa {found["kappa"]:.2f}')
+
+
+def worst_line(label: str, found: dict) -> str:
+    """Say the unit whose shrunk fit does worst against its unshrunk one; its own fit's rank."""
+    good = {unit: e for unit, e in found['errors'].items() if not e['flagged']}
+    unit = max(good, key=lambda u: good[u]['shrunk'] / good[u]['own (fleet design)'])
+    e = good[unit]
+    rank = sorted(f['own (fleet design)'] for f in good.values()).index(e['own (fleet design)'])
+    return (f'  {label}: {unit}, own (fleet design) {e["own (fleet design)"]:.2e} (rank '
+            f'{rank + 1} of {len(good)} from the best), shrunk {e["shrunk"]:.2e}, q '
+            f'{e["conflict"]["chi2"]:.2f} of {e["conflict"]["threshold"]:.2f}')
 
 
 def main() -> int:
@@ -179,8 +198,8 @@ def main() -> int:
         print('held-out RMS error against the truth over the full cycle, rad/s: median mean '
               'over the units not flagged')
         header = f'{"record, fleet":<34}{"units":>5}' + ''.join(f'  {m:^21}' for m in MODELS)
-        print(header + '  shrunk<diag worst  shrunk<own worst  fleet share')
-        flagged_lines = []
+        print(header + '  shrunk<diag worst  shrunk<own worst  fleet share  kept own  q/limit')
+        flagged_lines, worst_lines = [], []
         for fraction in FRACTIONS:
             scenarios = [('whole fleet', set(units))]
             if fraction < 1.0:
@@ -191,10 +210,14 @@ def main() -> int:
                                      name)
                 label = f'{fraction:.0%} of a cycle, {scenario}'
                 print(summary_line(label, found), flush=True)
+                worst_lines.append(worst_line(label, found))
                 for unit, e in found['errors'].items():
                     if e['flagged']:
                         flagged_lines.append(
-                            f'  {label}: {unit} ' + ', '.join(f'{m} {e[m]:.2e}' for m in MODELS))
+                            f'  {label}: {unit} ' + ', '.join(f'{m} {e[m]:.2e}' for m in MODELS)
+                            + (' (kept own)' if e['conflict']['rejected'] else ''))
+        print('worst unit against its unshrunk fit in the fleet design:')
+        print('\n'.join(worst_lines))
         print('flagged by the fleet report (left out of the prior; shrunk with their t weight):')
         print('\n'.join(flagged_lines) or '  none')
     print(f'({time.perf_counter() - start:.0f} s)')

@@ -15,6 +15,7 @@ from dataclasses import replace
 import io
 import json
 from pathlib import Path
+import shutil
 import signal
 import subprocess
 import sys
@@ -295,6 +296,35 @@ def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tm
     (out / FLEET_PARAMS).unlink()
     assert run_cli(['fleet', 'report', '--out', out])[0] == 0
     assert (out / FLEET_PARAMS).read_text() == params
+
+
+def test_a_record_that_contradicts_the_fleet_keeps_its_params(fleet_run, tmp_path):
+    """A unit's worker task and the report into a copy of the run: the prior tests its record."""
+    out = tmp_path / 'out'
+    shutil.copytree(fleet_run[0], out)
+    # 10 degrees from 25 C of a chip whose curvature is 30 times the fleet's: the fleet's
+    # curve, which its record is too short to tell, is not this unit's.
+    rng = np.random.default_rng(3)
+    time_s = np.arange(100) * 3.0
+    temperature_c = 25.0 + time_s / 30.0 + rng.normal(0.0, 0.02, time_s.size)
+    rate = 0.01 + SLOPE_RAD_S_PER_C * (temperature_c - 25.0) + \
+        30 * 2e-6 * (temperature_c - 25.0) ** 2 + rng.normal(0.0, 5e-4, time_s.size)
+    path = tmp_path / 'bent.csv'
+    np.savetxt(path, np.column_stack([time_s, temperature_c, rate]), delimiter=',',
+               header='time,temperature,gyro_z', comments='', fmt='%.17g')
+    job = UnitJob('diagnose', UnitSpec('bent', (RecordSpec(str(path)),)), (),
+                  str(out / 'units' / 'bent'))
+    store_unit(job, run_unit(job))
+    code, stdout, _ = run_cli(['fleet', 'report', '--out', out])
+    assert code == 0 and '1 unit whose record rejects its shrunk fit' in stdout
+    units = json.loads((out / PRIOR_JSON).read_text())['units']
+    assert units['bent']['axes']['z']['conflict']['rejected']
+    assert units['bent']['kept_own'].endswith('it keeps its own params.yaml')
+    assert not (out / 'units' / 'bent' / SHRUNK_PARAMS).exists()
+    assert (out / 'units' / 'bent' / 'params.yaml').exists()
+    for unit in (*GOOD_UNITS, 'pair'):
+        assert not units[unit]['axes']['z']['conflict']['rejected'], unit
+        assert (out / 'units' / unit / SHRUNK_PARAMS).exists()
 
 
 def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():

@@ -13,9 +13,9 @@ import json
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.pooling import (fit_population, information, MOMENT_ORDER, moments_of,
-                                       pool_fleet, PoolingDesign, record_moments, shrink,
-                                       unit_data, unit_moments)
+from mlx_tempcomp.core.pooling import (CONFLICT_LEVEL, fit_population, information,
+                                       MOMENT_ORDER, moments_of, pool_fleet, PoolingDesign,
+                                       record_moments, shrink, unit_data, unit_moments)
 import numpy as np
 import pytest
 
@@ -57,6 +57,14 @@ def record(rng, truth: np.ndarray, fraction: float) -> tuple:
     return time_s[:rows], temperature_c[:rows] + rng.normal(0.0, 0.02, rows), rate[:rows]
 
 
+def measured(rng, truth: np.ndarray, fraction: float):
+    """Give the DesignMoments of a record of a unit of coefficients ``truth``."""
+    time_s, temperature_c, rate = record(rng, truth, fraction)
+    # Through JSON, as the fleet stores them.
+    return moments_of(json.loads(json.dumps(record_moments(time_s, temperature_c,
+                                                           rate[:, None], ['z']))))['z']
+
+
 def fleet(seed: int, units: int, short: set, outliers=()) -> tuple:
     """Give ({unit: DesignMoments}, {unit: true coefficients}) of a seeded fleet."""
     rng = np.random.default_rng(seed)
@@ -64,11 +72,7 @@ def fleet(seed: int, units: int, short: set, outliers=()) -> tuple:
     for k in range(units):
         name = f'u{k:02d}'
         truths[name] = draw_unit(rng, name in outliers)
-        time_s, temperature_c, rate = record(rng, truths[name], SHORT if name in short else 1.0)
-        # Through JSON, as the fleet stores them.
-        document = json.loads(json.dumps(record_moments(time_s, temperature_c, rate[:, None],
-                                                        ['z'])))
-        moments[name] = moments_of(document)['z']
+        moments[name] = measured(rng, truths[name], SHORT if name in short else 1.0)
     return moments, truths
 
 
@@ -122,6 +126,47 @@ def test_a_long_record_keeps_its_own_fit():
     shrunk = np.mean([curve_error(result, f.shrunk, truths[u])
                       for u, f in result.units.items()])
     assert shrunk <= 1.02 * own
+
+
+def test_a_record_that_contradicts_the_fleet_keeps_its_own_fit():
+    moments, truths = fleet(12, 12, {'u01', 'u03'})
+    rng = np.random.default_rng(112)
+    # A long record of a unit far from the fleet (slope 40 sd off), and a short one whose cubic,
+    # which the fleet's curve gives it where its 25..45 C are silent, is 300 sd off.
+    truths['far'], truths['odd'] = draw_unit(rng), draw_unit(rng)
+    truths['far'][1] += 40 * SPREAD[1]
+    truths['odd'][3] += 300 * SPREAD[3]
+    moments['far'] = measured(rng, truths['far'], 1.0)
+    moments['odd'] = measured(rng, truths['odd'], SHORT)
+    result = pool(moments, [u for u in moments if u not in ('far', 'odd')])
+
+    def error(unit, coefficients):
+        return curve_error(result, coefficients, truths[unit])
+
+    # Far from the fleet, its small t weight leaves the long record its own: nothing to reject.
+    far = result.units['far']
+    assert far.weight < 0.05 and far.conflict.statistic < 1.0 and not far.conflict.rejected
+    assert rms(curve(result, far.shrunk) - curve(result, far.own)) < 0.1 * error('far', far.own)
+    # The short record's own data reject what the fleet makes of it: its own fit, nothing shrunk.
+    odd = result.units['odd']
+    assert odd.conflict.rejected and odd.conflict.dof == result.design.size
+    assert np.allclose(odd.shrunk, odd.own, rtol=1e-9, atol=0.0) and odd.prior_share == 0.0
+    assert error('odd', odd.own) < 0.2 * error('odd', result.population.mean)
+    # The fleet's own units, long and short, are still shrunk.
+    for unit in ('u00', 'u01', 'u02', 'u03'):
+        fit = result.units[unit]
+        assert not fit.conflict.rejected and fit.conflict.statistic < 0.5 * fit.conflict.threshold
+        assert fit.prior_share > (0.3 if unit in ('u01', 'u03') else 0.05), unit
+    assert error('u01', result.units['u01'].shrunk) < 0.1 * error('u01', result.units['u01'].own)
+    # Units drawn from the population are rejected at most at the test's level.
+    info, _ = information(unit_data(moments['u01'], result.design), result.sigma2_median,
+                          result.kappa)
+    population = result.population
+    draws = rng.multivariate_normal(population.mean, population.covariance, 1000)
+    draws += rng.multivariate_normal(np.zeros(draws.shape[1]),
+                                     np.linalg.pinv(info, hermitian=True), len(draws))
+    rejected = [shrink(population, info, info @ own).conflict.rejected for own in draws]
+    assert np.mean(rejected) <= CONFLICT_LEVEL
 
 
 def test_the_design_is_what_the_fleet_shows():

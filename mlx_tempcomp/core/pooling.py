@@ -36,7 +36,19 @@ sqrt(2 / N) (mean J)^-1: units agreeing within their noise (every unit's
 temperature-rate coefficient proportional to its slope) do not pin a unit
 whose own record says otherwise. `shrink` gives a unit's posterior mean: a
 long record (large J) keeps its own fit, a short one takes the fleet's where
-its data is silent. Numpy only.
+its data is silent. The unit's own data then test the shrunk coefficients
+b (`ConflictTest`): q = (b - b_own)' J (b - b_own), the rise of its residual
+sum of squares from its own fit in its noise kappa sigma^2, is chi^2 with
+rank(J) degrees of freedom were b its true coefficients, and smaller for a
+unit drawn from the population (at a given weight, a sum of chi^2_1 / (1 +
+lambda_k), lambda_k the eigenvalues of J Sigma / w): such a unit is rejected
+at most CONFLICT_LEVEL of the time. Where q passes chi^2's 1 - CONFLICT_LEVEL
+quantile, the record contradicts what the fleet makes of the unit, and it
+keeps its own fit. At any temperature the shrunk bias is within sqrt(q)
+standard errors of the own fit's (Cauchy and Schwarz). A long record is
+seldom rejected, since the farther a unit is from the fleet the smaller its
+t weight, which bounds q; the test catches a record that contradicts the
+fleet where the fleet dominates its fit, a short one. Numpy only.
 """
 
 from dataclasses import dataclass, replace
@@ -63,6 +75,9 @@ RATE_VARIATION = 0.25
 # A column enters the fleet design when the units show it at this level (chi^2, one-sided).
 SIGNIFICANCE = 0.001
 _SIGNIFICANCE_Z = 3.0902  # the standard normal's 1 - SIGNIFICANCE quantile
+# A unit whose own data reject its shrunk coefficients at this level keeps its own fit.
+CONFLICT_LEVEL = 0.01
+_CONFLICT_Z = 2.3263  # the standard normal's 1 - CONFLICT_LEVEL quantile
 MIN_POOLED_UNITS = 5
 _MAX_ITERATIONS = 1000
 _TOLERANCE = 1e-6
@@ -362,10 +377,10 @@ class ColumnTest:
         return self.dof > 0 and self.statistic > self.threshold
 
 
-def _chi2_quantile(dof: int) -> float:
-    """Give the 1 - SIGNIFICANCE quantile of chi^2 with ``dof`` (Wilson and Hilferty)."""
+def _chi2_quantile(dof: int, normal_quantile: float = _SIGNIFICANCE_Z) -> float:
+    """Give chi^2's quantile with ``dof`` at the standard normal's (Wilson and Hilferty)."""
     third = 2.0 / (9.0 * dof)
-    return dof * (1.0 - third + _SIGNIFICANCE_Z * math.sqrt(third)) ** 3
+    return dof * (1.0 - third + normal_quantile * math.sqrt(third)) ** 3
 
 
 def _column_test(column: str, moments: list, wide: PoolingDesign, narrow: PoolingDesign,
@@ -552,26 +567,58 @@ def fit_population(informations) -> Population:
 
 
 @dataclass(frozen=True)
+class ConflictTest:
+    """A unit's own data against its shrunk coefficients: q, chi^2(dof) at CONFLICT_LEVEL."""
+
+    statistic: float
+    dof: int
+    threshold: float
+
+    @property
+    def rejected(self) -> bool:
+        return self.dof > 0 and self.statistic > self.threshold
+
+
+@dataclass(frozen=True)
 class Shrunk:
-    """A unit's coefficients shrunk toward the population, its t weight, the fleet's share."""
+    """
+    A unit's coefficients shrunk toward the population, or its own where its data refuse them.
+
+    ``conflict`` tests the posterior mean on the unit's own data (module
+    docstring); when it rejects it, coefficients and covariance are the own
+    fit's and the fleet's share is 0.
+    """
 
     coefficients: np.ndarray
     covariance: np.ndarray
     weight: float
     # tr((Sigma / w)^-1 P) / p = tr((I + J Sigma / w)^-1) / p: 1 all the fleet's, 0 all its own.
     prior_share: float
+    conflict: ConflictTest
 
 
 def shrink(population: Population, info: np.ndarray, vector: np.ndarray) -> Shrunk:
-    """Give a unit's posterior under the population; a unit far from the fleet moves little."""
+    """
+    Give a unit's posterior under the population, or its own fit where its data reject that.
+
+    A unit far from the fleet moves little (its t weight); one whose record
+    rejects its posterior mean (`ConflictTest`) keeps its own fit.
+    """
     units = _Units([(info, vector)])
     weight = units.weights(population.mean, population.covariance)
     posterior = units.posteriors(population.covariance, weight)[0]
     size = population.mean.size
     share = np.trace(np.linalg.inv(np.eye(size) + info @ population.covariance / weight[0]))
-    return Shrunk(coefficients=population.mean + posterior @ (vector - info @ population.mean),
-                  covariance=posterior, weight=float(weight[0]),
-                  prior_share=float(share / size))
+    coefficients = population.mean + posterior @ (vector - info @ population.mean)
+    own, rank = _solve(info, vector)
+    moved = coefficients - own
+    conflict = ConflictTest(statistic=max(float(moved @ info @ moved), 0.0), dof=rank,
+                            threshold=_chi2_quantile(rank, _CONFLICT_Z) if rank else math.inf)
+    if conflict.rejected:
+        coefficients, posterior = own, np.linalg.pinv(info, rcond=_RCOND, hermitian=True)
+        share = 0.0
+    return Shrunk(coefficients=coefficients, covariance=posterior, weight=float(weight[0]),
+                  prior_share=float(share / size), conflict=conflict)
 
 
 @dataclass(frozen=True)
@@ -583,6 +630,7 @@ class UnitPooling:
     weight: float
     prior_share: float
     pooled: bool
+    conflict: ConflictTest
 
 
 @dataclass(frozen=True)
@@ -627,6 +675,6 @@ def pool_fleet(moments: dict, pooled, reference_c: float, scale_c: float) -> Fle
         shrunk = shrink(population, *informations[unit])
         units[unit] = UnitPooling(own=found.coefficients, shrunk=shrunk.coefficients,
                                   weight=shrunk.weight, prior_share=shrunk.prior_share,
-                                  pooled=unit in chosen)
+                                  pooled=unit in chosen, conflict=shrunk.conflict)
     return FleetPooling(design=design, tests=tests, kappa=kappa, kappa_dof=kappa_dof,
                         sigma2_median=sigma2, population=population, units=units)

@@ -12,10 +12,13 @@ files:
 - ``OUT/fleet_params.yaml``: the population mean, an effects model the
   compensation node loads as is, for a unit that has no record of its own;
 - ``OUT/units/<unit>/shrunk_params.yaml``: the unit's coefficients shrunk
-  toward the fleet (partial pooling), beside its own params.yaml;
+  toward the fleet (partial pooling), beside its own params.yaml; none for
+  a unit whose record rejects its shrunk fit (`core.pooling.ConflictTest`):
+  it keeps its params.yaml;
 - ``OUT/fleet_prior.json``: the design, the column tests that chose it, the
   noise figures, the population mean and covariance, each unit's own and
-  shrunk coefficients and how much the fleet moved it.
+  shrunk coefficients, how much the fleet moved it and its record's test of
+  the shrunk fit.
 
 The population file is read back by `node_parameters.node_values` and built
 by `build_model`, as the node would; each shrunk model is built from those
@@ -33,8 +36,8 @@ import numpy as np
 from .unit import command_argv, MOMENTS_FILE, parse_command, UNIT_FILE, UnitError
 from ..core.effects import AxisTerms, EffectModel
 from ..core.errors import TempCompError
-from ..core.pooling import (MIN_POOLED_UNITS, moments_of, pool_fleet, RATE_WINDOW_S,
-                            unit_moments)
+from ..core.pooling import (CONFLICT_LEVEL, MIN_POOLED_UNITS, moments_of, pool_fleet,
+                            RATE_WINDOW_S, unit_moments)
 from ..model_params import effect_parameters, parameter_file, write_parameter_file
 from ..node_parameters import build_model, node_values, ParameterError
 from ..sources.recording import AXES
@@ -54,7 +57,10 @@ METHOD = ('Per axis, every unit is fitted with one design: a bias polynomial in 
           'temperature-rate coefficient when they show it. Population: beta_i ~ N(mu, Sigma '
           '/ w_i), t weights (nu 4), mu and Sigma by EM over the units the fleet report did '
           'not flag; each unit shrunk to its posterior mean with its own estimation '
-          "covariance (kappa sigma^2 (X'X)^-1).")
+          "covariance (kappa sigma^2 (X'X)^-1), unless its record rejects that mean: the rise "
+          "of its residual sum of squares over its own fit's, in kappa sigma^2, beyond "
+          f"chi^2's {1.0 - CONFLICT_LEVEL:g} quantile (degrees of freedom: the rank of X'X); "
+          'such a unit keeps its own params.yaml (no shrunk_params.yaml).')
 
 
 def _read_json(path: Path):
@@ -200,6 +206,8 @@ def _unit_item(fleet: _Fleet, unit: str, axes: list, pools: dict, own_effects: d
         item['axes'][axis] = {
             'own': fit.own.tolist(), 'shrunk': fit.shrunk.tolist(), 't_weight': fit.weight,
             'prior_share': fit.prior_share,
+            'conflict': {'chi2': fit.conflict.statistic, 'dof': fit.conflict.dof,
+                         'threshold': fit.conflict.threshold, 'rejected': fit.conflict.rejected},
             'own_effects_not_pooled': sorted(own_effects.get(unit, {}).get(axis, set())
                                              - POOLED_EFFECTS)}
     return item
@@ -229,6 +237,15 @@ def _write_files(out: Path, fleet: _Fleet, pools: dict, pooled: list, summary: d
     for unit in fleet.moments:
         axes = [axis for axis in pools if unit in pools[axis].units]
         item = _unit_item(fleet, unit, axes, pools, own_effects)
+        rejected = [(axis, pools[axis].units[unit].conflict) for axis in axes
+                    if pools[axis].units[unit].conflict.rejected]
+        if rejected:
+            item['kept_own'] = 'its record rejects the shrunk fit (' + '; '.join(
+                f'axis {axis}: chi^2 {test.statistic:.1f} over {test.threshold:.1f}, '
+                f'the {CONFLICT_LEVEL:.0%} level' for axis, test in rejected) + \
+                '): it keeps its own params.yaml'
+            summary['units'][unit] = item
+            continue
         model = _model(pools, {axis: pools[axis].units[unit].shrunk for axis in axes}, span)
         try:
             build_model({**checked, 'axes': axes, **{
@@ -296,8 +313,11 @@ def write_fleet_prior(out: Path) -> list:
              f'{SHRUNK_PARAMS}']
     for axis, pool in pools.items():
         shares = [fit.prior_share for fit in pool.units.values()]
+        rejected = sum(fit.conflict.rejected for fit in pool.units.values())
         lines.append(f'  axis {axis}: bias order {pool.design.order}'
                      + (' and temperature rate' if pool.design.rate else '')
                      + f' in (T - {pool.design.reference_c:.2f}) / {pool.design.scale_c:.2f}; '
-                     f"fleet's share of the shrunk fits {min(shares):.2f} to {max(shares):.2f}")
+                     f"fleet's share of the shrunk fits {min(shares):.2f} to {max(shares):.2f}"
+                     + (f'; {_count(rejected, "unit")} whose record rejects its shrunk fit '
+                        '(kept its own params.yaml)' if rejected else ''))
     return lines
