@@ -9,6 +9,10 @@ VENV_PY := $(VENV)/bin/python
 NODES_STAMP := $(VENV)/.stamp-nodes
 STAMP := $(VENV)/.stamp
 PYTEST_ARGS ?=
+# make test runs the suite in two processes (pytest-xdist), one test file each at a time, so
+# module fixtures are built once: the ROS tests spend much of their time waiting on node
+# start-up and DDS, which the other process fills. TEST_WORKERS=0 runs it in this process.
+TEST_WORKERS ?= 2
 
 .PHONY: venv demo test bench clean
 
@@ -32,7 +36,7 @@ demo: $(NODES_STAMP)
 	$(VENV_PY) -m mlx_tempcomp.ros.demo
 
 test: venv
-	$(VENV_PY) -m pytest test $(PYTEST_ARGS)
+	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 bench: venv
 	@set -e; for script in bench/*.py; do \

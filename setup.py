@@ -51,6 +51,7 @@ setup(
         # test/test_colcon_build.py.
         'test': [
             'pytest',
+            'pytest-xdist',   # make test: two test processes (Makefile TEST_WORKERS)
             'hypothesis==6.170.17',   # property-based tests of the readers and loaders
             'flake8==7.5.0',
             'flake8-builtins==3.1.0',

@@ -511,7 +511,9 @@ def test_simulated_supply_monitor_feeds_the_held_supply_terms(launcher, probe, t
         probe.spin_until(lambda: sum(messages.stamp_to_ns(m.header.stamp) > after_ns
                                      for m in compensated) >= samples, TIMEOUT_S,
                          f'{samples} compensated samples', launcher)
-        probe.drain()
+        # The streams run on, so nothing goes quiet: a second takes what was queued (the
+        # default waits out its whole 5 s time-out).
+        probe.drain(timeout=1.0)
         raw_by_stamp, compensated_by_stamp = by_stamp(raw), by_stamp(compensated)
         stamps = [s for s in compensated_by_stamp.keys() & raw_by_stamp.keys() if s > after_ns]
         return tuple(float(np.mean([rates(by[s])[2] for s in stamps]))

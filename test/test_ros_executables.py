@@ -64,7 +64,9 @@ def test_bringup_runs_both_nodes_and_stops_cleanly(launcher, probe, tmp_path):
     assert probe.node.count_subscribers('/imu/data_raw') == 1
     assert probe.node.count_subscribers('/imu/temperature_raw') == 1
     raw = probe.wait_count('imu/data_raw', 400, TIMEOUT_S, launcher)
-    probe.drain()
+    # The streams run on, so nothing goes quiet: a second takes what was queued (the
+    # default waits out its whole 5 s time-out).
+    probe.drain(timeout=1.0)
     compensated = set(by_stamp(probe.received['imu/data']))
     heard = [s for s in by_stamp(raw) if min(compensated) <= s <= max(compensated)]
     assert len(heard) > 100 and set(heard) <= compensated
