@@ -21,7 +21,9 @@ from .core.models import AXIS_NAMES
 from .state_file import atomic_write
 
 
-class _QuotingDumper(yaml.SafeDumper):
+# libyaml's emitter when PyYAML has it: the same text, four times faster (a fleet writes a
+# parameter file per unit).
+class _QuotingDumper(getattr(yaml, 'CSafeDumper', yaml.SafeDumper)):
     """Quote every string: rcl reads a bare y or n as a boolean (YAML 1.1)."""
 
 

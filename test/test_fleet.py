@@ -25,7 +25,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.fleet.manifest import read_manifest, RecordSpec, UnitSpec
 from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
 from mlx_tempcomp.fleet.report import COUNT_METRICS, fleet_summary, OUTLIER_Z, robust_z
-from mlx_tempcomp.fleet.run import finished, store_unit
+from mlx_tempcomp.fleet.run import connect, finished, store_unit, WORKER_SETTINGS
 from mlx_tempcomp.fleet.unit import MOMENTS_FILE, run_unit, UnitJob
 from mlx_tempcomp.node_parameters import build_model, node_values
 import numpy as np
@@ -488,3 +488,16 @@ def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
             if process.poll() is None:
                 process.kill()
             process.wait(30)
+
+
+def test_the_local_clusters_workers_run_with_the_fleet_settings(monkeypatch):
+    """No statistical profiler, slow monitors: the settings reach the worker processes."""
+    import dask
+    monkeypatch.delenv('DASK_SCHEDULER_ADDRESS', raising=False)
+    client, cluster = connect(None, 1)
+    try:
+        seen = client.run(lambda: {key: dask.config.get(key) for key in WORKER_SETTINGS})
+    finally:
+        client.close()
+        cluster.close()
+    assert list(seen.values()) == [WORKER_SETTINGS]

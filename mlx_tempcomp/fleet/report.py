@@ -48,7 +48,9 @@ COUNT_METRICS = {'effects': 1.0}
 
 def _model_values(params_path: Path) -> tuple:
     """Give (model name, axes, flattened section of the model) of a parameter file."""
-    content = yaml.safe_load(params_path.read_text(encoding='utf-8'))
+    # libyaml's parser when PyYAML has it: one file per unit, read at the end of the run.
+    content = yaml.load(params_path.read_text(encoding='utf-8'),
+                        Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
     values = next(iter(content.values()))['ros__parameters']
     model = values['model']
     return model, list(values['axes']), flat_parameters(values.get(model, {}))

@@ -29,7 +29,17 @@ from ..toolkit.progress import Progress
 
 UNITS_FOLDER = 'units'
 SCHEDULER_VARIABLE = 'DASK_SCHEDULER_ADDRESS'
-WORKER_PROFILER = 'distributed.worker.profile.enabled'
+# The local cluster's workers: without Dask's statistical profiler (it sampled the task's
+# stack every 10 ms: about 0.09 s of CPU per diagnosed unit, 12 %), and with the event
+# loop's tick and the memory and system monitors at 1 s, 1 s and 5 s instead of 20 ms,
+# 100 ms and 500 ms (their wake-ups took the task thread 3 to 7 % longer per unit, with
+# one worker on an idle core; bench/bench_fleet.py, docs/fleet.md).
+WORKER_SETTINGS = {
+    'distributed.worker.profile.enabled': False,
+    'distributed.admin.tick.interval': '1s',
+    'distributed.worker.memory.monitor-interval': '1s',
+    'distributed.admin.system-monitor.interval': '5s',
+}
 
 
 @dataclass(frozen=True)
@@ -98,7 +108,7 @@ def _clear_leftovers(units: Path) -> None:
             shutil.rmtree(path, ignore_errors=True)
 
 
-def _client(scheduler, workers):
+def connect(scheduler, workers):
     """Connect to ``scheduler`` or start a LocalCluster; give (client, cluster or None)."""
     import dask
     from dask.distributed import Client, LocalCluster
@@ -110,10 +120,8 @@ def _client(scheduler, workers):
             msg = f'scheduler {address}: cannot connect: {one_line(err)}'
             raise UserError(msg) from None
     # One thread per worker process: the commands are numpy and Python, and a worker
-    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME). Without the workers'
-    # statistical profiler: sampling the task's stack every 10 ms cost about 0.09 s of CPU
-    # per diagnosed unit (12 %), on a core the other worker needs (docs/fleet.md).
-    with dask.config.set({WORKER_PROFILER: False}):
+    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME).
+    with dask.config.set(WORKER_SETTINGS):
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
@@ -150,7 +158,7 @@ def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
         client = cluster = None
         run_id = uuid.uuid4().hex[:8]
         try:
-            client, cluster = _client(scheduler, workers)
+            client, cluster = connect(scheduler, workers)
             futures = {client.submit(run_unit, job, key=f'fleet-{run_id}-{unit}', pure=False):
                        unit for unit, job in pending.items()}
             for future in as_completed(futures):
