@@ -373,7 +373,10 @@ def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
     out = tmp_path / 'out'
     run = subprocess.Popen([sys.executable, '-m', 'mlx_tempcomp.cli', 'fleet', 'diagnose',
                             '--manifest', manifest, '--out', out, '--workers', '1'],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           # As from a terminal: a suite started in the background of a
+                           # script inherits SIGINT ignored.
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # Not a staging folder (.a1.xxxx): a Ctrl-C before its rename removes it.
         _wait_for(lambda: list(out.glob('units/[!.]*/unit.json')), 120.0, 'the first unit')
