@@ -22,7 +22,7 @@ from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.validation import block_bounds, OutsideRange
-from mlx_tempcomp.node_parameters import model_error_of, node_values
+from mlx_tempcomp.node_parameters import flat_parameters, model_error_of, node_values
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
 from mlx_tempcomp.sources.recording import load_recording, Recording
@@ -612,16 +612,6 @@ def test_cli_report_json_schema(cli_run):
         methods = report['comparison'][scope]
         assert set(methods) == {'none', 'px4_cubic', 'temperature_polynomial', 'diagnosed'}
         assert methods['diagnosed']['x']['rms'] < 0.5 * methods['px4_cubic']['x']['rms']
-
-
-def flat_parameters(tree: dict, prefix: str = '') -> dict:
-    flat = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            flat.update(flat_parameters(value, f'{prefix}{key}.'))
-        else:
-            flat[f'{prefix}{key}'] = value
-    return flat
 
 
 def csv_recording(path) -> Recording:

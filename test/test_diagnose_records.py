@@ -21,12 +21,13 @@ from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.records import join_records
 from mlx_tempcomp.core.validation import record_block_bounds, split
 from mlx_tempcomp.fleet.unit import parse_command
+from mlx_tempcomp.node_parameters import flat_parameters
 from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.sources.recording import Recording
 import numpy as np
 import pytest
-from test_diagnose import (chamber, device_run, flat_parameters, NOISE_DPS, parameters_of,
-                           QUIET, run_cli, TEMPERATURE_NOISE_C)
+from test_diagnose import (chamber, device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
+                           TEMPERATURE_NOISE_C)
 
 LAG_S = 200.0
 REZERO_S = 10.0  # 11 samples at 1 Hz: imu/recalibrate_zro takes no fewer than 10

@@ -585,12 +585,11 @@ class Shrunk:
     A unit's coefficients shrunk toward the population, or its own where its data refuse them.
 
     ``conflict`` tests the posterior mean on the unit's own data (module
-    docstring); when it rejects it, coefficients and covariance are the own
-    fit's and the fleet's share is 0.
+    docstring); when it rejects it, the coefficients are the own fit's and the
+    fleet's share is 0.
     """
 
     coefficients: np.ndarray
-    covariance: np.ndarray
     weight: float
     # tr((Sigma / w)^-1 P) / p = tr((I + J Sigma / w)^-1) / p: 1 all the fleet's, 0 all its own.
     prior_share: float
@@ -615,9 +614,8 @@ def shrink(population: Population, info: np.ndarray, vector: np.ndarray) -> Shru
     conflict = ConflictTest(statistic=max(float(moved @ info @ moved), 0.0), dof=rank,
                             threshold=_chi2_quantile(rank, _CONFLICT_Z) if rank else math.inf)
     if conflict.rejected:
-        coefficients, posterior = own, np.linalg.pinv(info, rcond=_RCOND, hermitian=True)
-        share = 0.0
-    return Shrunk(coefficients=coefficients, covariance=posterior, weight=float(weight[0]),
+        coefficients, share = own, 0.0
+    return Shrunk(coefficients=coefficients, weight=float(weight[0]),
                   prior_share=float(share / size), conflict=conflict)
 
 

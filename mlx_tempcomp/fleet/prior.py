@@ -147,13 +147,6 @@ def _count(number: int, thing: str) -> str:
     return f'{number} {thing}' + ('' if number == 1 else 's')
 
 
-def _remove(path: Path) -> None:
-    try:
-        path.unlink()
-    except FileNotFoundError:
-        pass
-
-
 @dataclass
 class _Fleet:
     """What OUT holds for the prior: each unit's moments, folder, records, why left out."""
@@ -300,9 +293,9 @@ def write_fleet_prior(out: Path) -> list:
             why_not, pools = f'the population model is refused: {err}', {}
     for unit, folder in fleet.folders.items():
         if unit not in written:
-            _remove(folder / SHRUNK_PARAMS)
+            (folder / SHRUNK_PARAMS).unlink(missing_ok=True)
     if not pools:
-        _remove(out / FLEET_PARAMS)
+        (out / FLEET_PARAMS).unlink(missing_ok=True)
         summary['not_written'] = why_not
         write_json(out / PRIOR_JSON, summary)
         return [f'fleet prior not written: {why_not}']

@@ -125,10 +125,8 @@ def _moments(args: argparse.Namespace, local: str) -> dict:
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             recording = load(argparse.Namespace(**{**vars(args), 'input': local}))
-        rate = recording.gyro_rad_s if recording.reference_rad_s is None else \
-            recording.gyro_rad_s - recording.reference_rad_s
-        return {'moments': record_moments(recording.time_s, recording.temperature_c, rate,
-                                          recording.axes)}
+        return {'moments': record_moments(recording.time_s, recording.temperature_c,
+                                          recording.rate_error_rad_s, recording.axes)}
     except MlxTempCompError as err:
         return {'error': one_line(err)}
 

@@ -175,6 +175,13 @@ class Recording:
         return int(self.time_s.shape[0])
 
     @property
+    def rate_error_rad_s(self) -> np.ndarray:
+        """Give the rate error a bias is fitted to: gyro minus reference, or the gyro at rest."""
+        if self.reference_rad_s is None:
+            return self.gyro_rad_s
+        return self.gyro_rad_s - self.reference_rad_s
+
+    @property
     def duration_s(self) -> float:
         """Time from the first to the last sample."""
         return float(self.time_s[-1] - self.time_s[0])

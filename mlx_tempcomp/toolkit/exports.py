@@ -293,12 +293,6 @@ def _exported_imu(args) -> ExportedImu:
                        orientation, rotation)
 
 
-def _rate_error(recording) -> np.ndarray:
-    if recording.reference_rad_s is None:
-        return recording.gyro_rad_s
-    return recording.gyro_rad_s - recording.reference_rad_s
-
-
 def _cubic(args, temperature_c, values, what: str = 'cubic') -> EffectModel:
     try:
         return fit_polynomial(temperature_c, values, EXPORT_ORDER)
@@ -309,7 +303,7 @@ def _cubic(args, temperature_c, values, what: str = 'cubic') -> EffectModel:
 
 def _cubics(args, recording, imu: ExportedImu = ExportedImu()) -> ExportedCubics:
     """Fit the gyro cubic and, with acceleration, the accelerometer's, in the sensor's axes."""
-    gyro = _cubic(args, recording.temperature_c, imu.sensor_axes(_rate_error(recording)))
+    gyro = _cubic(args, recording.temperature_c, imu.sensor_axes(recording.rate_error_rad_s))
     if recording.acceleration_m_s2 is None:
         return ExportedCubics(gyro)
     acceleration = imu.sensor_axes(recording.acceleration_m_s2)

@@ -41,9 +41,8 @@ CHAIN_SOURCE = 'the PSI 3-axis teslameter calibration paper'
 def _rate_error(recording) -> tuple:
     """Return the rate error the bias is fitted to and how it was formed."""
     if recording.reference_rad_s is None:
-        return recording.gyro_rad_s, 'gyro rate (no reference: assumed at rest)'
-    return recording.gyro_rad_s - recording.reference_rad_s, \
-        'gyro rate minus the reference rate (ref columns)'
+        return recording.rate_error_rad_s, 'gyro rate (no reference: assumed at rest)'
+    return recording.rate_error_rad_s, 'gyro rate minus the reference rate (ref columns)'
 
 
 def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):

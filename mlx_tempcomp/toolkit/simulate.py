@@ -45,8 +45,6 @@ _CSV_FORMAT = '%.12g'
 # ZRO slope on top (about ten sigma of the chips' own spread, 0.02 deg/s/C).
 FLEET_EFFECT_SPREAD = 0.2
 FLEET_VARIED_EFFECTS = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v')
-# Varied too, from a stream of their own (the fleets drawn before them stay as they were).
-FLEET_VARIED_LATER = ('hysteresis_width_c', 'acceleration_dps_per_m_s2')
 OUTLIER_ZRO_SLOPE_DPS_PER_C = 0.2
 FLEET_UNITS_PER_OUTLIER = 50
 FLEET_SEED_STRIDE = 100000
@@ -366,6 +364,8 @@ def _fleet_units(args: argparse.Namespace) -> list:
     units = []
     for k in range(args.fleet):
         effects = {name: getattr(args, name) * factor(rng) for name in FLEET_VARIED_EFFECTS}
+        # Varied too, from a stream of their own (the fleets drawn before them stay as
+        # they were).
         effects['hysteresis_width_c'] = args.hysteresis_width_c * factor(later)
         effects['acceleration_dps_per_m_s2'] = [g * factor(later)
                                                 for g in args.acceleration_dps_per_m_s2]
