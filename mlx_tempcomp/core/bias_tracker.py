@@ -3,10 +3,12 @@ Bias tracking at standstill: the offset the temperature model leaves, followed w
 
 `BiasTracking` takes the rate after the temperature model and gives it less the tracked
 offset, the offset's standard deviation and whether the gyro is still, sample by sample.
-Per axis, a scalar Kalman filter holds the offset relative to the model as a random
-walk: its variance grows by q dt (q = ``random_walk_rad_s_rt_s`` squared, the unit's own
-wander) up to ``initial_std_rad_s`` squared (what is known without tracking: the model's
-own error); each window the `StandstillDetector` says to learn from is a measurement of
+Per axis, a scalar Kalman filter holds the offset relative to the model as a bounded
+random walk (first-order Gauss-Markov): its variance grows by q dt at first (q =
+``random_walk_rad_s_rt_s`` squared, the unit's own wander) and levels off at
+``initial_std_rad_s`` squared (what is known without tracking: the model's own error),
+as the offset fades back to the model, with the time constant 2 initial_std^2 / q; each
+window the `StandstillDetector` says to learn from is a measurement of
 the offset, its mean, with the variance noise^2 / samples. In motion nothing is learnt:
 the temperature model carries the shape, the offset stays. When the gyro has just become
 still and its first window's innovation is beyond ``agreement_multiple`` standard
@@ -429,11 +431,22 @@ class BiasTracking:
         return ''
 
     def _predict(self, time_s: float) -> None:
-        """Grow the variances by q dt up to their prior, from the last time to ``time_s``."""
+        """
+        Carry the offsets from the last time to ``time_s``: a first-order Gauss-Markov process.
+
+        Its standard deviation is ``initial_std_rad_s`` (the model's own error: the offset
+        stays within it) and its variance grows at first by q dt (the random walk), so its
+        time constant is 2 initial_std^2 / q: the offset fades back to the model over it,
+        and its variance grows back to initial_std^2.
+        """
         if self._time_s is not None and time_s > self._time_s:
             elapsed = time_s - self._time_s
-            self._variance = [min(v + q * elapsed, cap) if v < cap else v
-                              for v, q, cap in zip(self._variance, self._q, self._cap)]
+            for i, (q, cap) in enumerate(zip(self._q, self._cap)):
+                if q > 0.0:
+                    decay = math.exp(-elapsed * q / (2.0 * cap))
+                    self._offset[i] *= decay
+                    self._variance[i] = decay * decay * self._variance[i] + \
+                        cap * (1.0 - decay * decay)
         if self._time_s is None or time_s > self._time_s:
             self._time_s = time_s
 
