@@ -80,6 +80,8 @@ class TrackingStatus:
     last_update_s: Optional[float]
     windows: int
     reason: str
+    # Per axis: its mean was beyond the bound in the last window (a turn it may see).
+    held: tuple
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,7 @@ class WindowRecord:
     samples: int
     quiet: bool
     still: bool
-    # The (start_s, end_s) of each window learnt when this one closed.
+    # The (start_s, end_s, axes) of each window learnt when this one closed.
     learnt: tuple
     reason: str
     offset_rad_s: tuple
@@ -197,6 +199,8 @@ class BiasTracking:
         self._window = None
         self._origin_s = None
         self.window_count = 0
+        self.held = (False,) * len(self.axes)
+        self._still = False
         self.withdrawn = 0
         self._run = None
         self._drifted_windows = 0
@@ -215,8 +219,8 @@ class BiasTracking:
 
     @property
     def still(self) -> bool:
-        """Tell whether the detector holds the gyro still now."""
-        return self._detector.still
+        """Tell whether the gyro is still now: in a still run, no axis held."""
+        return self._still
 
     def seed(self, offset_rad_s, variance_rad2_s2, time_s: Optional[float] = None) -> None:
         """Set the offset and its variance (a ZRO recalibration's mean and noise^2 / n)."""
@@ -247,7 +251,7 @@ class BiasTracking:
             still=self.still, offset_rad_s=tuple(self._offset), std_rad_s=tuple(self._std),
             stable=tuple(learnt and s <= self.settings.stable_std_rad_s for s in self._std),
             updates=self.updates, last_update_s=self.last_update_s, windows=self.window_count,
-            reason=self.reason)
+            reason=self.reason, held=self.held)
 
     # The stream.
 
@@ -282,7 +286,7 @@ class BiasTracking:
             part = slice(first, end)
             out[part] = rate[part] - self._offset
             std[part] = self._std
-            still[part] = self._detector.still
+            still[part] = self._still
             self._window.add_block(time_s[part], out[part], temperature[part],
                                    None if acceleration is None else acceleration[part])
             first = end
@@ -298,7 +302,7 @@ class BiasTracking:
             self._roll(time_s)
         out = [r - o for r, o in zip(rate_rad_s, self._offset)]
         self._window.add_row(time_s, out, temperature_c, acceleration_m_s2)
-        return out, list(self._std), self._detector.still
+        return out, list(self._std), self._still
 
     def _open(self, time_s: float) -> None:
         """Start the window grid at ``time_s`` (a finite stamp) and its first window."""
@@ -321,6 +325,8 @@ class BiasTracking:
         if time_s < window.start_s:
             # The clock went back (a replay restarted): a new grid, nothing carried over.
             self._detector.reset()
+            self._end_run()
+            self._still = False
             self._open(time_s)
             return
         width = self.settings.standstill.window_s
@@ -334,45 +340,50 @@ class BiasTracking:
     def _close(self, w: WindowStatistics) -> None:
         verdict = self._detector.judge(w)
         self.window_count += 1
+        self.held = tuple(i in verdict.held for i in range(len(self.axes)))
         self._predict(w.end_s)
         reason, learnt = verdict.reason, ()
         if verdict.entered:
             self._begin_run(verdict.learn, w.end_s)
             learnt = verdict.learn
         elif verdict.learn:
-            (window,) = verdict.learn
-            reason = self._drift(window)
-            if reason:
-                self._detector.interrupt(w)
+            ((window, axes),) = verdict.learn
+            drift = self._drift(window, axes)
+            if drift:
+                reason = drift
+                self._detector.interrupt(w, verdict.held)
                 self._end_run(drifted=True)
             else:
-                self._learn(window, shift=False)
+                self._learn(window, axes, shift=False)
                 learnt = verdict.learn
                 self._run.windows += 1
                 self._run.unconfirmed = max(self._run.unconfirmed - 1, 0)
         elif not verdict.still:
             self._end_run()
-        self.reason = reason or ('still' if self._detector.still else 'moving')
+        self._still = self._detector.still and not verdict.held
+        self.reason = reason or ('still' if self._still else 'moving')
         self._std = [math.sqrt(v) for v in self._variance]
         if self.windows is not None:
             self.windows.append(WindowRecord(
                 start_s=w.start_s, end_s=w.end_s, samples=w.samples, quiet=verdict.quiet,
-                still=self._detector.still,
-                learnt=tuple((v.start_s, v.end_s) for v in learnt), reason=reason,
-                offset_rad_s=tuple(self._offset)))
+                still=self._still,
+                learnt=tuple((v.start_s, v.end_s, tuple(sorted(axes))) for v, axes in learnt),
+                reason=reason, offset_rad_s=tuple(self._offset)))
 
-    def _begin_run(self, windows: tuple, time_s: float) -> None:
+    def _begin_run(self, learn: tuple, time_s: float) -> None:
         """
         Learn the windows that made the gyro still; a shift a turn could explain is provisional.
 
         Without an accelerometer any shift could be a slow turn; with one, only its part
         about gravity (a turn about another axis tilts the specific force).
         """
+        if self._run is not None:
+            self._end_run()
         before = (list(self._offset), list(self._variance))
         shifted = False
-        for order, window in enumerate(windows):
-            shifted |= self._learn(window, shift=order == 0)
-        last = windows[-1] if windows else None
+        for order, (window, axes) in enumerate(learn):
+            shifted |= self._learn(window, axes, shift=order == 0)
+        last = learn[-1][0] if learn else None
         vertical = None if last is None or last.acceleration_m_s2 is None else \
             self._detector.vertical(last.acceleration_m_s2)
         if shifted and vertical is not None:
@@ -388,7 +399,7 @@ class BiasTracking:
                               variance=tuple(self._variance),
                               time_s=last.end_s if last else time_s,
                               before=before + (vertical,) if shifted else None,
-                              unconfirmed=unconfirmed, windows=len(windows))
+                              unconfirmed=unconfirmed, windows=len(learn))
 
     def _end_run(self, drifted: bool = False) -> None:
         """End the still run; a shift it has not confirmed yet is undone (about gravity)."""
@@ -406,9 +417,9 @@ class BiasTracking:
         self._variance = [max(v, b) for v, b in zip(self._variance, variance)]
         self.withdrawn += 1
 
-    def _drift(self, w: WindowStatistics) -> str:
+    def _drift(self, w: WindowStatistics, axes: frozenset) -> str:
         """
-        Give how ``w`` drifted from where its still run began beyond the random walk.
+        Give how ``w`` drifted on ``axes`` from where its still run began beyond the walk.
 
         Per axis without an accelerometer; with one, only the drift about gravity (the
         accelerometer sees a turn about any other axis tilt the specific force).
@@ -417,16 +428,19 @@ class BiasTracking:
         if run is None:
             return ''
         gate = self.settings.standstill.agreement_multiple
-        moved = [m - o for m, o in zip(w.measured_rad_s, run.offset_rad_s)]
-        variance = [v + n / w.samples + q * (w.end_s - run.time_s)
-                    for v, n, q in zip(run.variance, self._noise2, self._q)]
+        axes = sorted(axes)
+        moved = [w.measured_rad_s[i] - run.offset_rad_s[i] for i in axes]
+        variance = [run.variance[i] + self._noise2[i] / w.samples +
+                    self._q[i] * (w.end_s - run.time_s) for i in axes]
         if w.acceleration_m_s2 is not None:
             vertical = self._detector.vertical(w.acceleration_m_s2)
-            moved = [sum(m * u for m, u in zip(moved, vertical))]
-            variance = [sum(v * u * u for v, u in zip(variance, vertical))]
+            up = [vertical[i] for i in axes]
+            moved = [sum(m * u for m, u in zip(moved, up))]
+            variance = [sum(v * u * u for v, u in zip(variance, up))]
         for i, (drift, var) in enumerate(zip(moved, variance)):
             if not drift * drift <= gate * gate * var:
-                where = 'about gravity' if w.acceleration_m_s2 is not None else f'on axis {i}'
+                where = 'about gravity' if w.acceleration_m_s2 is not None else \
+                    f'on axis {axes[i]}'
                 return f'offset drifted {drift:.3g} rad/s {where} since the still run began'
         return ''
 
@@ -450,11 +464,12 @@ class BiasTracking:
         if self._time_s is None or time_s > self._time_s:
             self._time_s = time_s
 
-    def _learn(self, w: WindowStatistics, shift: bool) -> bool:
-        """Update every axis with the offset the window measures; tell whether it shifted."""
+    def _learn(self, w: WindowStatistics, axes: frozenset, shift: bool) -> bool:
+        """Update ``axes`` with the offsets the window measures; tell whether one shifted."""
         gate = self.settings.standstill.agreement_multiple
         shifted = False
-        for i, measured in enumerate(w.measured_rad_s):
+        for i in sorted(axes):
+            measured = w.measured_rad_s[i]
             noise = self._noise2[i] / w.samples
             variance = self._variance[i]
             innovation = measured - self._offset[i]

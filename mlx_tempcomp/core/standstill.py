@@ -44,6 +44,10 @@ from .errors import ConfigError
 
 # A window needs this many samples for its spread to mean anything.
 MIN_WINDOW_SAMPLES = 5
+# How far the gravity an accelerometer sees may be off the true vertical, rad: its offset
+# (20 mg of a MEMS part over temperature) tilts it. A turn about gravity moves an axis by
+# up to (its cosine to the vertical seen + this) x the rate.
+GRAVITY_TILT_RAD = 0.02
 AXIS_NAMES = ('x', 'y', 'z')
 
 
@@ -262,9 +266,11 @@ class Verdict:
     The detector's judgement of one window.
 
     ``reason`` says why the window is not part of a still run ('' when it is);
-    ``learn`` are the windows the tracker learns from now, each confirmed by the one
-    after it: the run but its newest window when the gyro has just become still
-    (``entered``), the window before this one while it stays still.
+    ``held`` the axes whose mean rate this window is beyond the bound on (a turn they
+    see may be going on), which learn nothing from it. ``learn`` are the windows the
+    tracker learns from now, each confirmed by the one after it, as (window, axes) pairs
+    (the axes held in neither): the run but its newest window when the gyro has just
+    become still (``entered``), the window before this one while it stays still.
     """
 
     quiet: bool
@@ -272,6 +278,7 @@ class Verdict:
     still: bool
     entered: bool
     reason: str
+    held: frozenset
     learn: tuple
 
 
@@ -284,13 +291,14 @@ class StandstillDetector:
             raise ConfigError(msg)
         self.settings = settings
         self.axis_index = tuple(AXIS_NAMES.index(a) for a in axes)
+        self._all = frozenset(range(len(axes)))
         self.reset()
 
     def reset(self) -> None:
         """Forget the windows seen: moving, no run (a gap or a clock going back)."""
         self.still = False
         self._previous = None
-        self._run = []
+        self._run = []          # (window, held axes), oldest first
         self._run_length = 0
         self._misses = 0
 
@@ -301,10 +309,10 @@ class StandstillDetector:
             return (math.nan,) * len(self.axis_index)
         return tuple(acceleration_m_s2[k] / norm for k in self.axis_index)
 
-    def interrupt(self, w: WindowStatistics) -> None:
+    def interrupt(self, w: WindowStatistics, held: frozenset) -> None:
         """Break the still run at ``w`` (its offset drifted): moving, ``w`` starts a new run."""
         self.still, self._misses = False, 0
-        self._run, self._run_length = [w], 1
+        self._run, self._run_length = [(w, held)], 1
 
     def _quiet_reason(self, w: WindowStatistics) -> str:
         """Give why the window is not quiet, '' when it is (NaN fails every test)."""
@@ -319,24 +327,41 @@ class StandstillDetector:
                        f'{s.rate_noise_rad_s[i]:.3g})'
         if not abs(w.temperature_rate_c_s) <= s.max_temperature_rate_c_s:
             return f'temperature rate {w.temperature_rate_c_s:.3g} C/s'
-        if w.acceleration_m_s2 is not None:
-            if not max(w.acceleration_spread_m_s2) <= s.max_acceleration_spread_m_s2:
-                return f'acceleration spread {max(w.acceleration_spread_m_s2):.3g} m/s^2'
-            vertical = sum(m * u for m, u in zip(w.mean_rad_s,
-                                                 self.vertical(w.acceleration_m_s2)))
-            if not abs(vertical) <= s.max_mean_rate_rad_s:
-                return f'mean rate about gravity {vertical:.3g} rad/s'
-        else:
-            for i, mean in enumerate(w.mean_rad_s):
-                if not abs(mean) <= s.max_mean_rate_rad_s:
-                    return f'mean rate {mean:.3g} rad/s on axis {i}'
+        if w.acceleration_m_s2 is not None and \
+                not max(w.acceleration_spread_m_s2) <= s.max_acceleration_spread_m_s2:
+            return f'acceleration spread {max(w.acceleration_spread_m_s2):.3g} m/s^2'
         return ''
 
-    def _disagreement(self, before: WindowStatistics, w: WindowStatistics) -> str:
-        """Give why ``w`` does not agree with the quiet window ``before`` ('' when it does)."""
+    def _held(self, w: WindowStatistics) -> tuple:
+        """
+        Give (held axes, reason): the axes a turn within the window's mean could move.
+
+        Without an accelerometer, each axis whose mean (less the offset) is beyond the
+        bound. With one, the mean's part about gravity is the turn it cannot see: beyond
+        the bound, every axis that turn would move by more than the noise of its window
+        mean (so an axis learns from it at most what its noise hides).
+        """
+        s = self.settings
+        if w.acceleration_m_s2 is None:
+            held = frozenset(i for i, m in enumerate(w.mean_rad_s)
+                             if not abs(m) <= s.max_mean_rate_rad_s)
+            worst = max(held, key=lambda i: abs(w.mean_rad_s[i]), default=None)
+            return held, '' if worst is None else \
+                f'mean rate {w.mean_rad_s[worst]:.3g} rad/s on axis {worst}'
+        up = self.vertical(w.acceleration_m_s2)
+        turn = sum(m * u for m, u in zip(w.mean_rad_s, up))
+        if abs(turn) <= s.max_mean_rate_rad_s:
+            return frozenset(), ''
+        held = frozenset(i for i, u in enumerate(up) if not (abs(u) + GRAVITY_TILT_RAD) *
+                         abs(turn) <= s.rate_noise_rad_s[i] / math.sqrt(w.samples))
+        return held, f'mean rate about gravity {turn:.3g} rad/s'
+
+    def _disagreement(self, before: WindowStatistics, w: WindowStatistics, axes) -> str:
+        """Give why ``w`` does not agree with the quiet ``before`` on ``axes`` ('' if it does)."""
         s = self.settings
         elapsed = w.centre_s - before.centre_s
-        for i, (a, b) in enumerate(zip(before.measured_rad_s, w.measured_rad_s)):
+        for i in sorted(axes):
+            a, b = before.measured_rad_s[i], w.measured_rad_s[i]
             variance = s.rate_noise_rad_s[i] ** 2 * (1.0 / before.samples + 1.0 / w.samples) \
                 + s.random_walk_rad_s_rt_s[i] ** 2 * elapsed
             if not abs(b - a) <= s.agreement_multiple * math.sqrt(variance):
@@ -351,17 +376,22 @@ class StandstillDetector:
         """Judge the next closed window; windows must come in order of their index."""
         previous, self._previous = self._previous, w
         reason = self._quiet_reason(w)
+        held, held_reason = (frozenset(), '') if reason else self._held(w)
+        if held == self._all:
+            reason = held_reason
         quiet = not reason
         agrees = False
         if quiet:
-            if self._run and self._run[-1] is previous and previous.index == w.index - 1:
-                reason = self._disagreement(previous, w)
+            if self._run and self._run[-1][0] is previous and previous.index == w.index - 1:
+                axes = self._all - held - self._run[-1][1]
+                reason = self._disagreement(previous, w, axes) if axes else \
+                    'no axis free in both windows'
                 agrees = not reason
             if agrees:
-                self._run.append(w)
+                self._run.append((w, held))
                 self._run_length += 1
             else:
-                self._run, self._run_length = [w], 1
+                self._run, self._run_length = [(w, held)], 1
             self._run = self._run[-max(self.settings.enter_windows, 2):]
         else:
             self._run, self._run_length = [], 0
@@ -371,14 +401,19 @@ class StandstillDetector:
             # A window is learnt once the next one agrees with it: the start of a slow
             # ramp at the end of a rest shows in the window after it, not in its own.
             entered = not self.still
-            learn = tuple(self._run[:-1]) if entered else tuple(self._run[-2:-1])
+            pairs = list(zip(self._run[:-1], self._run[1:]))
+            learn = tuple((a, self._all - a_held - b_held)
+                          for (a, a_held), (_, b_held) in (pairs if entered else pairs[-1:]))
             self.still, self._misses = True, 0
         elif self.still:
             self._misses += 1
             self.still = self._misses < self.settings.leave_windows
+        if self.still and quiet and (agrees or entered):
+            reason = f'held: {held_reason}' if held else ''
+        else:
+            reason = reason or 'run too short'
         return Verdict(quiet=quiet, agrees=agrees, still=self.still, entered=entered,
-                       reason='' if self.still and quiet and (agrees or entered) else
-                       reason or 'run too short', learn=learn)
+                       reason=reason, held=held, learn=learn)
 
 
 def _angle(a: tuple, b: tuple) -> float:

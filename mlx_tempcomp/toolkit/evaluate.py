@@ -133,14 +133,16 @@ def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, a
     Write time, temperature and corrected rate as a canonical CSV recording.
 
     With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
-    ``offset_*`` and ``offset_std_*`` (rad/s) follow.
+    ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
+    learnt from) follow.
     """
     header = ['time', 'temperature'] + [f'gyro_{a}' for a in axes]
     columns = [corrected]
     if twin is not None:
-        header += ['still'] + [f'offset_{a}' for a in axes] + [f'offset_std_{a}' for a in axes]
+        header += ['still'] + [f'{name}_{a}' for name in ('offset', 'offset_std', 'learnt')
+                               for a in axes]
         columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
-                   twin.offset_std_rad_s]
+                   twin.offset_std_rad_s, twin.learnt.astype(int)]
     try:
         with open(path, 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)

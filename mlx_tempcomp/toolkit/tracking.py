@@ -78,6 +78,7 @@ class TwinResult:
     offset_rad_s: np.ndarray
     offset_std_rad_s: np.ndarray
     still: np.ndarray
+    learnt: np.ndarray
     report: dict
 
 
@@ -118,16 +119,37 @@ def _axis_report(without: np.ndarray, with_: np.ndarray, moving, starts) -> dict
     return report
 
 
-def _learnt_in_motion(tracker: BiasTracking, time_s: np.ndarray, reference) -> dict:
-    """Count learnt windows the reference moved in, and the largest mean rate in them."""
-    count, largest = 0, np.zeros(reference.shape[1])
+def learnt_mask(tracker: BiasTracking, time_s: np.ndarray) -> np.ndarray:
+    """Give per sample and axis whether the tracker learnt from the window holding it."""
+    mask = np.zeros((time_s.size, len(tracker.axes)), dtype=bool)
     for record in tracker.windows:
-        for start_s, end_s in record.learnt:
+        for start_s, end_s, axes in record.learnt:
             rows = (time_s >= start_s) & (time_s < end_s)
-            if np.any(reference[rows] != 0.0):
-                count += 1
-                largest = np.maximum(largest, np.abs(reference[rows].mean(axis=0)))
-    return {'windows': count, 'largest_mean_reference_rad_s': largest.tolist()}
+            mask[np.ix_(rows, list(axes))] = True
+    return mask
+
+
+def _learnt_in_motion(tracker: BiasTracking, learnt: np.ndarray, time_s: np.ndarray,
+                      reference: np.ndarray) -> dict:
+    """
+    Say how much the reference moved where the tracker learnt, on the axes it learnt.
+
+    Samples learnt from while the reference was not zero; the largest reference rate
+    there; the largest mean reference over a learnt window (what it could have taken).
+    """
+    largest_mean = np.zeros(reference.shape[1])
+    for record in tracker.windows:
+        for start_s, end_s, axes in record.learnt:
+            rows = (time_s >= start_s) & (time_s < end_s)
+            if rows.any():
+                means = np.abs(reference[rows].mean(axis=0))
+                for axis in axes:
+                    largest_mean[axis] = max(largest_mean[axis], means[axis])
+    moving = learnt & (reference != 0.0)
+    return {'samples': int(np.count_nonzero(moving.any(axis=1))),
+            'largest_reference_rad_s': np.max(np.abs(np.where(learnt, reference, 0.0)),
+                                              axis=0, initial=0.0).tolist(),
+            'largest_mean_reference_rad_s': largest_mean.tolist()}
 
 
 def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, part: slice,
@@ -168,12 +190,15 @@ def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, pa
         'settings': {'window_s': settings.standstill.window_s,
                      'max_mean_rate_rad_s': settings.standstill.max_mean_rate_rad_s},
     }
+    learnt = learnt_mask(tracker, recording.time_s)
     if moving is not None:
         report['still_share_true'] = float(np.mean(~moving))
         report['learnt_while_moving'] = _learnt_in_motion(
-            tracker, recording.time_s, recording.reference_rad_s[:, columns])
+            tracker, learnt[part], recording.time_s[part],
+            recording.reference_rad_s[part][:, columns])
     return TwinResult(rate_rad_s=out.rate_rad_s, offset_rad_s=corrected - out.rate_rad_s,
-                      offset_std_rad_s=out.std_rad_s, still=out.still, report=report)
+                      offset_std_rad_s=out.std_rad_s, still=out.still, learnt=learnt,
+                      report=report)
 
 
 def twin_lines(report: dict, axes: tuple) -> list:
@@ -203,7 +228,10 @@ def twin_lines(report: dict, axes: tuple) -> list:
     if moving:
         learnt = report['learnt_while_moving']
         largest = ', '.join(f'{a} {v:.2e}' for a, v in
-                            zip(axes, learnt['largest_mean_reference_rad_s']))
-        lines.append(f'learnt windows the reference moved in: {learnt["windows"]} (largest '
-                     f'mean reference rate in them: {largest} rad/s)')
+                            zip(axes, learnt['largest_reference_rad_s']))
+        mean = ', '.join(f'{a} {v:.2e}' for a, v in
+                         zip(axes, learnt['largest_mean_reference_rad_s']))
+        lines.append(f'samples learnt from while the reference moved on a learnt axis: '
+                     f'{learnt["samples"]}; the largest reference rate there {largest}, over a '
+                     f'learnt window {mean} rad/s')
     return lines
