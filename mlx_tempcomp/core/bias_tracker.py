@@ -8,18 +8,27 @@ random walk (first-order Gauss-Markov): its variance grows by q dt at first (q =
 ``random_walk_rad_s_rt_s`` squared, the unit's own wander) and levels off at
 ``initial_std_rad_s`` squared (what is known without tracking: the model's own error),
 as the offset fades back to the model, with the time constant 2 initial_std^2 / q; each
-window the `StandstillDetector` says to learn from is a measurement of
-the offset, its mean, with the variance noise^2 / samples. In motion nothing is learnt:
-the temperature model carries the shape, the offset stays. When the gyro has just become
-still and its first window's innovation is beyond ``agreement_multiple`` standard
-deviations (a bias step, or a re-seat after a long motion), the variance is widened by
-the innovation squared so that the windows that agreed on the shift are taken at once:
-a step is followed within the ``enter_windows`` still windows.
+window the `StandstillDetector` says to learn from is a measurement of the offset on the
+axes it does not hold, its mean, with the variance noise^2 / samples. In motion nothing
+is learnt: the temperature model carries the shape, the offset stays (and fades).
+
+- **Shifts.** When the gyro has just become still and its first window's innovation is
+  beyond ``agreement_multiple`` standard deviations (a bias step, or the bias moved in a
+  long motion), the variance is widened by the innovation squared so that the windows
+  that agreed on the shift are taken at once: a step is followed within the
+  ``enter_windows`` still windows.
+- **Slow ramps.** Within a still run the offset measured may move from where the run
+  began by ``agreement_multiple`` standard deviations of its random walk at most (per
+  axis; with an accelerometer its part along gravity), else the run ends; and a shift a
+  turn could explain (without an accelerometer any, with one its part along gravity) is
+  provisional: undone unless the run holds it `CONFIRM_WINDOWS` windows more, or twice as
+  long as the run before it held when that one drifted out. A ramp, which looks like a
+  staircase of steps, is never followed past a provisional step.
 
 Every sample goes through the same steps whether it comes in a block (`process`, numpy)
 or alone (`process_one`, plain floats): the offset changes only when a window closes,
 the window sums are added in sample order, the decisions are plain floats. Any split
-into blocks gives the same bits (``test/test_core_bias_tracker.py``).
+into blocks gives the same bits (``test/test_fuzz_bias_tracking.py``).
 
 `seed` sets the offset and its variance (the ZRO recalibration's window); `state` gives
 a plain dict for a state file and `tracking_state` checks one read back.

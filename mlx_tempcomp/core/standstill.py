@@ -11,27 +11,33 @@ block and its rows one by one give the same bits. A closed window gives its
 - **quiet**: enough samples; on every axis the rate spread (standard deviation) within
   ``noise_multiple`` x the axis's per-sample noise; the temperature's slope over the
   window within ``max_temperature_rate_c_s``; with an accelerometer, its spread within
-  ``max_acceleration_spread_m_s2`` on every axis; and the mean rate, relative to the
-  tracker's current offset, within ``max_mean_rate_rad_s``: without an accelerometer on
-  every axis, with one its component along gravity (the mean specific force), the turn
-  the accelerometer cannot see;
+  ``max_acceleration_spread_m_s2`` on every axis;
+- **held axes**: the mean rate, relative to the tracker's current offset, beyond
+  ``max_mean_rate_rad_s`` may be a constant turn. Without an accelerometer each axis
+  beyond it is held; with one, the mean's part along gravity (the mean specific force)
+  is the turn it cannot see, and beyond the bound every axis that turn would move by
+  more than its window mean's noise is held (the gravity seen counted up to
+  `GRAVITY_TILT_RAD` off the true vertical). A held axis learns nothing from the
+  window; a window whose every axis is held is not quiet;
 - **agrees** with the window before it (adjacent and quiet): the offsets they measure
-  (the offset in effect plus the window's mean) differ on no axis by more than
-  ``agreement_multiple`` x their standard deviation (the noise of both means and the
-  bias's own random walk between them); with an accelerometer, the specific force turned
-  by no more than ``max_tilt_rate_rad_s`` x the time between them.
+  (the offset in effect plus the window's mean) differ on no axis held in neither by
+  more than ``agreement_multiple`` x their standard deviation (the noise of both means
+  and the bias's own random walk between them); with an accelerometer, the specific
+  force turned by no more than ``max_tilt_rate_rad_s`` x the time between them.
 
 A run of ``enter_windows`` quiet windows, each agreeing with the one before, makes the
 gyro still; ``leave_windows`` windows out of the run make it moving again. The tracker
-learns from a window of a still run once the next window agrees with it, so the last
-window before a motion (which may hold the slow start of a ramp) is never learnt.
+learns from a window of a still run once the next window agrees with it (on the axes
+held in neither), so the last window before a motion (which may hold the slow start of
+a ramp) is never learnt.
 
 What a gyro alone cannot tell: a constant turn is a bias to it. A turn whose rate, less
 the current offset, stays within ``max_mean_rate_rad_s`` is rest to the detector (without
 an accelerometer about any axis, with one about gravity); a turn that starts slower than
 that and speeds up by less than the agreement allows between two windows (a slow ramp)
-is taken for rest until it does. An accelerometer sees every turn about a horizontal axis
-(the specific force tilts) and every shaking; it cannot see a turn about gravity.
+is taken for rest until it does (the tracker's drift guard ends such a run). An
+accelerometer sees every turn about a horizontal axis (the specific force tilts) and
+every shaking; it cannot see a turn about gravity.
 """
 
 from dataclasses import dataclass

@@ -217,10 +217,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'per_sample': {a: _statistics(error[part, i]) for i, a in enumerate(axes)},
         'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
-    twin = None
-    if args.track_bias:
-        twin = offline_twin(values, axes, recording, corrected, part, args.params,
-                            args.average_s)
+    twin = offline_twin(values, axes, recording, corrected, part, args.params,
+                        args.average_s) if args.track_bias else None
+    if twin:
         report['bias_tracking'] = twin.report
     if args.out_csv is not None:
         _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
@@ -240,7 +239,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
             s = report[key][a]
             print(f'{a:<6}{label:<14}{s["mean"]:>12.3e}{s["sigma"]:>12.3e}{s["rms"]:>12.3e}'
                   f'{s["peak"]:>12.3e}')
-    if twin is not None:
+    if twin:
         print('\n'.join(twin_lines(twin.report, axes)))
     if args.out_csv is not None:
         print(f'wrote {args.out_csv}')
