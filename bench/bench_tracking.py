@@ -105,8 +105,9 @@ def learnt_reference(time_s: np.ndarray, reference: np.ndarray, learnt: np.ndarr
     for index in np.unique(window[learnt.any(axis=1)]):
         rows = window == index
         means = np.where(learnt[rows].any(axis=0), np.abs(reference[rows].mean(axis=0)), 0.0)
+        means[means < 1e-9] = 0.0      # a turn's axis, turned back, leaves float dust
         largest = np.maximum(largest, means)
-        count += bool(np.any(means > 1e-9))   # the turns' axes leave float dust elsewhere
+        count += bool(np.any(means > 0.0))
     return largest, count
 
 
