@@ -243,8 +243,10 @@ class CompensationNode(Node):
             return ''
 
         recalibration = self.recalibration
-        response.message = recalibration.start(self.model, self.values)
-        if not response.message:
+        refusal = recalibration.start(self.model, self.values)
+        if refusal:
+            response.message = refusal
+        else:
             window = recalibration.window
             try:
                 response.message = await await_window(self, window.samples.future, stale,
