@@ -8,7 +8,7 @@ writes the model found only when it beats the PX4-style cubic
 (`choose_model`, `cubic_errors`).
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import math
 from typing import Optional
 
@@ -17,9 +17,37 @@ import numpy as np
 from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S
 from .folds import Folds
 from .problem import DiagnosisProblem, Score
-from .results import Candidate, ModelChoice
+from .results import Candidate, HeldOutError, ModelChoice
 from .settings import DiagnosisSettings, RECORD_SEARCH
 from ..validation import cubic_instead, PX4_ORDER
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """
+    An effect's trial judged against the axis's current terms (`judge`).
+
+    ``gain`` is the relative held-out RMS reduction; the mean per-fold
+    improvement and its standard error are in rad/s; ``worst_block_change``
+    is the largest rise of a block's held-out RMS over the larger of that
+    RMS and the axis's; ``reason`` says why the trial is refused ('' if it
+    passes).
+    """
+
+    gain: float
+    mean_improvement_rad_s: float
+    standard_error_rad_s: float
+    worst_block_change: float
+    reason: str
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """An effect tried on an axis: the spec of its best trial and its judgement."""
+
+    effect: str
+    spec: AxisSpec
+    judgement: Judgement
 
 
 def unbounded(problem: DiagnosisProblem, effect: str, spec: AxisSpec) -> str:
@@ -30,9 +58,11 @@ def unbounded(problem: DiagnosisProblem, effect: str, spec: AxisSpec) -> str:
     tell from a drift.
     """
     if effect == 'thermal_lag':
-        values, high = (abs(spec.thermal_lag_s),), problem.bounds['thermal_lag_s'][1]
+        values = (abs(spec.thermal_lag_s),)
+        _, high = problem.bounds['thermal_lag_s']
     elif effect in ('thermal_gradient', 'thermal_gradient_2'):
-        values, high = spec.gradient_s, problem.bounds['gradient_time_constant_s'][1]
+        values = spec.gradient_s
+        _, high = problem.bounds['gradient_time_constant_s']
     else:
         return ''
     top = max(v for v in TIME_GRID_S if v <= high)
@@ -43,9 +73,9 @@ def unbounded(problem: DiagnosisProblem, effect: str, spec: AxisSpec) -> str:
             'from a drift')
 
 
-def judge(problem: DiagnosisProblem, base: Score, score: Score) -> tuple:
+def judge(problem: DiagnosisProblem, base: Score, score: Score) -> Judgement:
     """
-    Return (relative gain, mean fold improvement, its SE, worst block change, why rejected).
+    Judge a trial's score against the axis's current one (`Judgement`).
 
     A block's change is the rise of its held-out RMS over the larger of that
     RMS and the axis's overall held-out RMS; the worst is the largest.
@@ -76,14 +106,18 @@ def judge(problem: DiagnosisProblem, base: Score, score: Score) -> tuple:
                   f'{base.rms:.3g}); --block-tolerance {settings.block_tolerance:g}')
     else:
         reason = ''
-    return gain, mean, error, float(change[worst]), reason
+    return Judgement(gain, mean, error, float(change[worst]), reason)
 
 
-def to_candidate(problem: DiagnosisProblem, axis: int, effect: str, trial: AxisSpec,
-                 judged: tuple, number: int, reason: str) -> Candidate:
-    gain, mean, error, worst, _ = judged
-    parameters = fitted_parameters(effect, problem.fit_terms(axis, trial), problem)
-    return Candidate(effect, number, parameters, gain, mean, error, reason, worst)
+def to_candidate(problem: DiagnosisProblem, axis: int, attempt: Attempt, number: int,
+                 reason: str) -> Candidate:
+    """Describe an attempt of round ``number`` that is not added, for ``reason``."""
+    judgement = attempt.judgement
+    parameters = fitted_parameters(attempt.effect, problem.fit_terms(axis, attempt.spec),
+                                   problem)
+    return Candidate(attempt.effect, number, parameters, judgement.gain,
+                     judgement.mean_improvement_rad_s, judgement.standard_error_rad_s, reason,
+                     judgement.worst_block_change)
 
 
 def record_findings(problem: DiagnosisProblem, axis: int, spec: AxisSpec, number: int) -> tuple:
@@ -91,20 +125,24 @@ def record_findings(problem: DiagnosisProblem, axis: int, spec: AxisSpec, number
     current = problem.score_spec(axis, spec)
     findings = []
     for effect in RECORD_SEARCH:
-        trial, score = best_trial(problem, axis, spec, effect)  # always one trial
-        judged = judge(problem, current, score)
-        findings.append(to_candidate(problem, axis, effect, trial, judged, number, judged[4]))
+        trial = best_trial(problem, axis, spec, effect)  # always one trial
+        judgement = judge(problem, current, trial.score)
+        findings.append(to_candidate(problem, axis, Attempt(effect, trial.spec, judgement),
+                                     number, judgement.reason))
     return tuple(findings)
 
 
-def choose_model(settings: DiagnosisSettings, found: tuple, cubic: tuple) -> ModelChoice:
+def choose_model(settings: DiagnosisSettings, found: HeldOutError, cubic: HeldOutError,
+                 other_found: HeldOutError, other_cubic: HeldOutError) -> ModelChoice:
     """
-    Write the found model if it beats the cubic (`cubic_instead`) and loses beside, else the cubic.
+    Write the found model if it beats the cubic (`cubic_instead`) and is no worse beside.
 
-    ``found`` and ``cubic`` are (deciding, beside) held-out errors.
+    ``found`` and ``cubic`` are the held-out errors under the deciding
+    validation, ``other_found`` and ``other_cubic`` under the scheme beside.
+    Else the cubic is written, and the choice says why.
     """
     margin = settings.baseline_margin
-    choice = ModelChoice('diagnosed', found[0], cubic[0], margin, found[1], cubic[1])
+    choice = ModelChoice('diagnosed', found, cubic, margin, other_found, other_cubic)
     deciding, beside = (scheme.replace('_', '-') for scheme in (settings.validation,
                                                                 settings.other_validation))
     reason = cubic_instead(choice.found.rms_rad_s, choice.cubic.rms_rad_s, margin, deciding)
@@ -133,12 +171,13 @@ def record_cause(record: tuple, tried: list) -> Optional[Candidate]:
     """
     Return the record effect that passes and gains more than every live effect that passes.
 
-    ``record`` holds the record effects' candidates (`record_findings`), ``tried``
-    the live ones as (effect, trial, judged) of the same round.
+    ``record`` holds the record effects' candidates (`record_findings`),
+    ``tried`` the live effects' `Attempt` of the same round.
     """
     passing = [candidate for candidate in record if not candidate.reason]
     if not passing:
         return None
     best = max(passing, key=lambda candidate: candidate.held_out_gain)
-    live = max((judged[0] for _, _, judged in tried if not judged[4]), default=-math.inf)
+    live = max((attempt.judgement.gain for attempt in tried if not attempt.judgement.reason),
+               default=-math.inf)
     return best if best.held_out_gain > live else None

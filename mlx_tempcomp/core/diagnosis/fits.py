@@ -9,7 +9,7 @@ trials on a `DiagnosisProblem` and keeps the best scored.
 """
 
 # The problem runs this table, and the table's functions take the problem: the annotations
-# name it without importing it at run time.
+# name it (and its Score) without importing it at run time.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -23,7 +23,7 @@ from .settings import BASE_EFFECT
 from ..effects import AxisTerms, EFFECT_NAMES, FirstOrderLag, play_state
 
 if TYPE_CHECKING:
-    from .problem import DiagnosisProblem
+    from .problem import DiagnosisProblem, Score
 
 # Log grids of the 1-D searches: ratio 2^(1/4) between neighbours. The coarse pass
 # visits every COARSE-th point within the bounds, the fine pass the neighbours of the best.
@@ -133,22 +133,30 @@ def _grid_search(grid: tuple, low: float, high: float, evaluate) -> None:
         stride //= 2
 
 
+@dataclass(frozen=True)
+class Trial:
+    """A spec tried on an axis and its score on the folds."""
+
+    spec: AxisSpec
+    score: Score
+
+
 class _Search:
-    """Keeps the best (spec, score) of the trials of one effect."""
+    """Keeps the best `Trial` of the trials of one effect."""
 
     def __init__(self, problem: DiagnosisProblem, axis: int):
         self.problem, self.axis, self.best = problem, axis, None
 
     def __call__(self, spec: AxisSpec) -> float:
         score = self.problem.score_spec(self.axis, spec)
-        if self.best is None or score.rms < self.best[1].rms:
-            self.best = (spec, score)
+        if self.best is None or score.rms < self.best.score.rms:
+            self.best = Trial(spec, score)
         return score.rms
 
 
 def best_trial(problem: DiagnosisProblem, axis: int, spec: AxisSpec,
-               effect: str) -> Optional[tuple]:
-    """Return (best spec, its score) for one effect, None if none fits the search bounds."""
+               effect: str) -> Optional[Trial]:
+    """Return the best `Trial` of one effect, None if none fits the search bounds."""
     search = _Search(problem, axis)
     FITS[effect].trials(search, problem, axis, spec)
     return search.best
@@ -227,7 +235,7 @@ def _second_gradient(search: _Search, problem: DiagnosisProblem, axis: int,
 
     _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(first, tau))
     if search.best is not None:
-        second = next(t for t in search.best[0].gradient_s if t != first)
+        second = next(t for t in search.best.spec.gradient_s if t != first)
         _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(second, tau))
 
 
@@ -260,14 +268,14 @@ def _play_columns(problem: DiagnosisProblem, axis: int,
 
 def _supply_columns(problem: DiagnosisProblem, axis: int,
                     spec: AxisSpec, order: int) -> np.ndarray:
-    reference, _ = problem.supply_reference
+    reference = problem.supply_reference.centre
     return problem.cached('supply', lambda: problem.powers(
         problem.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
 
 
 def _secondary_columns(problem: DiagnosisProblem, axis: int,
                        spec: AxisSpec, order: int) -> np.ndarray:
-    reference, scale = problem.secondary
+    reference, scale = problem.secondary.centre, problem.secondary.half_span
     return problem.cached('secondary', lambda: problem.powers(
         (problem.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
 
@@ -353,7 +361,7 @@ FITS = {
     'supply_voltage': EffectFit(
         _orders('supply_voltage', SUPPLY_ORDERS),
         lambda terms, problem: {'rad_s_per_v_k': list(terms.supply_voltage),
-                                'supply_reference_v': problem.supply_reference[0]},
+                                'supply_reference_v': problem.supply_reference.centre},
         _supply_columns, lambda problem, axis, order, take: {'supply_voltage': take(order)}),
     'secondary_temperature': EffectFit(
         _orders('secondary_temperature', SECONDARY_ORDERS),

@@ -61,12 +61,11 @@ def heating_bins(problem: DiagnosisProblem, rows: slice, starts: np.ndarray) -> 
     return np.add.reduceat(slope, starts) >= 0.0
 
 
-def _binned_error(residual: np.ndarray, starts: np.ndarray) -> tuple:
-    binned, counts = bin_means(residual, starts)
-    errors = tuple(HeldOutError(weighted_rms(binned[:, a], counts),
-                                float(np.max(np.abs(binned[:, a]))))
-                   for a in range(residual.shape[1]))
-    return binned, errors
+def _errors(binned: np.ndarray, counts: np.ndarray) -> tuple:
+    """Give the `HeldOutError` (RMS and peak) per axis of binned residuals (bins, axes)."""
+    return tuple(HeldOutError(weighted_rms(binned[:, a], counts),
+                              float(np.max(np.abs(binned[:, a]))))
+                 for a in range(binned.shape[1]))
 
 
 def _cubic_trend(problem: DiagnosisProblem, error: np.ndarray, temperature_c: np.ndarray
@@ -116,20 +115,22 @@ def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: Effe
             problem, error, full.temperature_c[test])
         residuals['temperature_polynomial'][:, axis] = problem.test_residual(base_model, axis)
         residuals['diagnosed'][:, axis] = problem.test_residual(model, axis)
-    binned = {method: _binned_error(values, starts) for method, values in residuals.items()}
-    scopes = {'test': {method: errors for method, (_, errors) in binned.items()}}
+    binned, scopes = {}, {'test': {}}
+    for method, values in residuals.items():
+        binned[method], counts = bin_means(values, starts)
+        scopes['test'][method] = _errors(binned[method], counts)
     rezero = {}
     if problem.settings.test_record:
         window = rezero_window_rows(full, full.count - 1, problem.settings.rezero_s)
         rezero = {method: values[:window].mean(axis=0) for method, values in residuals.items()}
-        scopes['test_rezeroed'] = {method: _binned_error(values - rezero[method], starts)[1]
+        scopes['test_rezeroed'] = {method: _errors(*bin_means(values - rezero[method], starts))
                                    for method, values in residuals.items()}
     counts = np.diff(np.append(starts, rows)).astype(np.float64)
     part = BinnedResidual(
         time_s=np.add.reduceat(full.time_s[test], starts) / counts,
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
         heating=heating_bins(problem, test, starts),
-        before_rad_s=binned['temperature_polynomial'][0], after_rad_s=binned['diagnosed'][0],
+        before_rad_s=binned['temperature_polynomial'], after_rad_s=binned['diagnosed'],
         rows=counts)
     return scopes, part, {method: tuple(float(v) for v in offset)
                           for method, offset in rezero.items()}
@@ -213,7 +214,7 @@ def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResi
     temperature = problem.temperature
     edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
                                   problem.settings.error_bins)
-    tables = [None if part is None else error_by_temperature(
-        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test)]
-    return ErrorByTemperature(problem.settings.validation, tables[0],
-                              float(np.mean(problem.counts)), tables[1])
+    held_table, test_table = (None if part is None else error_by_temperature(
+        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test))
+    return ErrorByTemperature(problem.settings.validation, held_table,
+                              float(np.mean(problem.counts)), test_table)

@@ -1,19 +1,21 @@
 """The loop itself: step 0, the rounds that add effects, the guard, and the `Diagnosis`."""
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import math
+from typing import Optional
 
 import numpy as np
 
-from .acceptance import (choose_model, cubic_errors, judge, record_cause, record_findings,
-                         to_candidate, unbounded)
-from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD
+from .acceptance import (Attempt, choose_model, cubic_errors, judge, record_cause,
+                         record_findings, to_candidate, unbounded)
+from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD, Trial
+from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
                             written_error_by_temperature)
-from .problem import DiagnosisProblem
+from .problem import DiagnosisProblem, HeldOutRun, Score
 from .results import AxisDiagnosis, BinnedResidual, Diagnosis, RecordFit, Step
 from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
-from ..effects import EFFECTS
+from ..effects import EffectModel, EFFECTS
 from ..errors import CalibrationError
 from ..model_interface import INPUTS
 from ..records import join_records
@@ -69,7 +71,8 @@ def _skipped(problem: DiagnosisProblem) -> dict:
             skipped[effect] = (f'the diagnosed part ({problem.duration_s:.0f} s) is too short: '
                                f'time constants from {low:g} s (the rate window) must fit '
                                f'{TIME_CONSTANTS_PER_RECORD:g} times into it')
-    if bounds['thermal_lag_s'][0] > bounds['thermal_lag_s'][1]:
+    lag_low, lag_high = bounds['thermal_lag_s']
+    if lag_low > lag_high:
         skipped['thermal_lag'] = f'the diagnosed part ({problem.duration_s:.0f} s) is too short'
     for effect in EFFECTS:
         lacking = [column for name in sorted(effect.inputs)
@@ -99,6 +102,51 @@ def _skipped(problem: DiagnosisProblem) -> dict:
     return skipped
 
 
+@dataclass(frozen=True)
+class _StepZero:
+    """Step 0: each axis's polynomial (order by the folds) and the uncorrected errors."""
+
+    scores: tuple
+    specs: tuple
+    none_errors: tuple
+    run: HeldOutRun
+    model: EffectModel
+
+
+@dataclass
+class _Rounds:
+    """What the rounds have found so far: per axis its spec, steps, rejects and cause."""
+
+    specs: list
+    steps: list
+    rejected: list
+    causes: list
+    run: HeldOutRun
+    number: int = 0
+
+
+@dataclass(frozen=True)
+class _Written:
+    """
+    What the axes write after the guard, and the figures beside.
+
+    ``found`` are the specs the rounds found, ``specs`` those written (the
+    PX4-style cubic where ``choices`` say so); ``run`` is the written specs'
+    held-out run under the deciding validation, ``other_errors`` their
+    errors under ``other``, the scheme beside; ``cubic`` and
+    ``other_cubic`` the cubic's errors under each.
+    """
+
+    found: tuple
+    specs: tuple
+    choices: tuple
+    run: HeldOutRun
+    other: Folds
+    other_errors: tuple
+    cubic: tuple
+    other_cubic: tuple
+
+
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
              progress: Progress = None) -> Diagnosis:
     """
@@ -112,129 +160,197 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
     """
     records = join_records(recording)
     problem = DiagnosisProblem(records, diagnosed_rows(records, settings), settings, progress)
-    axes = problem.axes
     skipped = _skipped(problem)
     searched = tuple(e for e in settings.effects if e not in skipped)
-    scores = tuple(_order_scores(problem, axis, AxisSpec(0)) for axis in range(len(axes)))
-    specs = [AxisSpec(_choose_order(name, s)) for name, s in zip(axes, scores)]
-    none_errors = tuple(problem.error(problem.target[:, a]) for a in range(len(axes)))
-    residual, errors = problem.held_out(tuple(specs), 'held-out check of step 0')
-    base_residual = residual
-    base_specs = tuple(specs)
-    base_model = problem.model(base_specs)
-    steps = [[Step(BASE_EFFECT, fitted_parameters(BASE_EFFECT, base_model.terms[a], problem),
-                   none_errors[a], errors[a], 0)] for a in range(len(axes))]
-    rejected = [[] for _ in axes]
-    causes = [None for _ in axes]
-    active = set(range(len(axes)))
-    number = 0
+    zero = _step_zero(problem)
+    rounds = _search(problem, zero, searched)
+    findings = tuple(() if settings.record_effects else
+                     record_findings(problem, axis, spec, rounds.number)
+                     for axis, spec in enumerate(rounds.specs))
+    written = _guard(problem, tuple(rounds.specs), rounds.run)
+    return _diagnosis(problem, skipped, zero, rounds, findings, written)
+
+
+def _step_zero(problem: DiagnosisProblem) -> _StepZero:
+    """Fit each axis's temperature polynomial, its order chosen on the folds."""
+    axes = range(len(problem.axes))
+    scores = tuple(_order_scores(problem, axis, AxisSpec(0)) for axis in axes)
+    specs = tuple(AxisSpec(_choose_order(name, s)) for name, s in zip(problem.axes, scores))
+    none_errors = tuple(problem.error(problem.target[:, a]) for a in axes)
+    run = problem.held_out(specs, 'held-out check of step 0')
+    return _StepZero(scores, specs, none_errors, run, problem.model(specs))
+
+
+def _search(problem: DiagnosisProblem, zero: _StepZero, searched: tuple) -> _Rounds:
+    """Add effects round by round, from step 0, until no axis accepts one."""
+    axes = range(len(problem.axes))
+    steps = [[Step(BASE_EFFECT, fitted_parameters(BASE_EFFECT, zero.model.terms[a], problem),
+                   zero.none_errors[a], zero.run.errors[a], 0)] for a in axes]
+    rounds = _Rounds(list(zero.specs), steps, [[] for _ in axes], [None for _ in axes],
+                     zero.run)
+    active = set(axes)
     while active:
-        number += 1
-        accepted = {}
-        work = sum(1 for a in active for e in searched if specs[a].can_add(e))
-        done = 0
-        for axis in sorted(active):
-            current = problem.score_spec(axis, specs[axis])
-            tried = []
-            for effect in searched:
-                if not specs[axis].can_add(effect):
-                    continue
-                best = best_trial(problem, axis, specs[axis], effect)
-                done += 1
-                problem.report(done, work, f'round {number}: candidate effects')
-                if best is None:
-                    continue
-                trial, score = best
-                judged = judge(problem, current, score)
-                bound = unbounded(problem, effect, trial)
-                if bound and not judged[4]:
-                    judged = judged[:4] + (bound,)
-                tried.append((effect, trial, judged))
-            tried.sort(key=lambda item: (bool(item[2][4]), -item[2][0]))
-            if not settings.record_effects:
-                causes[axis] = record_cause(record_findings(problem, axis, specs[axis], number),
-                                            tried)
-            for rank, (effect, trial, judged) in enumerate(tried):
-                reason = judged[4]
-                if not reason and causes[axis] is not None:
-                    reason = (f'the record-only {causes[axis].effect} explains more (held-out '
-                              f'gain {causes[axis].held_out_gain:.3f}): not a live stand-in')
-                if rank == 0 and not reason:
-                    accepted[axis] = (effect, trial, judged[0])
-                    continue
-                reason = reason or 'significant, but another effect gained more this round'
-                rejected[axis].append(to_candidate(problem, axis, effect, trial, judged, number,
-                                                   reason))
+        rounds.number += 1
+        accepted = _round(problem, rounds, searched, active)
         if not accepted:
             break
-        for axis, (effect, trial, gain) in accepted.items():
-            specs[axis] = _rechosen_order(problem, axis, trial)
-        new_residual, new_errors = problem.held_out(tuple(specs),
-                                                    f'held-out check of round {number}')
-        model = problem.model(tuple(specs))
-        for axis, (effect, trial, gain) in accepted.items():
-            parameters = fitted_parameters(effect, model.terms[axis], problem)
-            parameters['polynomial_order'] = specs[axis].order
-            steps[axis].append(Step(effect, parameters, errors[axis], new_errors[axis], number,
-                                    gain))
-        residual, errors = new_residual, new_errors
+        _add(problem, rounds, accepted)
         active = set(accepted)
-    findings = [() if settings.record_effects else record_findings(problem, a, specs[a], number)
-                for a in range(len(axes))]
-    found = tuple(specs)
+    return rounds
+
+
+def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: set) -> dict:
+    """Try every effect each active axis lacks; give {axis: the `Attempt` it adds}."""
+    work = sum(1 for a in active for e in searched if rounds.specs[a].can_add(e))
+    done = 0
+    accepted = {}
+    for axis in sorted(active):
+        spec = rounds.specs[axis]
+        current = problem.score_spec(axis, spec)
+        tried = []
+        for effect in searched:
+            if not spec.can_add(effect):
+                continue
+            trial = best_trial(problem, axis, spec, effect)
+            done += 1
+            problem.report(done, work, f'round {rounds.number}: candidate effects')
+            if trial is not None:
+                tried.append(_attempt(problem, effect, trial, current))
+        tried.sort(key=lambda attempt: (bool(attempt.judgement.reason),
+                                        -attempt.judgement.gain))
+        if not problem.settings.record_effects:
+            record = record_findings(problem, axis, spec, rounds.number)
+            rounds.causes[axis] = record_cause(record, tried)
+        chosen = _choose(problem, rounds, axis, tried)
+        if chosen is not None:
+            accepted[axis] = chosen
+    return accepted
+
+
+def _attempt(problem: DiagnosisProblem, effect: str, trial: Trial, current: Score) -> Attempt:
+    """Judge an effect's best trial; a time constant at the search bound is refused."""
+    judgement = judge(problem, current, trial.score)
+    bound = unbounded(problem, effect, trial.spec)
+    if bound and not judgement.reason:
+        judgement = replace(judgement, reason=bound)
+    return Attempt(effect, trial.spec, judgement)
+
+
+def _choose(problem: DiagnosisProblem, rounds: _Rounds, axis: int,
+            tried: list) -> Optional[Attempt]:
+    """Give what an axis adds this round (the best attempt, if it passes); file the rest."""
+    cause = rounds.causes[axis]
+    chosen = None
+    for rank, attempt in enumerate(tried):
+        reason = attempt.judgement.reason
+        if not reason and cause is not None:
+            reason = (f'the record-only {cause.effect} explains more (held-out '
+                      f'gain {cause.held_out_gain:.3f}): not a live stand-in')
+        if rank == 0 and not reason:
+            chosen = attempt
+            continue
+        reason = reason or 'significant, but another effect gained more this round'
+        rounds.rejected[axis].append(to_candidate(problem, axis, attempt, rounds.number,
+                                                  reason))
+    return chosen
+
+
+def _add(problem: DiagnosisProblem, rounds: _Rounds, accepted: dict) -> None:
+    """Add the accepted effects (each axis's order chosen again) and run the folds on them."""
+    for axis, attempt in accepted.items():
+        rounds.specs[axis] = _rechosen_order(problem, axis, attempt.spec)
+    specs = tuple(rounds.specs)
+    run = problem.held_out(specs, f'held-out check of round {rounds.number}')
+    model = problem.model(specs)
+    for axis, attempt in accepted.items():
+        parameters = fitted_parameters(attempt.effect, model.terms[axis], problem)
+        parameters['polynomial_order'] = specs[axis].order
+        rounds.steps[axis].append(Step(attempt.effect, parameters, rounds.run.errors[axis],
+                                       run.errors[axis], rounds.number,
+                                       attempt.judgement.gain))
+    rounds.run = run
+
+
+def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written:
+    """Choose per axis the model found or the PX4-style cubic (`choose_model`)."""
+    settings = problem.settings
     other = problem.folds_of(settings.other_validation)
     cubic = cubic_errors(problem, problem.folds)
     other_cubic = cubic_errors(problem, other)
-    other_errors = problem.held_out(found, 'the other validation', other)[1]
-    choices = tuple(choose_model(settings, (errors[a], other_errors[a]),
-                                 (cubic[a], other_cubic[a])) for a in range(len(axes)))
+    other_errors = problem.held_out(found, 'the other validation', other).errors
+    choices = tuple(choose_model(settings, run.errors[a], cubic[a], other_errors[a],
+                                 other_cubic[a]) for a in range(len(found)))
     cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
+    specs = found
     if cubic_axes:
-        specs = [AxisSpec(PX4_ORDER) if a in cubic_axes else spec for a, spec in enumerate(found)]
-        # The models clamp at the range of every axis's T_eff: with the same lags, the axes
-        # that keep their model keep their figures.
-        same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}
-        run = cubic_axes if same else None
-        new_residual, new_errors = problem.held_out(tuple(specs), 'held-out check of the cubic',
-                                                    axes=run)
-        new_other = problem.held_out(tuple(specs), 'the other validation', other, run)[1]
-        changed = list(run or range(len(axes)))
-        residual = residual.copy()  # step 0's may be the same array
-        residual[:, changed] = new_residual[:, changed]
-        errors = tuple(new_errors[a] if a in changed else errors[a] for a in range(len(axes)))
-        other_errors = tuple(new_other[a] if a in changed else other_errors[a]
-                             for a in range(len(axes)))
-    model = problem.model(tuple(specs))
-    comparison = {settings.validation: {
-        'none': none_errors, 'px4_cubic': cubic,
-        'temperature_polynomial': tuple(axis_steps[0].after for axis_steps in steps),
-        'diagnosed': errors}, settings.other_validation: {
-        'none': tuple(problem.error(problem.target[:, a], other) for a in range(len(axes))),
-        'px4_cubic': other_cubic,
-        'temperature_polynomial': problem.held_out(base_specs, 'the other validation',
-                                                   other)[1],
-        'diagnosed': other_errors}}
-    held_rows = slice(0, problem.rows)
+        specs, run, other_errors = _write_cubic(problem, found, cubic_axes, run, other_errors,
+                                                other)
+    return _Written(found, specs, choices, run, other, other_errors, cubic, other_cubic)
+
+
+def _write_cubic(problem: DiagnosisProblem, found: tuple, cubic_axes: tuple, run: HeldOutRun,
+                 other_errors: tuple, other: Folds) -> tuple:
+    """Give (the specs with the cubic on ``cubic_axes``, their run, their errors beside)."""
+    specs = tuple(AxisSpec(PX4_ORDER) if a in cubic_axes else spec
+                  for a, spec in enumerate(found))
+    # The models clamp at the range of every axis's T_eff: with the same lags, the axes
+    # that keep their model keep their figures.
+    same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}
+    axes = cubic_axes if same else None
+    new = problem.held_out(specs, 'held-out check of the cubic', axes=axes)
+    new_other = problem.held_out(specs, 'the other validation', other, axes).errors
+    changed = list(axes or range(len(found)))
+    residual = run.residual.copy()  # step 0's may be the same array
+    residual[:, changed] = new.residual[:, changed]
+    errors = tuple(new.errors[a] if a in changed else run.errors[a] for a in range(len(found)))
+    other_errors = tuple(new_other[a] if a in changed else other_errors[a]
+                         for a in range(len(found)))
+    return specs, HeldOutRun(residual, errors), other_errors
+
+
+def _comparison(problem: DiagnosisProblem, zero: _StepZero, rounds: _Rounds,
+                written: _Written) -> dict:
+    """Map the deciding scheme and the one beside to each of METHODS' errors per axis."""
+    settings = problem.settings
+    other = written.other
+    return {settings.validation: {
+        'none': zero.none_errors, 'px4_cubic': written.cubic,
+        'temperature_polynomial': tuple(axis_steps[0].after for axis_steps in rounds.steps),
+        'diagnosed': written.run.errors}, settings.other_validation: {
+        'none': tuple(problem.error(problem.target[:, a], other)
+                      for a in range(len(problem.axes))),
+        'px4_cubic': written.other_cubic,
+        'temperature_polynomial': problem.held_out(zero.specs, 'the other validation',
+                                                   other).errors,
+        'diagnosed': written.other_errors}}
+
+
+def _diagnosis(problem: DiagnosisProblem, skipped: dict, zero: _StepZero, rounds: _Rounds,
+               findings: tuple, written: _Written) -> Diagnosis:
+    """Fit the written model and gather the figures into the `Diagnosis`."""
+    model = problem.model(written.specs)
+    comparison = _comparison(problem, zero, rounds, written)
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
-        heating=heating_bins(problem, held_rows, problem.starts), before_rad_s=base_residual,
-        after_rad_s=residual, rows=problem.counts)
+        heating=heating_bins(problem, slice(0, problem.rows), problem.starts),
+        before_rad_s=zero.run.residual, after_rad_s=written.run.residual, rows=problem.counts)
     test, rezero = None, {}
     if problem.test_rows:
-        scopes, test, rezero = compare_test(problem, base_model, model)
+        scopes, test, rezero = compare_test(problem, zero.model, model)
         comparison.update(scopes)
-    per_axis = tuple(AxisDiagnosis(name, found[a].order, scores[a], tuple(steps[a]),
-                                   tuple(rejected[a]), findings[a], choices[a], causes[a])
-                     for a, name in enumerate(axes))
-    return Diagnosis(axes=axes, settings=settings, model=model, base_model=base_model,
-                     per_axis=per_axis, skipped=tuple(sorted(skipped.items())),
-                     comparison=comparison, rows=problem.rows, test_rows=problem.test_rows,
-                     bins=len(problem.starts),
+    per_axis = tuple(AxisDiagnosis(name, written.found[a].order, zero.scores[a],
+                                   tuple(rounds.steps[a]), tuple(rounds.rejected[a]),
+                                   findings[a], written.choices[a], rounds.causes[a])
+                     for a, name in enumerate(problem.axes))
+    return Diagnosis(axes=problem.axes, settings=problem.settings, model=model,
+                     base_model=zero.model, per_axis=per_axis,
+                     skipped=tuple(sorted(skipped.items())), comparison=comparison,
+                     rows=problem.rows, test_rows=problem.test_rows, bins=len(problem.starts),
                      truth='reference' if problem.truth_is_reference else 'zero (at rest)',
                      held_out=held_out, test=test, bounds=problem.bounds,
-                     records=_record_fits(problem, tuple(specs)), rezero_rad_s=rezero,
+                     records=_record_fits(problem, written.specs), rezero_rad_s=rezero,
                      first_blocks=problem.first_blocks,
-                     outside_range=outside_fitted_range(problem, tuple(specs), model),
+                     outside_range=outside_fitted_range(problem, written.specs, model),
                      error_by_temperature=written_error_by_temperature(problem, held_out, test))
 
 

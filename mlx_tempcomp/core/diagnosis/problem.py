@@ -32,10 +32,45 @@ RANK_RCOND = 1e-12
 
 @dataclass(frozen=True)
 class Score:
+    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
+
     fold_rms: np.ndarray
     rms: float
     rank_ok: bool
     residual: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class HeldOutRun:
+    """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
+
+    residual: np.ndarray
+    errors: tuple
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    """One axis fitted: its terms, and each fitted record's offset to add to their constant."""
+
+    terms: AxisTerms
+    offsets_rad_s: tuple
+
+
+@dataclass(frozen=True)
+class Centring:
+    """The centre and half span of an input column, which its terms are scaled by."""
+
+    centre: float
+    half_span: float
+
+
+@dataclass(frozen=True)
+class _LagFeatures:
+    """Of one lag: bin means of x^0..x^max_order, and T_eff's lowest and highest per block."""
+
+    powers: np.ndarray
+    block_low_c: np.ndarray
+    block_high_c: np.ndarray
 
 
 def weighted_rms(values, weights) -> float:
@@ -109,8 +144,8 @@ class DiagnosisProblem:
         self.truth_is_reference = self.reference is not None
         error = self.rate if self.reference is None else self.rate - self.reference
         self.target = self.mean(error)
-        self.secondary = _centre_and_half_span(self.inputs.temperature_2_c)
-        self.supply_reference = _centre_and_half_span(self.inputs.supply_voltage_v)
+        self.secondary = _centring(self.inputs.temperature_2_c)
+        self.supply_reference = _centring(self.inputs.supply_voltage_v)
         self.bounds = self._bounds()
         self._cache = {}
 
@@ -176,23 +211,26 @@ class DiagnosisProblem:
             power = power * values
         return np.column_stack(columns)
 
-    def _lag_features(self, lag_s: float) -> tuple:
-        """Return (bin means of x^0..x^max_order, lowest and highest T_eff per block) of a lag."""
+    def _lag_features(self, lag_s: float) -> _LagFeatures:
+        """Give the polynomial's bin-mean columns and T_eff's range per block of a lag."""
         def build():
             effective = self.effective(lag_s)
             x = (effective - self.centre_c) / self.half_span_c
             starts = self.block_edges[:-1]
-            return (self.powers(x, 0, self.settings.max_order),
-                    np.minimum.reduceat(effective, starts), np.maximum.reduceat(effective, starts))
+            return _LagFeatures(self.powers(x, 0, self.settings.max_order),
+                                np.minimum.reduceat(effective, starts),
+                                np.maximum.reduceat(effective, starts))
         return self.cached(('lag', lag_s), build)
 
     def polynomial(self, lag_s: float) -> np.ndarray:
-        return self._lag_features(lag_s)[0]
+        return self._lag_features(lag_s).powers
 
     def predicted_polynomial(self, lag_s: float, folds: Folds) -> np.ndarray:
         """Return `polynomial` as the folds predict it: T_eff clamped at their training range."""
         def build():
-            powers, block_low, block_high = self._lag_features(lag_s)
+            features = self._lag_features(lag_s)
+            powers, block_low, block_high = (features.powers, features.block_low_c,
+                                             features.block_high_c)
             predicted = powers
             effective = None
             for block, fold in enumerate(folds.block_fold):
@@ -279,16 +317,11 @@ class DiagnosisProblem:
 
     def fit_terms(self, axis: int, spec: AxisSpec, bins=None) -> AxisTerms:
         """Fit one axis on the given bins (all when None); its terms with the written offset."""
-        terms, offsets = self.fit_offsets(axis, spec, bins)
-        return _shifted(terms, offsets[-1])
+        fit = self.fit_offsets(axis, spec, bins)
+        return _shifted(fit.terms, fit.offsets_rad_s[-1])
 
-    def fit_offsets(self, axis: int, spec: AxisSpec, bins=None) -> tuple:
-        """
-        Fit one axis on the given bins (all when None).
-
-        Return (its terms, each fitted record's offset to add to their constant:
-        0 for the first).
-        """
+    def fit_offsets(self, axis: int, spec: AxisSpec, bins=None) -> AxisFit:
+        """Fit one axis on the given bins (all when None): the first record's offset is 0."""
         design = self.design(axis, spec)
         target = self.target[:, axis]
         if bins is not None:
@@ -298,8 +331,8 @@ class DiagnosisProblem:
         weighted = design * weights[:, None]
         solution, _ = _solve_normal(weighted.T @ design, weighted.T @ target)
         offsets = self.fitted_records - 1
-        return (self._terms(axis, spec, solution[:solution.size - offsets]),
-                (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
+        return AxisFit(self._terms(axis, spec, solution[:solution.size - offsets]),
+                       (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
 
     def _terms(self, axis: int, spec: AxisSpec, solution: np.ndarray) -> AxisTerms:
         values = iter(float(v) for v in solution)
@@ -329,32 +362,33 @@ class DiagnosisProblem:
         bins = None if fold is None else folds.train[fold]
         low, high = self.clamp_range(specs, None if fold is None else
                                      folds.split.training[fold])
-        secondary = self.secondary or (25.0, 1.0)
-        supply = self.supply_reference or (EffectModel.supply_reference_v, 1.0)
+        secondary = self.secondary or Centring(25.0, 1.0)
+        supply = self.supply_reference or Centring(EffectModel.supply_reference_v, 1.0)
         fits = [self.fit_offsets(axis, spec, bins) for axis, spec in enumerate(specs)]
         model = EffectModel(
-            terms=tuple(terms for terms, _ in fits),
+            terms=tuple(fit.terms for fit in fits),
             reference_temperature_c=self.centre_c, temperature_scale_c=self.half_span_c,
             temperature_min_c=low, temperature_max_c=high,
             temperature_rate_window_s=self.settings.rate_window_s,
-            time_reference_s=self.time_reference_s, secondary_reference_c=secondary[0],
-            secondary_scale_c=secondary[1], supply_reference_v=supply[0])
-        models = tuple(replace(model, terms=tuple(_shifted(terms, offsets[record])
-                                                  for terms, offsets in fits))
+            time_reference_s=self.time_reference_s, secondary_reference_c=secondary.centre,
+            secondary_scale_c=secondary.half_span, supply_reference_v=supply.centre)
+        models = tuple(replace(model, terms=tuple(_shifted(fit.terms, fit.offsets_rad_s[record])
+                                                  for fit in fits))
                        for record in range(self.fitted_records))
         return models + models[-1:] * (self.records.count - self.fitted_records)
 
     def record_offsets(self, specs: tuple) -> np.ndarray:
         """Give each fitted record's bias offset (records, axes) against the written one."""
-        offsets = np.array([self.fit_offsets(axis, spec)[1] for axis, spec in enumerate(specs)])
+        offsets = np.array([self.fit_offsets(axis, spec).offsets_rad_s
+                            for axis, spec in enumerate(specs)])
         return (offsets - offsets[:, -1:]).T
 
     def clamp_range(self, specs: tuple, blocks: Optional[np.ndarray] = None) -> tuple:
         """Return the range of T_eff over the given blocks (all when None) and all axes."""
         used = slice(None) if blocks is None else blocks
-        ranges = [self._lag_features(spec.thermal_lag_s)[1:] for spec in specs]
-        return (float(min(np.min(low[used]) for low, _ in ranges)),
-                float(max(np.max(high[used]) for _, high in ranges)))
+        features = [self._lag_features(spec.thermal_lag_s) for spec in specs]
+        return (float(min(np.min(f.block_low_c[used]) for f in features)),
+                float(max(np.max(f.block_high_c[used]) for f in features)))
 
     def residual(self, model, axis: int, stop: Optional[int] = None) -> np.ndarray:
         """
@@ -396,11 +430,12 @@ class DiagnosisProblem:
         return self._run(model, axis, slice(first, len(self.full)))[self.rows - first:]
 
     def held_out(self, specs: tuple, label: str, folds: Optional[Folds] = None,
-                 axes: Optional[tuple] = None) -> tuple:
+                 axes: Optional[tuple] = None) -> HeldOutRun:
         """
-        Return (binned held-out residual (bins, axes), HeldOutError per axis).
+        Run each fold's models on the bins it predicts; give the `HeldOutRun`.
 
-        Only ``axes`` (default: all) are run; the others' columns stay NaN.
+        Only ``axes`` (default: all) are run; the others' columns stay NaN,
+        their errors None.
         """
         folds = folds or self.folds
         axes = range(len(self.axes)) if axes is None else axes
@@ -413,8 +448,8 @@ class DiagnosisProblem:
                 binned = self.mean(self.residual(model, axis, folds.stop[fold]))
                 residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
         self.report(count, count, label)
-        return residual, tuple(self.error(residual[:, axis], folds) if axis in axes else None
-                               for axis in range(len(self.axes)))
+        return HeldOutRun(residual, tuple(self.error(residual[:, axis], folds) if axis in axes
+                                          else None for axis in range(len(self.axes))))
 
     def block_rms(self, residual: np.ndarray) -> np.ndarray:
         """RMS of binned residuals per block, NaN for a block no fold predicts."""
@@ -476,9 +511,9 @@ def effective_temperature(records, time_s: np.ndarray, temperature_c: np.ndarray
     return temperature_c
 
 
-def _centre_and_half_span(values) -> Optional[tuple]:
-    """Return (centre, half span) of a column, None when absent or constant."""
+def _centring(values) -> Optional[Centring]:
+    """Give the centre and half span of a column, None when absent or constant."""
     if values is None:
         return None
     low, high = float(np.min(values)), float(np.max(values))
-    return (0.5 * (low + high), 0.5 * (high - low)) if high > low else None
+    return Centring(0.5 * (low + high), 0.5 * (high - low)) if high > low else None
