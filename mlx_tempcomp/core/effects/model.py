@@ -1,45 +1,14 @@
 """
-Bias effects beyond a temperature polynomial, and `EffectModel`, the model that runs them.
+`EffectModel`: the temperature polynomial and the effects of `table.EFFECTS`, per axis.
 
-`mlx-tempcomp diagnose` adds these effects one by one; the compensation node
-runs the result sample by sample through `EffectModel.stream`, which gives the
-same numbers as the batch `EffectModel.correct` (to rounding). Per axis, on
-raw rate r in rad/s, temperature T in degC, time t in s and supply voltage V:
-
-- ``temperature_polynomial``: P(x), x = (T_eff - reference) / scale, T_eff
-  clamped to the fitted range;
-- ``thermal_lag``: T_eff is the temperature of the sensing element when it
-  and the temperature sensor are one first-order lag of time constant tau
-  apart. lag > 0, the sensor lags the element: T_eff = T + lag x dT/dt, dT/dt
-  the slope of T over the last ``window`` seconds; lag < 0, the element lags
-  the sensor: T_eff = L_|lag|(T), the first-order lag of T;
-- ``temperature_rate``: + c x dT/dt (the same windowed slope);
-- ``thermal_gradient`` (and ``thermal_gradient_2``, a second time constant):
-  + sum over k of g_k x (T - L_tau_k(T)), the bias following the temperature
-  difference between the die and parts of the package that lag it by tau_k;
-- ``hysteresis``: + h x s, s in [-1, 1] the state of a play operator of
-  half width w on T: +1 after heating by 2w, -1 after cooling by 2w;
-- ``supply_voltage``: + sum over k >= 1 of v_k (V - supply_reference)^k;
-- ``secondary_temperature``: + Q(x2), x2 = (T2 - reference_2) / scale_2, no
-  constant term;
-- ``acceleration_sensitivity``: + g . a, a the specific force in m/s^2;
-- ``time_drift``: + d x (t - time_reference);
-- ``bias_step``: + the sum of the steps whose time has come;
-- ``scale_factor_temperature``: u = (r - bias) / (1 + S(x));
-- ``rate_nonlinearity``: v = u - (n2 u^2 + n3 u^3 + ...);
-- ``cross_axis``: w = v - sum over the other axes j of m_j v_j;
-
-and last the ZRO offset learned at rest: corrected = w - offset.
-
-``time_drift`` and ``bias_step`` are tied to the clock of the record they were
-found in (RECORD_EFFECTS); every other effect runs causally on a live stream.
-The history operators (`TemperatureSlope`, `FirstOrderLag`, `PlayOperator`)
-start at the first sample a batch or stream sees: slope 0, lag and play at
-the first temperature (the device in equilibrium at power-up).
-
-Each effect is one `Effect` of the table `EFFECTS`: its coefficient fields,
-the descriptions of its node parameters, the inputs it needs, live or not,
-and its bias term; the model, the diagnosis and the node parameters read it.
+`AxisTerms` holds the coefficients of one axis, a field per coefficient of
+an effect; `EffectModel` the axes and what they share (references, the
+clamped range, the slope window, the ZRO offset). `EffectModel.correct` runs
+a batch, each history operator over it whole; `EffectModel.stream` gives
+the node's `EffectStream`, which gives the same numbers (to rounding). Both
+correct through `EffectModel.correct_axes`. `to_parameters` and
+`from_parameters` flatten the model into the compensation node's
+``effects.*`` parameters and back.
 
 The node's ``polynomial`` and ``linear_btc`` models are effect models too, of
 a bias (and scale) polynomial only: `polynomial_model` and `LinearBtc.model`
@@ -50,21 +19,29 @@ own name (the key of the ZRO state files saved for them).
 from dataclasses import dataclass, field, fields, replace
 import functools
 import math
-from typing import Mapping, Optional
+from typing import Mapping, NamedTuple, Optional
 
 import numpy as np
 
-from .history import (DEFAULT_RATE_WINDOW_S, FirstOrderLag, History, NO_HISTORY, play_state,
-                      PlayOperator, TemperatureSlope)
+from .history import DEFAULT_RATE_WINDOW_S, FirstOrderLag, History, play_state, TemperatureSlope
+from .stream import EffectStream
 from .table import clip, EFFECTS, polyval, quotient, RECORD_EFFECTS
 from ..errors import ConfigError
 from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from ..models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel, one_row,
+from ..models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel,
                       rate_temperature_columns)
 
 MAX_GRADIENT_TERMS = 2
 
 DEFAULT_SUPPLY_REFERENCE_V = 5.0
+
+
+class CheckedBlock(NamedTuple):
+    """A block checked against a model: rate and temperature (samples, axes), inputs as arrays."""
+
+    rate_rad_s: np.ndarray
+    temperature_c: np.ndarray
+    inputs: ModelInputs
 
 
 @dataclass(frozen=True)
@@ -275,41 +252,43 @@ class EffectModel(OffsetModel):
         rate (samples, axes) rad/s; temperature (samples,) or (samples, axes)
         degC; ``inputs`` holds what the effects need (`Effect.inputs`).
         """
-        rate, temperature, inputs = self._inputs(rate_rad_s, temperature_c, inputs)
-        time = inputs.time_s
-        slope = TemperatureSlope(self.temperature_rate_window_s)
-        histories = []
-        for axis, term in enumerate(self.terms):
-            measured = temperature[:, axis]
-            histories.append(History(
-                slope=slope.batch(time, measured) if term.needs_slope else None,
-                lagged=FirstOrderLag(-term.thermal_lag_s).batch(time, measured)
-                if term.thermal_lag_s < 0.0 else None,
-                gradients=[measured - FirstOrderLag(tau).batch(time, measured)
-                           for tau in term.gradient_time_constants_s],
-                play=play_state(measured, term.hysteresis_half_width_c)
-                if term.hysteresis_rad_s else None))
-        return self._assemble(rate, temperature, inputs, histories)
+        block = self.checked_block(rate_rad_s, temperature_c, inputs)
+        histories = [self._history(term, block.inputs.time_s, block.temperature_c[:, axis])
+                     for axis, term in enumerate(self.terms)]
+        return self.correct_checked(block, histories)
 
-    def _inputs(self, rate_rad_s, temperature_c, inputs: ModelInputs) -> tuple:
-        """Check and convert the inputs: (rate, temperature, `ModelInputs` of arrays)."""
+    def _history(self, term: AxisTerms, time: Optional[np.ndarray],
+                 measured: np.ndarray) -> History:
+        """Run the history operators ``term`` needs over a whole batch."""
+        return History(
+            slope=TemperatureSlope(self.temperature_rate_window_s).batch(time, measured)
+            if term.needs_slope else None,
+            lagged=FirstOrderLag(-term.thermal_lag_s).batch(time, measured)
+            if term.thermal_lag_s < 0.0 else None,
+            gradients=[measured - FirstOrderLag(tau).batch(time, measured)
+                       for tau in term.gradient_time_constants_s],
+            play=play_state(measured, term.hysteresis_half_width_c)
+            if term.hysteresis_rad_s else None)
+
+    def checked_block(self, rate_rad_s, temperature_c, inputs: ModelInputs) -> CheckedBlock:
+        """Check and convert a block's arguments (as `correct` takes them) into arrays."""
         rate, temperature = rate_temperature_columns(rate_rad_s, temperature_c, self.axes)
         samples = rate.shape[0]
-        return rate, temperature, ModelInputs(**{
+        return CheckedBlock(rate, temperature, ModelInputs(**{
             name: self._input(name, getattr(inputs, name), (samples,) + spec.shape)
-            for name, spec in INPUTS.items()})
+            for name, spec in INPUTS.items()}))
 
-    def _assemble(self, rate: np.ndarray, temperature: np.ndarray, inputs: ModelInputs,
-                  histories: list) -> CorrectedRate:
-        """Correct a block from its inputs and the history operators' outputs per axis."""
+    def correct_checked(self, block: CheckedBlock, histories: list) -> CorrectedRate:
+        """Correct a checked block from the history operators' outputs per axis."""
+        inputs = block.inputs
         if inputs.acceleration_m_s2 is not None:
             inputs = replace(inputs, acceleration_m_s2=inputs.acceleration_m_s2.T)
-        corrected, clamped = self._correct_axes(list(rate.T), list(temperature.T), inputs,
-                                                histories)
+        corrected, clamped = self.correct_axes(list(block.rate_rad_s.T),
+                                               list(block.temperature_c.T), inputs, histories)
         return CorrectedRate(np.stack(corrected, axis=1), np.stack(clamped, axis=1))
 
-    def _correct_axes(self, rates: list, temperatures: list, inputs: ModelInputs,
-                      histories: list) -> tuple:
+    def correct_axes(self, rates: list, temperatures: list, inputs: ModelInputs,
+                     histories: list) -> tuple:
         """
         Correct each axis from its rate, measured temperature and history: (corrected, clamped).
 
@@ -359,7 +338,7 @@ class EffectModel(OffsetModel):
             raise ConfigError(msg)
         return array
 
-    def stream(self) -> 'EffectStream':
+    def stream(self) -> EffectStream:
         """Return a sample-by-sample runner whose state starts empty."""
         return EffectStream(self)
 
@@ -381,8 +360,10 @@ class EffectModel(OffsetModel):
                 parameters[f'{name}.{axis}'] = float(getattr(term, name))
             for name in _AXIS_LISTS:
                 parameters[f'{name}.{axis}'] = [float(v) for v in getattr(term, name)]
-            parameters[f'bias_step_time_s.{axis}'] = [float(s[0]) for s in term.bias_steps]
-            parameters[f'bias_step_rad_s.{axis}'] = [float(s[1]) for s in term.bias_steps]
+            parameters[f'bias_step_time_s.{axis}'] = [float(time_s)
+                                                      for time_s, _ in term.bias_steps]
+            parameters[f'bias_step_rad_s.{axis}'] = [float(step_rad_s)
+                                                     for _, step_rad_s in term.bias_steps]
         return parameters
 
     @classmethod
@@ -516,132 +497,3 @@ class LinearBtc:
         return cls(pbc_rad_s=tuple(-term.bias[0] for term in model.terms),
                    btc_rad_s_per_c=tuple(-term.bias[1] for term in model.terms),
                    t3_c=model.reference_temperature_c)
-
-
-class _AxisRunner:
-    """The history operators of one axis, run one sample at a time across blocks."""
-
-    def __init__(self, term: AxisTerms, window_s: float):
-        self.slope = TemperatureSlope(window_s).runner() if term.needs_slope else None
-        self.lag = (FirstOrderLag(-term.thermal_lag_s).runner() if term.thermal_lag_s < 0.0
-                    else None)
-        self.gradients = [FirstOrderLag(tau).runner() for tau in term.gradient_time_constants_s]
-        self.play = (PlayOperator(term.hysteresis_half_width_c).runner() if term.hysteresis_rad_s
-                     else None)
-        self.idle = self.slope is self.lag is self.play is None and not self.gradients
-
-    def run(self, time, temperature: np.ndarray) -> History:
-        if self.idle:
-            return NO_HISTORY
-        values = temperature.tolist()
-        times = None if time is None else time.tolist()
-
-        def each(step, *columns) -> np.ndarray:
-            return np.array([step(*row) for row in zip(*columns)], dtype=np.float64)
-
-        return History(
-            slope=None if self.slope is None else each(self.slope.step, times, values),
-            lagged=None if self.lag is None else each(self.lag.step, times, values),
-            gradients=[temperature - each(lag.step, times, values) for lag in self.gradients],
-            play=None if self.play is None else each(self.play.step, values))
-
-    def step(self, time_s: Optional[float], temperature_c: float) -> History:
-        """Run one row: the operators' floats."""
-        if self.idle:
-            return NO_HISTORY
-        return History(
-            slope=None if self.slope is None else self.slope.step(time_s, temperature_c),
-            lagged=None if self.lag is None else self.lag.step(time_s, temperature_c),
-            gradients=[temperature_c - lag.step(time_s, temperature_c)
-                       for lag in self.gradients],
-            play=None if self.play is None else self.play.step(temperature_c))
-
-
-class EffectStream:
-    """
-    Runs an `EffectModel` block by block, keeping the temperature history and play state.
-
-    The history operators step sample by sample (their runners); the rest is
-    element by element on the block, so any split of a stream into blocks, or
-    rows one at a time, gives the same numbers bit for bit. The whole stream
-    gives what `EffectModel.correct` gives on it as one batch, to rounding
-    (the batch first-order lag sums in another order).
-    """
-
-    def __init__(self, model: EffectModel):
-        self.model = model
-        self.runners = [_AxisRunner(term, model.temperature_rate_window_s)
-                        for term in model.terms]
-
-    def correct_block(self, rates_rad_s, temperatures_c,
-                      inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
-        """
-        Correct the next rows of the stream; arguments as for `EffectModel.correct`.
-
-        ``temperatures_c`` has one column, or one per axis.
-        """
-        model = self.model
-        rate, temperature, inputs = model._inputs(rates_rad_s, temperatures_c, inputs)
-        histories = [runner.run(inputs.time_s, temperature[:, axis])
-                     for axis, runner in enumerate(self.runners)]
-        return model._assemble(rate, temperature, inputs, histories)
-
-    def correct_one(self, rates_rad_s, temperatures_c, inputs: ModelInputs = NO_INPUTS) -> tuple:
-        """
-        Correct one row: (rad/s per axis as a list, any clamped); bit for bit as `correct_block`.
-
-        In plain floats, numpy's per-call cost being most of a row's. A row that
-        is not plain numbers in the model's shape goes through `correct_block`,
-        which names what is wrong.
-        """
-        row = self._row(rates_rad_s, temperatures_c, inputs)
-        if row is None:
-            return one_row(self, rates_rad_s, temperatures_c, inputs)
-        rates, temperatures, inputs = row
-        histories = [runner.step(inputs.time_s, temperature)
-                     for runner, temperature in zip(self.runners, temperatures)]
-        corrected, clamped = self.model._correct_axes(rates, temperatures, inputs, histories)
-        return corrected, any(clamped)
-
-    def _row(self, rates_rad_s, temperatures_c, inputs: ModelInputs) -> Optional[tuple]:
-        """Give (rates, temperatures per axis, inputs) of one row in floats; None if it is not."""
-        axes = self.model.axes
-        rates = _row_floats(rates_rad_s, (axes,))
-        temperatures = _row_floats(temperatures_c, (1, axes))
-        if rates is None or temperatures is None:
-            return None
-        values, converted = {}, False
-        for name, spec in INPUTS.items():
-            given = getattr(inputs, name)
-            if given is None:
-                if name in self.model.inputs:
-                    return None
-                continue
-            value = _row_floats(given, spec.shape) if spec.shape else _row_float(given)
-            if value is None:
-                return None
-            values[name] = value
-            converted = converted or value is not given
-        return (rates, temperatures * (axes // len(temperatures)),
-                ModelInputs(**values) if converted else inputs)
-
-
-def _row_float(value) -> Optional[float]:
-    """Give a plain number as a float, as numpy would convert it; None for anything else."""
-    if type(value) is float:
-        return value
-    try:
-        return float(value) if np.ndim(value) == 0 else None
-    except (TypeError, ValueError):
-        return None
-
-
-def _row_floats(values, lengths: tuple) -> Optional[list]:
-    """Give a row of plain numbers, as many as one of ``lengths``, as floats; else None."""
-    try:
-        if len(values) not in lengths:
-            return None
-    except TypeError:
-        return None
-    floats = [value if type(value) is float else _row_float(value) for value in values]
-    return None if None in floats else floats
