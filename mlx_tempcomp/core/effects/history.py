@@ -56,19 +56,22 @@ class _SlopeRunner:
 
     def __init__(self, window_s: float):
         self.window_s = window_s
-        self.history = collections.deque()
+        self.times_s = collections.deque()
+        self.temperatures_c = collections.deque()
 
     def step(self, time_s: float, temperature_c: float) -> float:
-        history = self.history
-        history.append((time_s, temperature_c))
-        start_s = max(time_s - self.window_s, history[0][0])
+        times, temperatures = self.times_s, self.temperatures_c
+        times.append(time_s)
+        temperatures.append(temperature_c)
+        start_s = max(time_s - self.window_s, times[0])
         # Keep one sample at or before the window start, for the interpolation.
-        while len(history) > 2 and history[1][0] <= start_s:
-            history.popleft()
+        while len(times) > 2 and times[1] <= start_s:
+            times.popleft()
+            temperatures.popleft()
         span = time_s - start_s
         if span <= 0.0:
             return 0.0
-        (t0, v0), (t1, v1) = history[0], history[1]
+        t0, t1, v0, v1 = times[0], times[1], temperatures[0], temperatures[1]
         then = v0 if start_s <= t0 else v0 + (v1 - v0) / (t1 - t0) * (start_s - t0)
         return (temperature_c - then) / span
 
