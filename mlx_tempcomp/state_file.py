@@ -42,7 +42,8 @@ class Field:
     One key of a state file and what its value must be.
 
     ``kind`` is 'text', 'integer' or 'number' (finite; an integer is taken), or
-    'mapping' (a nested section its user checks). ``length`` makes it a list: of
+    'section' (any value: a nested section its user checks, so that a bad one is
+    refused apart from the rest of the file). ``length`` makes it a list: of
     that many items, of (fewest, most), or as long as the list under the key it
     names (an earlier field). Numbers must lie in [``low``, ``high``]; text, if
     ``choices`` are given, be one of them. Fields of one ``group`` are there
@@ -153,9 +154,7 @@ def _is_number(value) -> bool:
 
 
 def _check_item(field: Field, name: str, value):
-    if field.kind == 'mapping':
-        if not isinstance(value, dict):
-            raise StateFileError(f'{name} must be a mapping, got {reprlib.repr(value)}')
+    if field.kind == 'section':
         return value
     if field.kind == 'text':
         if not isinstance(value, str):

@@ -25,6 +25,7 @@ stop; read back at start (`tracking_state`) and applied when the model matches.
 
 from datetime import datetime, timezone
 import math
+import reprlib
 from typing import Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -62,6 +63,18 @@ def stamp_seconds(stamps_ns: np.ndarray) -> np.ndarray:
 def stamp_second(stamp_ns: int) -> float:
     """Give one stamp in seconds: the same operations, bit for bit, as `stamp_seconds`."""
     return float(stamp_ns // NS_PER_S) + (stamp_ns % NS_PER_S) * 1e-9
+
+
+def checked_section(section: dict, full_scale_rad_s: float) -> dict:
+    """
+    Check the state file's ``bias_tracking`` section; give its head and its `TrackingState`.
+
+    StateFileError or CalibrationError names the first wrong key.
+    """
+    if not isinstance(section, dict):
+        raise StateFileError(f'{TRACKING_SECTION} must be a mapping, got {reprlib.repr(section)}')
+    head = check_state(section, SECTION_FIELDS)
+    return {**head, 'state': tracking_state(section, len(head['axes']), full_scale_rad_s)}
 
 
 def _acceleration(imu) -> Optional[list]:
@@ -115,8 +128,7 @@ class CompensationTracking:
         if section is None:
             return None
         try:
-            head = check_state(section, SECTION_FIELDS)
-            state = tracking_state(section, len(head['axes']), full_scale_rad_s)
+            return checked_section(section, full_scale_rad_s)
         except (StateFileError, CalibrationError) as err:
             path = self.recalibration.path
             if self.recalibration.saved is None:
@@ -129,7 +141,6 @@ class CompensationTracking:
             self.logger.error(f'{TRACKING_STATE} in {path} unusable: {err}; {where}; the ZRO '
                               'offset beside it stays in use; tracking starts from nothing')
             return None
-        return {**head, 'state': state}
 
     def describe(self) -> str:
         """Say what the state file's section holds, for the start-up line ('' without)."""
@@ -213,9 +224,8 @@ class CompensationTracking:
                                  'nothing')
         self.held_state = state
         self._build(state)
-        # A restored state is what the file holds: nothing to write until it learns.
-        self.written_updates = None if self.tracker is None or state is None else \
-            self.tracker.updates
+        # Nothing to write until it learns (a restored state is what the file holds).
+        self.written_updates = None if self.tracker is None else self.tracker.updates
 
     def _build(self, state) -> None:
         self.tracker = None if self.settings is None or self.key is None else \

@@ -59,7 +59,7 @@ def zro_state_fields(full_scale_rad_s: float) -> tuple:
 def state_fields(full_scale_rad_s: float) -> tuple:
     """Give what the state file may hold: the ZRO state, the bias tracking's section, or both."""
     return zro_state_fields(full_scale_rad_s) + (
-        Field(TRACKING_SECTION, 'mapping', group=TRACKING_SECTION),)
+        Field(TRACKING_SECTION, 'section', group=TRACKING_SECTION),)
 
 
 def saved_offset_model(model, state: dict, full_scale_rad_s: float):
