@@ -33,7 +33,7 @@ Part (d), bias tracking in process: a ``CompensationNode`` built in this
 process (polynomial model, one axis, as in part (a)) is handed one paired
 message at a time through ``process`` (pairing, model, tracking, publishing,
 the recalibration's window: everything but the executor and DDS's receiving),
-tracking on and off in alternating rounds, the best of each kept: the CPU the
+tracking on and off in 5 alternating rounds, the best of each kept: the CPU the
 tracking adds to a message without the machine's load in it. At rest, at 1 kHz
 of sensor time, so windows close and learn every 5 s.
 
@@ -672,6 +672,37 @@ def _run(rates, rounds: int, duration_s: float, warmup_s: float, env) -> list:
     return runs
 
 
+def _device_part(args, env) -> None:
+    """Part (a), ``--device-rounds`` times; the median rise of the tracking's CPU."""
+    print(f'(a) driver sampling the simulated ADIS16130 at 5.7 kHz, publishing at '
+          f'{DEVICE_PUBLISH_HZ:g} Hz, into each node for {args.device_duration:g} s',
+          flush=True)
+    rises = []
+    for _ in range(args.device_rounds):
+        results = [measure_device(name, args.device_duration, args.warmup, env)
+                   for name in DEVICE_NODES]
+        print('latency: arrival of imu/data - its stamp (the mean time of the samples it '
+              'averages); +: arrival of imu/data - arrival of the same imu/data_raw')
+        rises.append(_device_table(results))
+        print(flush=True)
+    if len(rises) > 1:
+        median = float(np.median(rises))
+        print(f'  bias tracking over {len(rises)} rounds: median rise {median:+.1f} % of the '
+              f'node\'s own CPU a message (rounds: {", ".join(f"{r:+.1f}" for r in rises)}; '
+              f'target < 10 %: {"met" if median < 10.0 else "NOT met"})', flush=True)
+
+
+def _process_part(count: int) -> None:
+    """Part (d): the tracking's CPU a message through ``CompensationNode.process``."""
+    figures = measure_process(count, 5)
+    rise = figures['with'] - figures['without']
+    print(f'(d) CompensationNode.process in this process, one message at a time, {count} '
+          f'messages at rest, best of 5 alternating rounds: {figures["without"]:.1f} us a '
+          f'message without bias tracking, {figures["with"]:.1f} us with '
+          f'({figures["updates"]} windows learnt): {rise:+.1f} us a message', flush=True)
+    print(flush=True)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--rates', type=float, nargs='+',
@@ -715,31 +746,9 @@ def main() -> int:
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     env.pop('ROS_STATIC_PEERS', None)
     if args.device_duration > 0.0 and not args.sweep:
-        print(f'(a) driver sampling the simulated ADIS16130 at 5.7 kHz, publishing at '
-              f'{DEVICE_PUBLISH_HZ:g} Hz, into each node for {args.device_duration:g} s',
-              flush=True)
-        rises = []
-        for _ in range(args.device_rounds):
-            results = [measure_device(name, args.device_duration, args.warmup, env)
-                       for name in DEVICE_NODES]
-            print('latency: arrival of imu/data - its stamp (the mean time of the samples it '
-                  'averages); +: arrival of imu/data - arrival of the same imu/data_raw')
-            rises.append(_device_table(results))
-            print(flush=True)
-        if len(rises) > 1:
-            median = float(np.median(rises))
-            print(f'  bias tracking over {len(rises)} rounds: median rise {median:+.1f} % of the '
-                  f'node\'s own CPU a message (rounds: {", ".join(f"{r:+.1f}" for r in rises)}'
-                  f'; target < 10 %: {"met" if median < 10.0 else "NOT met"})', flush=True)
+        _device_part(args, env)
     if args.process_messages > 0 and not args.sweep:
-        figures = measure_process(args.process_messages, 3)
-        rise = figures['with'] - figures['without']
-        print(f'(d) CompensationNode.process in this process, one message at a time, '
-              f'{args.process_messages} messages at rest, best of 3 alternating rounds: '
-              f'{figures["without"]:.1f} us a message without bias tracking, '
-              f'{figures["with"]:.1f} us with ({figures["updates"]} windows learnt): '
-              f'{rise:+.1f} us a message', flush=True)
-        print(flush=True)
+        _process_part(args.process_messages)
     if args.missed_duration > 0.0 and not args.sweep:
         print(f'(c) missed device reads: driver into a compensation node, '
               f'{args.missed_duration:g} s per run, quiet and beside two busy loops '

@@ -154,7 +154,8 @@ class CompensationNode(Node):
             f'{outputs.blocks} blocks, {inputs.samples_waiting} waited for a model or voltage, '
             f'{inputs.unpaired_dropped} unpaired dropped, '
             f'{inputs.no_supply_samples} without a supply voltage, '
-            f'{inputs.no_acceleration_samples} without acceleration')
+            f'{inputs.no_acceleration_samples} without acceleration'
+            f'{self.tracking.summary()}')
         return super().destroy_node()
 
     def _full_scale_rad_s(self) -> float:

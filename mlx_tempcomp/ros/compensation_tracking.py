@@ -383,6 +383,15 @@ class CompensationTracking:
             hardware_id=self.key[0],
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
+    def summary(self) -> str:
+        """Say what the tracker did, for the node's closing line ('' while off)."""
+        tracker = self.tracker
+        if tracker is None:
+            return ''
+        return (f'; bias tracking: {tracker.window_count} windows, {tracker.updates} '
+                f'learnt, offset {[float(f"{v:.6g}") for v in tracker.status().offset_rad_s]} '
+                f'rad/s, state written {self.writes} times')
+
     def status_values(self) -> dict:
         """Give the diagnostics' tracking values: on or off, still, the estimate, its age."""
         tracker = self.tracker
