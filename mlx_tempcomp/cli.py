@@ -14,8 +14,8 @@ import sys
 
 from .errors import MlxTempCompError
 from .fleet import command as fleet
-from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, inspection,
-                      simulate)
+from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, extras, fit,
+                      inspection, simulate)
 from .toolkit.common import EXIT_USER_ERROR, run_command
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
@@ -39,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        extras.check(args)
         return run_command(args)
     except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)

@@ -14,12 +14,13 @@ from pathlib import Path
 import shlex
 import sys
 
-from .manifest import find_records, read_manifest
+from .manifest import find_records, is_url, read_manifest
 from .prior import write_fleet_prior
 from .report import write_fleet_report
 from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitError,
                    UnitJob)
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
+from ..toolkit.extras import readers, require
 from ..toolkit.progress import add_progress_option
 
 # What a shell reports for a command stopped by Ctrl-C (128 + SIGINT).
@@ -64,13 +65,24 @@ def add_parser(commands) -> None:
         action.add_argument('--force', action='store_true',
                             help='run finished units again')
         add_progress_option(action)
-        action.set_defaults(handler=fleet_command)
+        action.set_defaults(handler=fleet_command, needs=_needs)
     report = actions.add_parser('report', help='write the fleet report from OUT',
                                 description='Write OUT/fleet.md, OUT/fleet.json and the '
                                             'fleet plots from the units in OUT/units/.')
     report.add_argument('--out', required=True, metavar='OUT',
                         help='folder a fleet diagnose or fit wrote')
-    report.set_defaults(handler=report_command)
+    report.set_defaults(handler=report_command, needs=_needs)
+
+
+def _needs(args: argparse.Namespace) -> list:
+    """
+    Give the optional packages the fleet command imports on this machine (extras.require).
+
+    Dask's scheduler and workers, and matplotlib for the fleet report's plot
+    (and diagnose's); what the records need is checked once they are known.
+    """
+    engine = [] if args.fleet_command == 'report' else [('dask', ''), ('distributed', '')]
+    return engine + [('matplotlib', '')]
 
 
 def _options(command: str, text: str) -> tuple:
@@ -96,7 +108,13 @@ def fleet_command(args: argparse.Namespace) -> int:
     command = args.fleet_command
     options = _options(command, args.options)
     check_output_folder(args.out, '--out')
+    fetched = [('fsspec', '')]
+    if args.records is not None and is_url(args.records):
+        require(f'fleet {command}', fetched)
     units = read_manifest(args.manifest) if args.manifest else find_records(args.records)
+    paths = [record.path for unit in units for record in unit.records]
+    require(f'fleet {command}',
+            readers(paths) + (fetched if any(is_url(path) for path in paths) else []))
     folder = Path(args.out).resolve() / 'units'
     jobs = [UnitJob(command, unit, options, str(folder / unit.unit)) for unit in units]
     outcome = run_fleet(jobs, scheduler=args.scheduler, workers=args.workers,

@@ -29,7 +29,12 @@ def add_parser(commands) -> None:
     add_recording_options(allan)
     allan.add_argument('--out', metavar='DIR',
                        help='also write allan.json and allan.png into this folder')
-    allan.set_defaults(handler=allan_command)
+    allan.set_defaults(handler=allan_command, needs=_needs)
+
+
+def _needs(args: argparse.Namespace) -> list:
+    """Give the optional packages allan will import (extras.require)."""
+    return [('allantools', '')] + ([('matplotlib', '')] if args.out is not None else [])
 
 
 def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:

@@ -120,9 +120,17 @@ def add_parser(commands) -> None:
                              'report them as findings only)')
     parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
                         help='node section of params.yaml (default: %(default)s)')
+    parser.add_argument('--no-plots', action='store_true',
+                        help='write the report and params.yaml without the PNG plots (and '
+                             'without matplotlib)')
     add_progress_option(parser)
     add_export_options(parser)
-    parser.set_defaults(handler=diagnose_command)
+    parser.set_defaults(handler=diagnose_command, needs=_needs)
+
+
+def _needs(args: argparse.Namespace) -> list:
+    """Give the optional packages diagnose will import (extras.require): the plots'."""
+    return [] if args.no_plots else [('matplotlib', 'give --no-plots')]
 
 
 class _Bars:
@@ -237,11 +245,13 @@ def diagnose_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     source = ', '.join(args.records)
     report = _report(source, recordings, diagnosis, held_out)
+    report['plots'] = [] if args.no_plots else list(PLOTS)
     try:
         out.mkdir(exist_ok=True)
         write_json(out / 'report.json', report)
         write_result(out / 'report.md', _markdown(report))
-        _plots(out, diagnosis)
+        if not args.no_plots:
+            _plots(out, diagnosis)
         model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
                                             diagnosis.settings.average_s)
         content = parameter_file(args.node_name, {
@@ -261,7 +271,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
         msg = f'cannot write to {out}: {err.strerror}'
         raise UserError(msg) from None
     print(_summary(report))
-    print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
+    print(f'wrote {out / "report.md"}, report.json, params.yaml and '
+          + (f'{len(PLOTS)} plots' if report['plots'] else 'no plots (--no-plots)'))
     if len(recordings) == 1:
         held = diagnosis.test_rows
         write_exports(args, recordings[0], lambda part: diagnosis.model,
@@ -726,7 +737,8 @@ def _markdown(report: dict) -> str:
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
-    lines += [f'- ![{name}]({name})' for name in PLOTS]
+    lines += [f'- ![{name}]({name})' for name in report.get('plots', PLOTS)] or [
+        'none (--no-plots)']
     return '\n'.join(lines) + '\n'
 
 
