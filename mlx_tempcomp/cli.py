@@ -24,6 +24,8 @@ _COMMAND_MODULES = (inspection, eeprom, fit, allan, adis_bias, convert, diagnose
 
 # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
 EXIT_BROKEN_PIPE = 141
+# 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C.
+EXIT_INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,6 +46,10 @@ def main(argv=None) -> int:
     except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        # Outputs are staged (toolkit/outputs.py): nothing of this run was put in place.
+        print('interrupted: no output of this run was written', file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # The reader went away (e.g. `| head`): stop quietly, as Unix tools do.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -24,6 +24,7 @@ from mlx_tempcomp.fleet.unit import parse_command
 from mlx_tempcomp.node_parameters import flat_parameters
 from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.sources.recording import Recording
+from mlx_tempcomp.toolkit.common import run_handler
 import numpy as np
 import pytest
 from test_diagnose import (chamber, device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
@@ -301,13 +302,13 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
 
 
 def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
-    """A fleet worker parses the command with diagnose's own parser and calls its handler."""
+    """A fleet worker parses the command with diagnose's own parser and runs its handler."""
     out = tmp_path / 'out'
     args = parse_command(['diagnose', *runs_csv, '--out', str(out), '--test', 'record',
                           '--rezero-s', str(REZERO_S)])
     assert args.records == runs_csv and args.input == runs_csv[0]
     with contextlib.redirect_stdout(io.StringIO()):
-        assert args.handler(args) == 0
+        assert run_handler(args) == 0
     report = json.loads((out / 'report.json').read_text())
     assert [r['record'] for r in report['records']] == runs_csv
     assert report['held_out_records'][0]['record'] == runs_csv[-1]

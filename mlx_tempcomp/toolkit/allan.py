@@ -37,8 +37,9 @@ def _needs(args: argparse.Namespace) -> list:
     return [('allantools', '')] + ([('matplotlib', '')] if args.out is not None else [])
 
 
-def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
-    """Write allan.json (figures and curves) and allan.png (log-log curves) into out_dir."""
+def _write_allan_files(args: argparse.Namespace, figures: tuple) -> None:
+    """Write allan.json (figures and curves) and allan.png (log-log curves) into --out."""
+    out_dir, source = args.out, args.input
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
@@ -65,8 +66,8 @@ def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
     axes.legend()
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        write_json(Path(out_dir) / 'allan.json', result)
-        figure.savefig(Path(out_dir) / 'allan.png', dpi=100)
+        write_json(args.outputs.file(Path(out_dir) / 'allan.json'), result)
+        figure.savefig(args.outputs.file(Path(out_dir) / 'allan.png'), dpi=100, format='png')
     except OSError as err:
         msg = f'cannot write to {out_dir}: {err.strerror}'
         raise UserError(msg) from None
@@ -97,6 +98,6 @@ def allan_command(args: argparse.Namespace) -> int:
     print('ARW read at tau = 1 s; bias instability = ADEV minimum / 0.664; '
           'rate_noise is the compensation node parameter')
     if args.out is not None:
-        _write_allan_files(args.out, args.input, figures)
+        _write_allan_files(args, figures)
         print(f'wrote {Path(args.out) / "allan.json"} and {Path(args.out) / "allan.png"}')
     return 0

@@ -9,8 +9,9 @@ deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
 (rows used, rows skipped by reason, rows sorted into time order) through
 `load`. Output paths are checked before the work (`check_output_file`,
 `check_output_folder`), so a typo'd folder fails at once, not after a long
-fit. Parameter files (`write_node_parameters`) and JSON or text results
-(`write_json`, `write_result`) are replaced atomically.
+fit. Every output is staged and put in place when the command is done
+(`run_handler`, `outputs.Outputs`): an interrupted or failed run leaves the
+previous outputs, or none, never part of them.
 """
 
 import argparse
@@ -22,6 +23,7 @@ import sys
 
 import numpy as np
 
+from .outputs import Outputs
 from ..core.validation import BASELINE_MARGIN, DEFAULT_MIN_PAST, FORWARD, SCHEMES
 from ..errors import MlxTempCompError
 from ..model_params import parameter_file, write_parameter_file
@@ -157,14 +159,16 @@ def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') 
 
 def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
     """
-    Write ``parameters`` as the file `add_parameter_file_options` names, atomically.
+    Write ``parameters`` as the file `add_parameter_file_options` names, staged.
 
     ``header`` becomes its comment lines, followed by the command that loads
-    the file; a file that cannot be written is a UserError.
+    the file; a file that cannot be written is a UserError. The file is
+    written under its staging name (``args.outputs``, `run_handler`).
     """
     header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
     try:
-        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
+        write_parameter_file(args.outputs.file(args.out),
+                             parameter_file(args.node_name, parameters), header)
     except OSError as err:
         msg = f'cannot write {args.out}: {err.strerror}'
         raise UserError(msg) from None
@@ -258,16 +262,38 @@ def _suffixed(path, index: int) -> str:
     return str(path.with_name(f'{path.stem}.imu{index}{path.suffix}'))
 
 
+def run_handler(args: argparse.Namespace) -> int:
+    """
+    Run the subcommand's handler with its outputs staged (``args.outputs``), all or none.
+
+    The handler writes each output under the staging name ``args.outputs``
+    gives (`outputs.Outputs`); they replace their targets together when it
+    returns, and are removed when it raises (an error, Ctrl-C).
+    """
+    outputs = args.outputs = Outputs()
+    try:
+        status = args.handler(args)
+    except BaseException:
+        outputs.discard()
+        raise
+    try:
+        outputs.commit()
+    except OSError as err:
+        msg = f'cannot write {err.filename}: {err.strerror}; no output was written'
+        raise UserError(msg) from None
+    return status
+
+
 def run_command(args: argparse.Namespace) -> int:
     """
-    Run the subcommand's handler.
+    Run the subcommand's handler (`run_handler`).
 
     With ``--instance all`` on a flight log, once per usable IMU instance,
     each output path (--out, --out-csv, --px4-params, --ardupilot-parm)
     suffixed with ``.imuN`` before its extension.
     """
     if getattr(args, 'instance', None) != 'all' or not getattr(args, 'per_instance', True):
-        return args.handler(args)
+        return run_handler(args)
     if getattr(args, 'json', False):
         msg = '--json prints one document: give one --instance, not all'
         raise UserError(msg)
@@ -291,7 +317,7 @@ def run_command(args: argparse.Namespace) -> int:
         for name in _OUTPUT_OPTIONS:
             if getattr(each, name, None) is not None:
                 setattr(each, name, _suffixed(getattr(each, name), index))
-        status = args.handler(each)
+        status = run_handler(each)
         if status:
             return status
     return 0
@@ -321,11 +347,13 @@ def check_output_file(path, option: str) -> None:
         raise UserError(msg)
 
 
-def check_output_folder(path, option: str, new: bool = False) -> None:
+def check_output_folder(path, option: str, new: bool = False, owns=None) -> None:
     """
     Raise UserError unless files can be written into folder ``path``.
 
     The folder may exist (unless ``new``) or be created; its parent must exist.
+    ``owns`` names the files of a folder the command replaces as a whole: an
+    existing folder holding anything else is refused, not deleted.
     """
     target = Path(path)
     if target.exists():
@@ -336,5 +364,13 @@ def check_output_folder(path, option: str, new: bool = False) -> None:
             msg = f'{option} {path} is a file, not a folder'
             raise UserError(msg)
         _check_writable_folder(target, option, path)
+        foreign = sorted(p.name for p in target.iterdir() if owns is not None
+                         and p.name not in owns)
+        if foreign:
+            msg = (f'{option} {path} holds {", ".join(foreign[:3])}'
+                   + (f' and {len(foreign) - 3} more' if len(foreign) > 3 else '')
+                   + ', which this command does not write: the folder is replaced as a whole '
+                   'when the command is done; give a new or empty folder')
+            raise UserError(msg)
         return
     _check_writable_folder(target.parent, option, path)

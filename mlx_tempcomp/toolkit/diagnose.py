@@ -41,6 +41,8 @@ from ..model_params import effect_parameters, parameter_file, write_parameter_fi
 
 PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png',
          'error_by_temperature.png')
+# The other files of --out, which diagnose replaces as a whole.
+OWN_FILES = ('report.md', 'report.json', 'params.yaml')
 # Plots draw at most this many bins per axis (every k-th bin beyond).
 MAX_PLOT_POINTS = 20000
 METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
@@ -221,7 +223,9 @@ def _rezero_s(args: argparse.Namespace, recordings: list, test) -> float:
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
-    check_output_folder(args.out, '--out')
+    exports = {Path(p).name for p in (args.px4_params, args.ardupilot_parm)
+               if p is not None and Path(p).resolve().parent == Path(args.out).resolve()}
+    check_output_folder(args.out, '--out', owns={*OWN_FILES, *PLOTS, *exports})
     test = args.test if args.test is not None else args.test_fraction or 0.0
     _check_records(args, test)
     check_export_outputs(args)
@@ -247,11 +251,11 @@ def diagnose_command(args: argparse.Namespace) -> int:
     report = _report(source, recordings, diagnosis, held_out)
     report['plots'] = [] if args.no_plots else list(PLOTS)
     try:
-        out.mkdir(exist_ok=True)
-        write_json(out / 'report.json', report)
-        write_result(out / 'report.md', _markdown(report))
+        folder = args.outputs.folder(out)   # replaces --out when the command is done
+        write_json(folder / 'report.json', report)
+        write_result(folder / 'report.md', _markdown(report))
         if not args.no_plots:
-            _plots(out, diagnosis)
+            _plots(folder, diagnosis)
         model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
                                             diagnosis.settings.average_s)
         content = parameter_file(args.node_name, {
@@ -266,18 +270,18 @@ def diagnose_command(args: argparse.Namespace) -> int:
                   + ('model_error: held-out RMS by temperature (a bias error), added to the '
                      'Imu covariance\n' if model_error else '')
                   + f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
-        write_parameter_file(out / 'params.yaml', content, header)
+        write_parameter_file(folder / 'params.yaml', content, header)
     except OSError as err:
         msg = f'cannot write to {out}: {err.strerror}'
         raise UserError(msg) from None
     print(_summary(report))
-    print(f'wrote {out / "report.md"}, report.json, params.yaml and '
-          + (f'{len(PLOTS)} plots' if report['plots'] else 'no plots (--no-plots)'))
     if len(recordings) == 1:
         held = diagnosis.test_rows
         write_exports(args, recordings[0], lambda part: diagnosis.model,
                       start=len(recordings[0]) - held if held else None,
                       full_saw_held_out=not held)
+    print(f'wrote {out / "report.md"}, report.json, params.yaml and '
+          + (f'{len(PLOTS)} plots' if report['plots'] else 'no plots (--no-plots)'))
     print('\n'.join(_held_out_lines(report) + _written_lines(report)))
     return 0
 

@@ -124,11 +124,12 @@ def _statistics(error: np.ndarray, weights=None) -> dict:
             'samples': stats.samples}
 
 
-def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, axes: tuple,
-                     corrected: np.ndarray) -> None:
-    """Write time, temperature and corrected rate as a canonical CSV recording."""
+def _write_corrected(args: argparse.Namespace, time_s: np.ndarray, temperature_c: np.ndarray,
+                     axes: tuple, corrected: np.ndarray) -> None:
+    """Write time, temperature and corrected rate as a canonical CSV recording (staged)."""
+    path = args.out_csv
     try:
-        with open(path, 'w', newline='', encoding='utf-8') as stream:
+        with open(args.outputs.file(path), 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
             writer.writerow(['time', 'temperature'] + [f'gyro_{a}' for a in axes])
             for t, temperature, row in zip(time_s.tolist(), temperature_c.tolist(),
@@ -201,8 +202,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
     if args.out_csv is not None:
-        _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
-                         corrected)
+        _write_corrected(args, recording.time_s, recording.temperature_c, axes, corrected)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0

@@ -37,6 +37,7 @@ accelerometer cubic leaves. docs/flight-logs.md gives the sources.
 
 from dataclasses import dataclass, field
 import math
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -244,8 +245,12 @@ def add_export_options(parser) -> None:
 def check_export_outputs(args) -> None:
     """Check the export paths and the IMU before any work (UserError if one cannot be used)."""
     for option in ('px4_params', 'ardupilot_parm'):
-        if getattr(args, option, None) is not None:
-            check_output_file(getattr(args, option), '--' + option.replace('_', '-'))
+        path = getattr(args, option, None)
+        # diagnose writes one into its --out folder with the rest, that folder checked as --out
+        inside = hasattr(args, 'records') and path is not None and \
+            Path(path).resolve().parent == Path(args.out).resolve()
+        if path is not None and not inside:
+            check_output_file(path, '--' + option.replace('_', '-'))
     if getattr(args, 'px4_params', None) is None and getattr(args, 'ardupilot_parm', None) is None:
         return
     imu = _exported_imu(args)
@@ -435,7 +440,8 @@ def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
         msg = '--px4-accel-device-id: the record has no acceleration, so no TC_A* set'
         raise UserError(msg)
     cubic = px4_cubic(cubics.gyro)
-    write_result(args.px4_params, px4_params_text(cubic, index, device_id, accel))
+    write_result(args.outputs.file(args.px4_params),
+                 px4_params_text(cubic, index, device_id, accel))
     sets, enables = f'TC_G{index}_* (ID {device_id})', 'TC_G_ENABLE 1'
     if accel is not None:
         sets, enables = f'TC_A{index}_* (ID {accel[1]}) and {sets}', 'TC_A_ENABLE and ' + enables
@@ -459,7 +465,7 @@ def _write_ardupilot(args, cubics: ExportedCubics, index: int) -> None:
     imu = index + 1
     gyro = ardupilot_cubic(cubics.gyro)
     accel = None if cubics.accel is None else ardupilot_cubic(cubics.accel)
-    write_result(args.ardupilot_parm, ardupilot_parm_text(gyro, imu, accel))
+    write_result(args.outputs.file(args.ardupilot_parm), ardupilot_parm_text(gyro, imu, accel))
     prefix = ardupilot_tcal_prefix(imu)
     rounding = f'gyro {_rounding(cubics.gyro, gyro):.1e} rad/s'
     if accel is not None:
