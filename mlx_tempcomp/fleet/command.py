@@ -19,6 +19,7 @@ from .prior import write_fleet_prior
 from .report import write_fleet_report
 from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitError,
                    UnitJob)
+from ..sources.recording import column_preset, parse_column_map, RecordingError
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
 from ..toolkit.extras import readers, require
 from ..toolkit.progress import add_progress_option
@@ -102,6 +103,22 @@ def _options(command: str, text: str) -> tuple:
     return options
 
 
+def _check_read_options(units: list) -> None:
+    """Refuse a record's column map or preset before any unit is sent (UserError)."""
+    for unit in units:
+        for record in unit.records:
+            try:
+                if record.columns is not None and record.preset is not None:
+                    raise RecordingError('give a column map or a preset, not both')
+                if record.columns is not None:
+                    parse_column_map(record.columns)
+                if record.preset is not None:
+                    column_preset(record.preset)
+            except RecordingError as err:
+                msg = f'unit {unit.unit}, {record.path}: {err}'
+                raise UserError(msg) from None
+
+
 def fleet_command(args: argparse.Namespace) -> int:
     """Run ``fleet diagnose`` or ``fleet fit``, then write the fleet report."""
     from .run import run_fleet
@@ -115,6 +132,7 @@ def fleet_command(args: argparse.Namespace) -> int:
     paths = [record.path for unit in units for record in unit.records]
     require(f'fleet {command}',
             readers(paths) + (fetched if any(is_url(path) for path in paths) else []))
+    _check_read_options(units)
     folder = Path(args.out).resolve() / 'units'
     jobs = [UnitJob(command, unit, options, str(folder / unit.unit)) for unit in units]
     outcome = run_fleet(jobs, scheduler=args.scheduler, workers=args.workers,

@@ -19,6 +19,7 @@ import json
 import math
 import os
 from pathlib import Path
+import re
 import sys
 
 import numpy as np
@@ -149,11 +150,27 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
                              'it (default: %(default)s)')
 
 
+def node_name(text: str) -> str:
+    """
+    Parse a node name for a parameter file's section (argparse type).
+
+    What rcl matches a section against: a node name (letters, digits and
+    underscores, not starting with a digit), optionally with its namespace
+    (``/robot/compensation_node``), or ``/**`` for every node.
+    """
+    if text == '/**' or re.fullmatch(r'(/?[A-Za-z_][A-Za-z0-9_]*)+', text):
+        return text
+    msg = (f'expected a ROS node name (letters, digits, underscores; /namespace/name or /**), '
+           f'got {text!r}')
+    raise argparse.ArgumentTypeError(msg)
+
+
 def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') -> None:
     """Add ``--out`` and ``--node-name``: the compensation node's parameter file to write."""
     parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
                         help=f'parameter file to write{when} (replaced atomically)')
-    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+    parser.add_argument('--node-name', type=node_name, default='compensation_node',
+                        metavar='NAME',
                         help='node section of the parameter file (default: %(default)s)')
 
 
