@@ -34,6 +34,10 @@ from ..sources.recording import load_flight_log, load_recording, Recording, Reco
 from ..state_file import atomic_write
 
 EXIT_USER_ERROR = 2
+# The topics a bag is read from by default: the driver's raw output, what `simulate` and
+# `convert` write and every driver publishes (the compensated imu/data is the node's output).
+RAW_IMU_TOPIC = '/imu/data_raw'
+RAW_TEMPERATURE_TOPIC = '/imu/temperature_raw'
 
 
 class UserError(MlxTempCompError):
@@ -140,10 +144,12 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
                          help='column map of a known data set (CSV only)')
     columns.add_argument('--columns', metavar='SPEC',
                          help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
-    parser.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
-                        help='Imu topic of a bag (default: %(default)s)')
-    parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
-                        help='Temperature topic of a bag (default: %(default)s)')
+    parser.add_argument('--imu-topic', default=RAW_IMU_TOPIC, metavar='TOPIC',
+                        help="Imu topic read from a bag (default: %(default)s, the driver's raw "
+                             'output, which every bag the package writes holds; calibration '
+                             'fits raw data)')
+    parser.add_argument('--temperature-topic', default=RAW_TEMPERATURE_TOPIC, metavar='TOPIC',
+                        help='Temperature topic read from a bag (default: %(default)s)')
     parser.add_argument('--supply-voltage-topic', default='/imu/supply_voltage',
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '

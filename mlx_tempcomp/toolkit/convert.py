@@ -118,7 +118,9 @@ def convert_command(args: argparse.Namespace) -> int:
         topics.append(RawTopics.supply_voltage)
     print(f'wrote {args.out} ({args.storage}): {messages} messages on {", ".join(topics)}')
     print(f'replay: driver_node --ros-args -p source:=bag -p bag.path:={args.out} '
-          f"-p \"axes:=[{', '.join(repr(a) for a in recording.axes)}]\"")
+          f"-p bag.rate_factor:=0.0 -p \"axes:=[{', '.join(repr(a) for a in recording.axes)}]\""
+          + (f' -p bag.temperature_2_topic:={TEMPERATURE_2_TOPIC}'
+             if recording.temperature_2_c is not None else ''))
     return 0
 
 
