@@ -207,9 +207,10 @@ def evaluate_command(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2))
         return 0
     print(f'model {model.name} from {args.params}; truth: {report["truth"]}')
+    which = 'every row' if part.start == 0 else \
+        f'the last {args.test_fraction:.0%} of the rows, --test-fraction {args.test_fraction:g}'
     print(f'evaluated {len(recording) - part.start} samples from '
-          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
-          f'(last {args.test_fraction:g} of the rows); '
+          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s ({which}); '
           f'{report["temperature_clamped_samples"]} with temperature clamped')
     print(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
     for a in axes:
