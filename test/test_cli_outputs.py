@@ -92,7 +92,7 @@ def records(tmp_path_factory):
     folder = tmp_path_factory.mktemp('records')
     cycle = folder / 'cycle.csv'
     assert main(['simulate', '--out', str(cycle), '--cycle-c', '60', '-20', '25',
-                 '--ramp-c-per-min', '4', '--rate-hz', '1', '--seed', '3']) == 0
+                 '--ramp-c-per-min', '8', '--rate-hz', '1', '--seed', '3']) == 0
     rng = np.random.default_rng(3)
     time_s = np.arange(20000) * 0.01
     long = folder / 'long.csv'
@@ -122,14 +122,17 @@ def diagnosed(records, tmp_path):
     return out, _snapshot(tmp_path)
 
 
+@pytest.mark.slow
 def test_diagnose_interrupted_while_diagnosing(records, diagnosed, tmp_path):
     out, before = diagnosed
-    code, err = _interrupted(['diagnose', records['cycle'], '--out', out], 'diagnose:')
+    # The long record: its diagnosis lasts seconds after the first progress bar shows.
+    code, err = _interrupted(['diagnose', records['long'], '--out', out], 'diagnose:')
     assert code == 130, err
     assert err.rstrip().endswith('interrupted: no output of this run was written')
     assert _snapshot(tmp_path) == before
 
 
+@pytest.mark.slow
 def test_diagnose_failing_to_write_its_report(records, diagnosed, tmp_path):
     out, before = diagnosed
     done = _cli(['diagnose', records['cycle'], '--out', out], limit_bytes=4096)
@@ -144,6 +147,7 @@ def test_diagnose_failing_in_the_plots(records, diagnosed, tmp_path):
     assert "cannot import name 'pyplot'" in done.stderr
 
 
+@pytest.mark.slow
 def test_diagnose_failing_in_the_exports_after_the_folder(records, tmp_path):
     out = tmp_path / 'diagnosis'
     # --min-past 0.5: the forward blocks are predicted from rows that span the ramp.
@@ -182,6 +186,7 @@ def test_evaluate_failing_to_write_its_csv(records, tmp_path):
     assert 'File too large' in done.stderr and done.stderr.count('\n') == 1
 
 
+@pytest.mark.slow
 def test_convert_interrupted_or_failing_while_writing_the_bag(records, tmp_path):
     code, err = _interrupted(['convert', records['long'], '--out', tmp_path / 'bag'],
                              'writing')
@@ -192,6 +197,7 @@ def test_convert_interrupted_or_failing_while_writing_the_bag(records, tmp_path)
     _assert_failed(done, tmp_path, {})
 
 
+@pytest.mark.slow
 def test_simulate_interrupted_or_failing_at_each_output(tmp_path):
     code, err = _interrupted(['simulate', '--out', tmp_path / 'run.csv', '--duration-s', '3000'],
                              'simulating')

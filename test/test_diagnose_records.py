@@ -213,6 +213,7 @@ def test_cli_test_record_holds_out_the_last_run_as_the_node_would_run_it(runs_cs
     assert f'### Test record {full}, after a re-zero' in report_md
 
 
+@pytest.mark.slow
 def test_cli_test_each_leaves_each_record_out_then_writes_all(runs_csv, tmp_path):
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *runs_csv, '--test', 'each', '--rezero-s', REZERO_S,
@@ -301,6 +302,7 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
             assert gain >= 1.0 / 1.05, (kind, axis)
 
 
+@pytest.mark.slow
 def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
     """A fleet worker parses the command with diagnose's own parser and runs its handler."""
     out = tmp_path / 'out'

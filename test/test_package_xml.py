@@ -13,6 +13,7 @@ hold, so an invented key (which makes ``rosdep install`` fail) is caught.
 """
 
 import ast
+import functools
 from pathlib import Path
 import re
 import sys
@@ -63,6 +64,7 @@ PIP_NAMES = {'rosbags': 'rosbags', 'allantools': 'allantools', 'pyulog': 'pyulog
              'apsw': 'rosbags'}
 
 
+@functools.lru_cache(maxsize=None)
 def _imports() -> dict:
     """Give {top-level module: set of SOURCES kinds importing it} for third-party imports."""
     local = {path.stem for path in (ROOT / 'test').glob('*.py')} | {'mlx_tempcomp'}
