@@ -58,6 +58,7 @@ NEEDS = {
     'evaluate': (['evaluate', '{cycle}', '--params', '{params}', '--out-csv',
                   '{out}/corrected.csv'], set()),
     'simulate': (['simulate', '--out', '{out}/simulated.csv', '--duration-s', '20'], set()),
+    'inject-motion': (['inject-motion', '{cycle}', '--out', '{out}/moved.csv'], set()),
     'fleet report': (['fleet', 'report', '--out', '{out}/fleet'], {'matplotlib'}),
     'fleet diagnose': (['fleet', 'diagnose', '--records', '{units}/{{unit}}/*.csv', '--out',
                         '{out}/fleet', '--workers', '1'], FLEET),

@@ -11,7 +11,8 @@ residual_vs_temperature.png, residual_vs_time.png, error_per_step.png,
 error_by_temperature.png and params.yaml, which compensation_node loads:
 live-runnable effects only, unless --record-effects put time drift and bias
 steps into the search, and the held-out error by temperature
-(``model_error.*``, for the Imu covariance). The report says how much of the
+(``model_error.*``, for the Imu covariance) and the bias tracking's bounds
+(``bias_tracking.*``, `toolkit.tracking`). The report says how much of the
 test set and of each forward held-out block lies outside the temperature
 range the model predicting it was fitted on (`uncertainty`).
 ``--test each`` diagnoses once per record with that record held out, then
@@ -29,6 +30,7 @@ from .common import (add_recording_options, add_validation_options, check_output
 from .exports import (add_export_options, check_export_outputs, check_export_record,
                       write_exports)
 from .progress import add_progress_option, Progress
+from .tracking import tracking_section
 from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
                           outside_lines, outside_range_json, params_model_error,
                           plot_error_by_temperature)
@@ -268,17 +270,18 @@ def diagnose_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     source = ', '.join(args.records)
     report = _report(source, recordings, diagnosis, held_out)
-    report['plots'] = [] if args.no_plots else list(PLOTS)
+    plots = () if args.no_plots else PLOTS
     try:
         folder = args.outputs.folder(out)   # replaces --out when the command is done
         write_json(folder / 'report.json', report)
-        write_result(folder / 'report.md', _markdown(report))
+        write_result(folder / 'report.md', _markdown(report, plots))
         if not args.no_plots:
             _plots(folder, diagnosis)
         model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
                                             diagnosis.settings.average_s)
-        content = parameter_file(args.node_name, {
-            **effect_parameters(diagnosis.model, diagnosis.axes), **model_error})
+        parameters = effect_parameters(diagnosis.model, diagnosis.axes)
+        tracking, tracking_lines = tracking_section(recordings, parameters)
+        content = parameter_file(args.node_name, {**parameters, **model_error, **tracking})
         record = diagnosis.model.record_effects
         header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {source}\n'
                   + (f'Holds record-only effects ({", ".join(record)}): they use the stamps '
@@ -294,13 +297,14 @@ def diagnose_command(args: argparse.Namespace) -> int:
         msg = f'cannot write to {out}: {err.strerror}'
         raise UserError(msg) from None
     print(_summary(report))
+    print('\n'.join(tracking_lines))
     if len(recordings) == 1:
         held = diagnosis.test_rows
         write_exports(args, recordings[0], lambda part: diagnosis.model,
                       start=len(recordings[0]) - held if held else None,
                       full_saw_held_out=not held)
     print(f'wrote {out / "report.md"}, report.json, params.yaml and '
-          + (f'{len(PLOTS)} plots' if report['plots'] else 'no plots (--no-plots)'))
+          + (f'{len(plots)} plots' if plots else 'no plots (--no-plots)'))
     print('\n'.join(_held_out_lines(report) + _written_lines(report)))
     return 0
 
@@ -706,7 +710,7 @@ def _written_lines(report: dict) -> list:
     return lines
 
 
-def _markdown(report: dict) -> str:
+def _markdown(report: dict, plots=PLOTS) -> str:
     rows = report['rows']
     settings = report['settings']
     effects = report['effects']
@@ -760,8 +764,7 @@ def _markdown(report: dict) -> str:
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
-    lines += [f'- ![{name}]({name})' for name in report.get('plots', PLOTS)] or [
-        'none (--no-plots)']
+    lines += [f'- ![{name}]({name})' for name in plots] or ['none (--no-plots)']
     return '\n'.join(lines) + '\n'
 
 
