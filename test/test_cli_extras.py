@@ -15,8 +15,10 @@ package and every command:
   need.
 
 The fleet commands that run start a local Dask cluster, whose worker
-processes are new interpreters without the hook: those runs (marked slow)
-check the client's side.
+processes are new interpreters without the hook: those runs check the
+client's side. The runs of commands that need an optional package are
+marked slow; the commands that need none run in the quick tier with every
+optional package refused at once.
 """
 
 import json
@@ -65,9 +67,9 @@ NEEDS = {
     'fleet fit on URLs': (['fleet', 'fit', '--records', 'file://{units}/{{unit}}/*.csv',
                            '--out', '{out}/fleet', '--workers', '1'], FLEET | {'fsspec'}),
 }
-# Groups of commands by what they need; those that start a Dask cluster are slow.
+# Groups of commands by what they need. The group that needs nothing runs with every optional
+# package refused, as with the nodes' extra alone (make demo); the others are slow.
 GROUPS = sorted({frozenset(needs) for _, needs in NEEDS.values()}, key=sorted)
-SLOW = {frozenset(FLEET), frozenset(FLEET | {'fsspec'})}
 
 # Run by a fresh interpreter: argv[1] is JSON {refused, runs: [[name, argv], ...]}.
 _DRIVER = r"""
@@ -153,7 +155,7 @@ def test_a_command_that_needs_the_package_names_its_extra_before_any_work(
 
 @pytest.mark.parametrize('needs', [
     pytest.param(group, id='+'.join(sorted(group)) or 'none',
-                 marks=[pytest.mark.slow] if group in SLOW else [])
+                 marks=[pytest.mark.slow] if group else [])
     for group in GROUPS])
 def test_a_command_runs_without_every_package_it_does_not_need(inputs, tmp_path, needs):
     names = [name for name, (_, wanted) in NEEDS.items() if frozenset(wanted) == needs]
