@@ -93,8 +93,8 @@ def test_fit_writes_the_cubic_unless_an_order_beats_it_by_the_margin(tmp_path, c
     out = capsys.readouterr().out
     assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
             'predicted from the blocks before it): x 3, z 3') in out
-    assert 'z: one-standard-error' in out and '; order 3 written instead: the model found ' \
-        'has forward held-out RMS' in out and 'not 5% better' in out
+    assert 'z: one-standard-error rule' in out and '; order 3 written instead of order 2: ' \
+        'the model found has forward held-out RMS' in out and 'not 5% better' in out
 
 
 def test_fit_with_fixed_order_and_node_name(tmp_path, capsys):

@@ -317,15 +317,17 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
                    f'({dealt.describe()})')
             raise CalibrationError(msg) from None
         best = best_score(scores)
-        rule = (f'{ONE_SE_RULE}: lowest order whose mean held-out RMS ({dealt.describe()}) '
-                f'is within one standard error of the best (order {best.order})')
+        rule = f'{ONE_SE_RULE} rule ({dealt.describe()}): ' + (
+            f'order {chosen} has the lowest mean held-out RMS' if chosen == best.order else
+            f'order {chosen} is the lowest order whose mean held-out RMS is within one '
+            f'standard error of the lowest, which order {best.order} has')
         cubic = next((s for s in scores if s.order == PX4_ORDER), None)
         reason = '' if cubic is None or chosen == PX4_ORDER else cubic_instead(
             scores[orders.index(chosen)].mean_rms_rad_s, cubic.mean_rms_rad_s,
             baseline_margin, dealt.scheme.replace('_', '-'))
         if reason:
+            rule += f'; order {PX4_ORDER} written instead of order {chosen}: {reason}'
             chosen = PX4_ORDER
-            rule += f'; order {PX4_ORDER} written instead: {reason}'
         selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
     return tuple(selections)
 
