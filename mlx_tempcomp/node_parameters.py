@@ -362,7 +362,13 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          'hold: a voltage further than this from the sample stamp is not used; the sample '
          'is skipped and counted', low=0.0, high=3600.0),
 ) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
-          for p in TRACKING_PARAMETERS)
+          for p in TRACKING_PARAMETERS) + (
+    # The node's own, not the unit's: fit and diagnose do not write it.
+    Spec(TRACKING + 'save_period_s', 60.0,
+         'the tracked offset is written to the state file at most once per this many '
+         'seconds of sensor time, when it learnt since the last write, and at a clean stop',
+         low=0.0, high=86400.0),
+)
 
 
 # Every parameter of the package's nodes: a /** section gives both nodes all of them.

@@ -41,10 +41,15 @@ class Field:
     """
     One key of a state file and what its value must be.
 
-    ``kind`` is 'text', 'integer' or 'number' (finite; an integer is taken).
-    ``length`` makes it a list: of that many items, of (fewest, most), or as
-    long as the list under the key it names (an earlier field). Numbers must
-    lie in [``low``, ``high``]; text, if ``choices`` are given, be one of them.
+    ``kind`` is 'text', 'integer' or 'number' (finite; an integer is taken), or
+    'section' (any value: a nested section its user checks, so that a bad one is
+    refused apart from the rest of the file). ``length`` makes it a list: of
+    that many items, of (fewest, most), or as long as the list under the key it
+    names (an earlier field). Numbers must lie in [``low``, ``high``]; text, if
+    ``choices`` are given, be one of them. Fields of one ``group`` are there
+    together or not at all: a file may hold a section it did not need yet (a
+    file written before the section existed still loads); a field without a
+    group must be there.
     """
 
     key: str
@@ -53,6 +58,7 @@ class Field:
     low: float = -math.inf
     high: float = math.inf
     choices: Tuple[str, ...] = ()
+    group: str = ''
 
 
 def atomic_write(path, text: str, mode: Optional[int] = None) -> None:
@@ -148,6 +154,8 @@ def _is_number(value) -> bool:
 
 
 def _check_item(field: Field, name: str, value):
+    if field.kind == 'section':
+        return value
     if field.kind == 'text':
         if not isinstance(value, str):
             raise StateFileError(f'{name} must be text, got {reprlib.repr(value)}')
@@ -171,10 +179,15 @@ def check_state(state: dict, fields) -> dict:
     """
     Return the values of ``fields`` in ``state``; StateFileError naming the first wrong one.
 
-    A missing key says "missing" (a truncated or hand-cut file); keys beyond
-    ``fields`` are left out.
+    A missing key says "missing" (a truncated or hand-cut file), and so does a
+    file with none of the fields; keys beyond ``fields`` are left out, and so are
+    the fields of a group the file does not hold.
     """
-    missing = [field.key for field in fields if field.key not in state]
+    groups = {field.group for field in fields if field.group and field.key in state}
+    held = [field for field in fields if not field.group or field.group in groups]
+    missing = [field.key for field in held if field.key not in state] if held else \
+        [field.key for field in fields]
+    fields = held
     if missing:
         msg = f'damaged: {", ".join(missing)} missing (truncated?)'
         raise StateFileError(msg)
@@ -211,12 +224,15 @@ def remove_leftovers(path: str) -> list:
     return removed
 
 
-def move_aside(path: str) -> str:
+def move_aside(path: str, keep: bool = False) -> str:
     """
     Rename ``path`` to ``<path>.bad-<UTC stamp>``, never over an earlier one; return it.
 
     A hard link then an unlink: the link fails rather than replace a file of
     the same name (rename would replace it), and the file always has a name.
+    With ``keep`` the file keeps its name too (a copy for the record, while
+    the part of it still in use stays; the next atomic write replaces the name,
+    not the copy).
     """
     stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
     for attempt in range(1000):
@@ -225,7 +241,8 @@ def move_aside(path: str) -> str:
             os.link(path, target)
         except FileExistsError:
             continue
-        os.unlink(path)
+        if not keep:
+            os.unlink(path)
         return target
     raise FileExistsError(f'{path}.bad-{stamp}-*')
 

@@ -89,6 +89,9 @@ RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
 RELIABLE_RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.VOLATILE)
+# The model alone, for tests of what a model computes: bias tracking would take off the
+# offset it learns while the simulated gyro rests (test_ros_tracking.py tests it).
+UNTRACKED = {'bias_tracking.enabled': False}
 REPLAY_INPUTS = ('imu/data_raw', 'imu/temperature_raw', 'imu/temperature_raw/x',
                  'imu/temperature_raw/y', 'imu/temperature_raw/z', 'imu/temperature_2_raw',
                  'imu/supply_voltage')
@@ -530,15 +533,22 @@ def reliable(topics, entity: str) -> dict:
 
 def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
                        driver_params: dict = None, timeout: float = 60.0, **params):
-    """Start compensation_node on ``model_file``, then the bag driver at rate factor 0."""
+    """
+    Start compensation_node on ``model_file``, then the bag driver at rate factor 0.
+
+    ``params`` (and the replay's own: state file, QoS, no bias tracking unless they
+    say) come in a file after ``model_file``, so they win over it.
+    """
     probe.subscribe(Imu, 'imu/data', RELIABLE_RECORD_QOS)
     probe.subscribe_diagnostics()
     # A state file of its own: a learned ZRO offset from elsewhere would shift every sample.
+    replay = write_params(tmp_path / 'replay_compensation.yaml', 'compensation_node', {
+        'recalibration.state_file': str(tmp_path / 'zro.yaml'), **UNTRACKED,
+        **reliable(REPLAY_INPUTS, 'subscription'), **reliable(['imu/data'], 'publisher'),
+        **params})
     launcher.start('compensation_node', 'compensation_node',
-                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'),
-                    **reliable(REPLAY_INPUTS, 'subscription'),
-                    **reliable(['imu/data'], 'publisher'), **params},
-                   extra_args=['--params-file', model_file], label='compensation')
+                   extra_args=['--params-file', model_file, '--params-file', replay],
+                   label='compensation')
     probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
                      'the compensation node publishing imu/data', launcher)
     # hold: the driver stays up after the replay, so finish_model_replay hears 'finished'; a

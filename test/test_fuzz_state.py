@@ -7,8 +7,12 @@ state and of the MPU offsets, then, for the ZRO state, through the offset the
 compensation node would apply. Each either loads, with every value of the
 type, length and range its field says and a model whose output is finite, or
 is refused: None, one ERROR naming the reason, the file moved aside. Never an
-exception. State files saved for a polynomial and a linear_btc model before
-those became effect models keep loading with their offset.
+exception. The whole state file (``state``: the ZRO state and the bias
+tracking's section) is fuzzed too: its section is checked apart
+(`checked_section`), so a bad one is refused alone, and a file cut anywhere
+either is refused or keeps the ZRO state whole. State files saved for a
+polynomial and a linear_btc model before those became effect models keep
+loading with their offset; so do ZRO state files written before the section.
 """
 
 import logging
@@ -22,11 +26,14 @@ from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import polynomial_model
+from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.models import EepromModel
 from mlx_tempcomp.core.table import factory_table
 from mlx_tempcomp.node_parameters import axes_of, build_model, node_values
+from mlx_tempcomp.ros.compensation_tracking import checked_section
 from mlx_tempcomp.ros.mpu6000_stream import MPU_OFFSETS_FIELDS
-from mlx_tempcomp.ros.zro_recalibration import saved_offset_model, zro_state_fields
+from mlx_tempcomp.ros.zro_recalibration import (saved_offset_model, state_fields,
+                                                TRACKING_SECTION, zro_state_fields)
 from mlx_tempcomp.state_file import load_state, StateFileError, write_state
 import numpy as np
 import pytest
@@ -45,7 +52,13 @@ MPU_STATE = {'variant': 'mpu6000', 'gyro_offset_lsb': [-269, -106, 265],
              'residual_gyro_rad_s': [0.145, 0.0575, -0.143],
              'residual_acceleration_m_s2': [0.05, -0.008, -0.011], 'gravity_axis': '+z',
              'temperature_c': 25.0, 'samples': 201, 'time': '2026-11-25T12:00:00+00:00'}
-SCHEMAS = {'zro': (ZRO_FIELDS, ZRO_STATE), 'mpu': (MPU_OFFSETS_FIELDS, MPU_STATE)}
+SECTION = {'model': 'polynomial', 'fingerprint': MODEL.fingerprint(), 'axes': ['x', 'y', 'z'],
+           'zro_offset': [0.0125, -0.5, 3.25e-4], 'offset_rad_s': [1.5e-4, -2.5e-4, 3.0e-5],
+           'variance_rad2_s2': [1e-8, 2e-8, 3.5e-8], 'time_s': 1.0e9, 'updates': 12,
+           'last_update_s': 1.0e9 - 5.0, 'saved': '2026-11-26T12:00:00+00:00'}
+FULL_STATE = {**ZRO_STATE, TRACKING_SECTION: SECTION}
+SCHEMAS = {'zro': (ZRO_FIELDS, ZRO_STATE), 'mpu': (MPU_OFFSETS_FIELDS, MPU_STATE),
+           'state': (state_fields(FULL_SCALE_RAD_S), FULL_STATE)}
 # A few seconds per test (the profile in conftest.py sets the rest).
 FUZZ = settings(max_examples=300)
 
@@ -93,6 +106,14 @@ def assert_loaded_or_refused(data: bytes, schema: str):
         return None
     assert errors == [] and names == ['state.yaml']
     for field in fields:
+        if field.key not in state:
+            # A group the file does not hold, whole: the ZRO state or the section.
+            assert field.group and not any(f.key in state for f in fields
+                                           if f.group == field.group)
+            continue
+        if field.kind == 'section':
+            assert_section_checked(state[field.key])
+            continue
         value = state[field.key]
         items = value if field.length is not None else [value]
         if field.length is not None:
@@ -105,11 +126,30 @@ def assert_loaded_or_refused(data: bytes, schema: str):
                 assert isinstance(item, int if field.kind == 'integer' else float)
                 assert not isinstance(item, bool)
                 assert math.isfinite(item) and field.low <= item <= field.high
-    if schema == 'zro':
+    if schema in ('zro', 'state') and 'axes' in state:
         assert len(state['zro_offset']) == len(state['axes'])
         assert len(state['zro_offset_rad_s']) == len(state['axes'])
         assert_applies_finite(state)
     return state
+
+
+def assert_section_checked(section) -> bool:
+    """Assert a section is checked whole or refused in one line; tell whether it was taken."""
+    try:
+        checked = checked_section(section, FULL_SCALE_RAD_S)
+    except (StateFileError, CalibrationError) as err:
+        assert str(err) and '\n' not in str(err)
+        count('section refused')
+        return False
+    count('section taken')
+    state = checked['state']
+    axes = len(checked['axes'])
+    assert len(checked['zro_offset']) == axes
+    assert len(state.offset_rad_s) == len(state.variance_rad2_s2) == axes
+    assert all(math.isfinite(v) and abs(v) <= FULL_SCALE_RAD_S for v in state.offset_rad_s)
+    assert all(math.isfinite(v) and v >= 0.0 for v in state.variance_rad2_s2)
+    assert isinstance(state.updates, int) and state.updates >= 0
+    return True
 
 
 def assert_applies_finite(state: dict) -> None:
@@ -189,8 +229,14 @@ def test_valid_files_truncated_anywhere_are_refused_or_whole(schema, data):
     cut = data.draw(st.integers(0, len(text) - 2), label='cut')
     state = assert_loaded_or_refused(text[:cut], schema)
     # A truncation never loads as a different state: every key is required and the last
-    # (time) is quoted, so a cut inside it is not YAML.
-    assert state is None
+    # (time, saved) is quoted, so a cut inside it is not YAML. The whole file keeps its ZRO
+    # state when the cut falls in the section that follows it, and refuses that section.
+    if schema == 'state' and state is not None:
+        assert {k: v for k, v in state.items() if k != TRACKING_SECTION} == ZRO_STATE
+        assert TRACKING_SECTION not in state or \
+            not assert_section_checked(state[TRACKING_SECTION])
+    else:
+        assert state is None
 
 
 @FUZZ
@@ -223,6 +269,32 @@ def test_valid_files_with_a_value_replaced(schema, data):
         index = data.draw(st.integers(0, len(state[key]) - 1), label='index')
         changed[key] = [value if i == index else v for i, v in enumerate(state[key])]
     assert_loaded_or_refused(dump(changed), schema)
+
+
+@FUZZ
+@given(data=st.data())
+def test_a_section_with_a_value_replaced_is_refused_alone(data):
+    key = data.draw(st.sampled_from(sorted(SECTION)), label='key')
+    value = data.draw(replacements, label='value')
+    changed = {**SECTION, key: value}
+    if isinstance(SECTION[key], list) and data.draw(st.booleans(), label='one item'):
+        index = data.draw(st.integers(0, len(SECTION[key]) - 1), label='index')
+        changed[key] = [value if i == index else v for i, v in enumerate(SECTION[key])]
+    state = assert_loaded_or_refused(dump({**ZRO_STATE, TRACKING_SECTION: changed}), 'state')
+    # The ZRO state loads whatever the section holds.
+    assert {k: v for k, v in state.items() if k != TRACKING_SECTION} == ZRO_STATE
+
+
+def test_a_zro_state_file_written_before_the_section_loads(tmp_path):
+    # As the node wrote it before bias tracking, byte for byte.
+    text = (f'model: polynomial\nfingerprint: {MODEL.fingerprint()}\naxes:\n- x\n- y\n- z\n'
+            'zro_offset:\n- 0.0125\n- -0.5\n- 0.000325\noffset_unit: rad/s\n'
+            'zro_offset_rad_s:\n- 0.0125\n- -0.5\n- 0.000325\ntemperature_c: 31.5\n'
+            "samples: 500\ntime: '2026-11-25T12:00:00+00:00'\n")
+    assert assert_loaded_or_refused(text.encode(), 'state') == ZRO_STATE
+    # And the section alone, before any recalibration.
+    assert assert_loaded_or_refused(dump({TRACKING_SECTION: SECTION}), 'state') == \
+        {TRACKING_SECTION: SECTION}
 
 
 def test_an_eeprom_offset_in_lsb_is_held_to_the_full_scale_as_a_rate():

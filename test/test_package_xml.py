@@ -34,6 +34,7 @@ ROSDEP_KEYS = {
     'std_msgs': 'std_msgs',
     'std_srvs': 'std_srvs',
     'diagnostic_msgs': 'diagnostic_msgs',
+    'geometry_msgs': 'geometry_msgs',
     'rcl_interfaces': 'rcl_interfaces',
     'builtin_interfaces': 'builtin_interfaces',
     'launch': 'launch',

@@ -17,7 +17,7 @@ from mlx_tempcomp.ros import messages
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, reliable, RELIABLE_RECORD_QOS,
-                         status_values)
+                         status_values, UNTRACKED)
 from sensor_msgs.msg import Imu, Temperature
 
 pytestmark = pytest.mark.ros
@@ -43,7 +43,7 @@ def start_node(launcher, probe, tmp_path, table=TABLE) -> None:
     # A long stale time-out: the status after the last sample says clamped, not stale.
     launcher.start('compensation_node', 'compensation_node', {
         'rate_noise_rad_s': NOISE_RAD_S, 'recalibration.state_file': str(tmp_path / 'zro.yaml'),
-        'stale_timeout_s': 600.0,
+        'stale_timeout_s': 600.0, **UNTRACKED,
         **reliable(['imu/data_raw', 'imu/temperature_raw'], 'subscription'),
         **reliable(['imu/data'], 'publisher')},
         extra_args=['--params-file', str(model_file)], label='compensation')

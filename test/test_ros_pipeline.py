@@ -16,7 +16,7 @@ from mlx_tempcomp.sources.mlx90609 import SimulatedArray, SimulationConfig
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, Launcher, Probe,
-                         rates, start_pipeline, status_values)
+                         rates, start_pipeline, status_values, UNTRACKED)
 
 pytestmark = pytest.mark.ros
 
@@ -48,7 +48,8 @@ def run_pipeline(launcher: Launcher, probe: Probe, driver: dict, compensation: d
     """Start both nodes; once both report OK, record ``samples`` compensated messages."""
     probe.subscribe_pipeline(axes)
     # Record from the moment the streams reach the probe, so every stamp can match.
-    statuses = start_pipeline(launcher, probe, driver, compensation, axes, TIMEOUT_S)
+    statuses = start_pipeline(launcher, probe, driver, {**UNTRACKED, **compensation}, axes,
+                              TIMEOUT_S)
     probe.wait_count('imu/data', samples, TIMEOUT_S, launcher)
     values = probe.get_parameters('compensation_node', COMPENSATION_NAMES)
     launcher.stop_all()

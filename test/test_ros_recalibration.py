@@ -20,7 +20,7 @@ from mlx_tempcomp.state_file import Field, load_state, read_state
 import numpy as np
 import pytest
 from ros_harness import (COMPENSATION_DIAGNOSTIC, parse_list, simulated_driver_params,
-                         status_values)
+                         status_values, UNTRACKED)
 from std_srvs.srv import Trigger
 
 pytestmark = pytest.mark.ros
@@ -39,7 +39,8 @@ def start(launcher, probe, driver: dict, state_file):
     probe.subscribe_pipeline()
     launcher.driver(simulated_driver_params(**{'simulation.seed': SEED, **driver}))
     compensation = launcher.compensation(
-        {'recalibration.state_file': str(state_file), 'recalibration.duration_s': WINDOW_S})
+        {'recalibration.state_file': str(state_file), 'recalibration.duration_s': WINDOW_S,
+         **UNTRACKED})
     probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
     return compensation
 
@@ -96,7 +97,8 @@ def test_recalibration_at_rest_is_saved_survives_kill_9_and_is_restored(launcher
     assert [p.name for p in tmp_path.joinpath('state').iterdir()] == ['zro.yaml']
 
     # A fresh node with the same state file applies the offset it finds there.
-    launcher.compensation({'recalibration.state_file': str(state_file)}, label='restarted')
+    launcher.compensation({'recalibration.state_file': str(state_file), **UNTRACKED},
+                          label='restarted')
     values = compensation_values(probe, launcher, lambda v: v['samples_out'] != '0')
     assert parse_list(values['zro_offset'])[0] == pytest.approx(state['zro_offset'][0],
                                                                 rel=1e-5)

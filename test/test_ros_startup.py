@@ -54,8 +54,10 @@ def test_start_up_summaries_and_a_warn_for_each_input_that_never_comes(launcher,
     assert ('publishes /adis/imu/data_raw, /adis/imu/temperature_raw, /diagnostics, '
             '/adis/imu/bias_procedure/status; services /adis/imu/run_bias_procedure'
             in adis.output()), adis.output()
-    assert (f"model eeprom on axes ['z']; waits for /adis/imu/eeprom, /adis/imu/data_raw, "
-            '/adis/imu/temperature_raw; publishes /adis/imu/data, /adis/imu/temperature, '
-            f'/diagnostics; state file {tmp_path / "adis_compensation_node"}: nothing saved yet'
+    assert (f"model eeprom on axes ['z'], bias tracking on; waits for /adis/imu/eeprom, "
+            '/adis/imu/data_raw, /adis/imu/temperature_raw; publishes /adis/imu/data, '
+            '/adis/imu/temperature, /diagnostics, /adis/imu/gyro_bias, '
+            '/adis/imu/gyro_bias/status (covariance: rate noise + tracked offset variance); '
+            f'state file {tmp_path / "adis_compensation_node"}: nothing saved yet'
             in eeprom.output()), eeprom.output()
     assert '/mlx/imu/supply_voltage' in first_line_with(supply.output(), 'model effects on')

@@ -15,7 +15,8 @@ from mlx_tempcomp.node_parameters import build_model, node_values
 from mlx_tempcomp.state_file import write_state
 import numpy as np
 import pytest
-from ros_harness import by_stamp, first_line_with, simulated_driver_params, write_params
+from ros_harness import (by_stamp, first_line_with, simulated_driver_params, UNTRACKED,
+                         write_params)
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -94,7 +95,8 @@ def test_unusable_state_files_are_refused_and_the_node_compensates_without_them(
         folder.mkdir()
         prepare(case, folder, good_state())
         node = launcher.compensation(
-            {**MODEL, 'recalibration.state_file': str(folder / 'zro.yaml')}, label=case)
+            {**MODEL, 'recalibration.state_file': str(folder / 'zro.yaml'), **UNTRACKED},
+            label=case)
         probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
         probe.spin_until(lambda: len(paired(probe)[0]) >= SAMPLES, TIMEOUT_S,
                          f'{SAMPLES} compensated samples with their raw inputs', launcher)

@@ -7,14 +7,18 @@ while the model needs them, ``imu/temperature_2_raw`` (a second temperature)
 and ``imu/supply_voltage`` (sensor_msgs/BatteryState, its voltage); pairs
 samples by stamp, runs them through the stream of the model named by ``model``
 (which keeps the state of stateful effects) and publishes ``imu/data`` and
-``imu/temperature``; the angular velocity covariance is ``rate_noise_rad_s``^2,
-plus the square of the model's error at the sample's temperature when
-``model_error.*`` gives a table. The supply voltage is held (the latest at or
+``imu/temperature``. With ``bias_tracking.enabled`` the rate published is the
+model's less the offset tracked at standstill (`CompensationTracking`), whose
+estimate goes out on ``imu/gyro_bias`` and ``imu/gyro_bias/status``. The angular
+velocity covariance is ``rate_noise_rad_s``^2, plus the tracked offset's variance,
+or without tracking the square of the model's error at the sample's temperature
+when ``model_error.*`` gives a table. The supply voltage is held (the latest at or
 before each sample's stamp, ``supply_voltage.pairing: hold``) or paired by
 stamp like the temperature (``stamp``). The ``imu/recalibrate_zro`` service
-(std_srvs/Trigger) learns the ZRO residual at rest and persists it.
+(std_srvs/Trigger) learns the ZRO residual at rest, seeds the tracker and persists both.
 """
 
+from dataclasses import replace
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -29,6 +33,7 @@ from . import messages
 from .compensation_inputs import AUXILIARY, CompensationInputs
 from .compensation_outputs import CompensationOutputs
 from .compensation_status import compensation_status, missing_inputs
+from .compensation_tracking import CompensationTracking
 from .params import declare
 from .qos import EEPROM_QOS, stream_subscription
 from .runner import run
@@ -37,6 +42,7 @@ from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
+from ..core.tracking_parameters import tracking_settings
 from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
                                model_error_of, ParameterError, state_file_of, transfer_of)
 from ..sources.bag import BagError, eeprom_images_from_multiarray
@@ -44,6 +50,8 @@ from ..sources.bag import BagError, eeprom_images_from_multiarray
 # Parameters whose change rebuilds the model: model and those under these prefixes.
 _MODEL_PREFIXES = ('eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
 _MODEL_ERROR_PREFIX = 'model_error.'
+# Parameters the bias tracking's settings depend on.
+_TRACKING_PREFIXES = ('bias_tracking.', 'rate_noise_rad_s')
 _POLL_S = 0.05
 # An input missing this long after the start is a WARN naming what to set, repeated at most
 # once a period (wall time).
@@ -83,6 +91,8 @@ class CompensationNode(Node):
         self.outputs = CompensationOutputs(self, self.values, self.indices,
                                            self.inputs.temperature_streams)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.tracking = CompensationTracking(self, self.values, self.axes, self.indices,
+                                             self.recalibration, self._full_scale_rad_s())
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
@@ -116,11 +126,14 @@ class CompensationNode(Node):
         outputs = [p.topic_name for p in self.publishers
                    if p.topic_name not in ('/rosout', '/parameter_events')]
         table = self.outputs.model_error
-        covariance = '' if table is None else \
+        covariance = ' (covariance: rate noise + tracked offset variance)' \
+            if self.tracking.settings is not None else '' if table is None else \
             f' (covariance: rate noise + model error at {len(table.temperature_c)} temperatures)'
-        return (f'model {self.values["model"]} on axes {list(self.axes)}; waits for '
-                f'{", ".join(inputs)}; publishes {", ".join(outputs)}{covariance}; state file '
-                f'{self.recalibration.path}: {self.recalibration.describe()}')
+        tracking = 'on' if self.tracking.settings is not None else 'off'
+        return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
+                f'{tracking}; waits for {", ".join(inputs)}; publishes {", ".join(outputs)}'
+                f'{covariance}; state file {self.recalibration.path}: '
+                f'{self.recalibration.describe()}{self.tracking.describe()}')
 
     def _warn_waiting(self) -> None:
         """WARN, throttled, for an input still missing a few seconds after the start."""
@@ -133,13 +146,16 @@ class CompensationNode(Node):
                                    + '; '.join(missing), throttle_duration_sec=WAIT_WARN_PERIOD_S)
 
     def destroy_node(self):
+        # A clean stop keeps what the tracker learnt since its last write.
+        self.tracking.save(' at the stop')
         inputs, outputs = self.inputs, self.outputs
         self.get_logger().info(
             f'{self.get_name()} stopping: {outputs.samples_out} samples compensated in '
             f'{outputs.blocks} blocks, {inputs.samples_waiting} waited for a model or voltage, '
             f'{inputs.unpaired_dropped} unpaired dropped, '
             f'{inputs.no_supply_samples} without a supply voltage, '
-            f'{inputs.no_acceleration_samples} without acceleration')
+            f'{inputs.no_acceleration_samples} without acceleration'
+            f'{self.tracking.summary()}')
         return super().destroy_node()
 
     def _full_scale_rad_s(self) -> float:
@@ -169,6 +185,7 @@ class CompensationNode(Node):
                 (lambda msg, s=stream: self.on_input(s, msg))
             inputs.subscriptions[stream] = stream_subscription(
                 self, auxiliary.message_type, auxiliary.topic, callback)
+        self.tracking.follow(model)
 
     # Stream.
     def on_eeprom(self, msg: UInt8MultiArray) -> None:
@@ -223,8 +240,9 @@ class CompensationNode(Node):
         if block is None:
             return
         rates, clamped = block.correct(stream)
-        self.outputs.publish(block, rates, clamped)
-        # After each corrected block: the recalibration's window takes its rows.
+        # The tracker follows the model's output; the recalibration's window takes it too.
+        tracked, stds = self.tracking.track(block, rates)
+        self.outputs.publish(block, tracked, clamped, stds)
         self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, rates)
 
     # Recalibration.
@@ -258,13 +276,22 @@ class CompensationNode(Node):
         return response
 
     def _learn(self, window) -> str:
-        """Learn the full window's offset, run the model with it, persist it; give the answer."""
+        """
+        Learn the full window's offset, run the model with it, persist it; give the answer.
+
+        The tracker starts from the re-zeroed model (offset 0, the window mean's
+        variance); its state goes into the same write as the ZRO offset.
+        """
         try:
             learned = self.recalibration.learn(window, self.model)
         except CalibrationError as err:
             return f'refused: {err}'
         self._use(learned.model)
-        return self.recalibration.save(learned)
+        section = self.tracking.seed(learned.state['samples'])
+        answer = self.recalibration.save(replace(learned, state={**learned.state, **section}))
+        if messages.trigger_succeeded(answer):
+            self.tracking.wrote_with_zro(section)
+        return answer
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:
@@ -274,6 +301,8 @@ class CompensationNode(Node):
             check_choices(COMPENSATION_SPECS, candidate)
             if any(p.name.startswith(_MODEL_ERROR_PREFIX) for p in parameters):
                 model_error_of(candidate)
+            if any(p.name.startswith(_TRACKING_PREFIXES) for p in parameters):
+                tracking_settings(candidate, self.axes, candidate['rate_noise_rad_s'])
             if _changes_model(parameters):
                 if self.recalibration.window is not None:
                     raise ParameterError('a ZRO recalibration is running; try again after it')
@@ -286,6 +315,7 @@ class CompensationNode(Node):
         for parameter in parameters:
             self.values[parameter.name] = messages_value(parameter)
         self.outputs.configure(self.values)
+        self.tracking.configure(self.values)
         if _changes_model(parameters):
             # Validated in validate_parameters; swapped between two samples.
             self._use(self._with_saved_offset(self._build(self.values)))
@@ -297,7 +327,8 @@ class CompensationNode(Node):
             values=self.values, model=self.model, sensor=self.sensor,
             eeprom_error=self.eeprom_error,
             input_age_s=None if self.last_input is None else time.monotonic() - self.last_input,
-            inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration)
+            inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration,
+            tracking=self.tracking.status_values())
         self.outputs.clamped_recent = False
         self.inputs.clear_recent()
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',

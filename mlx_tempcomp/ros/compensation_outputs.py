@@ -3,7 +3,8 @@ The compensation node's outputs: ``imu/data`` and ``imu/temperature``, and what 
 
 The input messages go out again with the rate rewritten (acceleration and
 orientation pass through); the angular velocity covariance is
-``rate_noise_rad_s``^2, plus the square of the model's error at the sample's
+``rate_noise_rad_s``^2, plus the variance of the tracked offset while bias
+tracking runs, else the square of the model's error at the sample's
 temperature when ``model_error.*`` gives a table.
 """
 
@@ -39,13 +40,20 @@ class CompensationOutputs:
         self.rate_noise_rad_s = values['rate_noise_rad_s']
         self.covariance = messages.rate_covariance(self.indices, self.rate_noise_rad_s)
         self.model_error = model_error_of(values)
+        self._tracked = (None, None)   # the last tracked std and its covariance
 
-    def publish(self, block: InputBlock, rates: list, clamped: int) -> None:
-        """Publish the corrected rows of ``block`` and their temperatures; count them."""
+    def publish(self, block: InputBlock, rates: list, clamped: int, stds=None) -> None:
+        """
+        Publish the corrected rows of ``block`` and their temperatures; count them.
+
+        ``stds``: per row, the tracked offset's standard deviation per axis (None: no
+        tracking).
+        """
         streams = self.temperature_streams
+        covariances = self.covariances(block.temperature_c) if stds is None else \
+            self.tracked_covariances(stds)
         for parts, temperatures, rate, covariance in zip(
-                block.messages, block.temperature_c, rates,
-                self.covariances(block.temperature_c)):
+                block.messages, block.temperature_c, rates, covariances):
             # The input messages go out again, rate rewritten (the rest passes through
             # unchanged): building new ones would cost more than the model.
             imu = parts['imu']
@@ -75,3 +83,26 @@ class CompensationOutputs:
             return [self.covariance] * len(temperatures)
         return [messages.diagonal_covariance(self.indices, row)
                 for row in self.model_error.variance(noise, temperatures).tolist()]
+
+    def tracked_covariances(self, stds: list) -> list:
+        """
+        Give the covariance of tracked rows: rate_noise_rad_s^2 + the offset's variance.
+
+        The tracked offset's standard deviation takes the place of the model error:
+        it is the bias error left after tracking (at most ``initial_std_rad_s``, the
+        model's own). With the noise unknown (0) it stays all 0. The standard
+        deviation changes once a window: the last covariance is reused.
+        """
+        noise2 = self.rate_noise_rad_s ** 2
+        if noise2 <= 0.0:
+            return [self.covariance] * len(stds)
+        covariances = []
+        last_std, last = self._tracked
+        for std in stds:
+            if std != last_std:
+                last_std = std
+                last = messages.diagonal_covariance(self.indices,
+                                                    [noise2 + s * s for s in std])
+            covariances.append(last)
+        self._tracked = last_std, last
+        return covariances

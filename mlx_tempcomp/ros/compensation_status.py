@@ -4,7 +4,8 @@ What the compensation node reports: its diagnostic status, and what it still wai
 `compensation_status` gives the level, text and values of its ``/diagnostics``
 status from the node's parts: the parameter values, the model, the factory
 tables, the inputs (`CompensationInputs`), what it compensated
-(`OutputCounts`) and the ZRO recalibration (`ZroRecalibration`).
+(`OutputCounts`), the ZRO recalibration (`ZroRecalibration`) and the bias
+tracking (`CompensationTracking.status_values`).
 `missing_inputs` says, for the start-up WARN, which input has not come and
 what to set.
 """
@@ -41,13 +42,13 @@ def missing_inputs(model_name: str, sampled: bool, tables: bool,
 def compensation_status(*, values: dict, model, sensor, eeprom_error: str,
                         input_age_s: Optional[float], inputs: CompensationInputs,
                         outputs: CompensationOutputs,
-                        recalibration: ZroRecalibration) -> tuple:
+                        recalibration: ZroRecalibration, tracking: dict) -> tuple:
     """
     Give (level, text, values) of the node's status.
 
     ``values`` are the parameter values, ``sensor`` the factory tables (None
     before the EEPROM message), ``input_age_s`` the time since the last input
-    (None before the first).
+    (None before the first); ``tracking`` the bias tracking's values.
     """
     model_name = values['model']
     model_error = outputs.model_error
@@ -71,6 +72,7 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str,
         'last_recalibration_temperature_c': recal.get('temperature_c', float('nan')),
         'state_file': recalibration.path,
         'eeprom_outvoted_bits': 0 if sensor is None else sensor.outvoted_bits,
+        **tracking,
     }
     if input_age_s is None or input_age_s > values['stale_timeout_s']:
         level, text = DiagnosticStatus.ERROR, 'stale input: no raw samples'
@@ -93,6 +95,9 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str,
         level, text = DiagnosticStatus.WARN, 'waiting for a supply voltage on imu/supply_voltage'
     elif outputs.clamped_recent:
         level, text = DiagnosticStatus.WARN, 'temperature outside the calibrated range: clamped'
+    elif tracking.get('tracking_state_error'):
+        level, text = (DiagnosticStatus.WARN,
+                       f'bias tracking state not saved: {tracking["tracking_state_error"]}')
     else:
         level, text = DiagnosticStatus.OK, f'compensating ({model_name})'
     return level, text, diagnostic_values

@@ -1,19 +1,27 @@
 """
 The main job of ``make demo``: the ROS pipeline on the simulated sensor.
 
-The ``bringup`` executable runs the driver (simulated MLX90609, faster than
-real time) and the compensation node (EEPROM model) in one process; this one
-listens to both streams. The chamber
-goes 25 -> -40 -> 85 -> 25 C, holds, then goes down to -40 C again. The supply
-sits at 5.15 V, which shifts the ZRO by +0.3 deg/s: a shift the factory table
-cannot know. During the hold the demo calls ``imu/recalibrate_zro``; the
-offset it learns is anchored to the thermal model, so it keeps helping on the
-second sweep. It prints the ZRO error (true rate 0) of the raw nominal
-stream, of the EEPROM-compensated stream before the recalibration and of the
-EEPROM-compensated stream after it.
+The driver (simulated MLX90609, faster than real time) and the compensation
+node (EEPROM model, bias tracking on as shipped) run in one process, as
+``bringup`` runs them, with a second compensation node beside them, in
+namespace ``/untracked`` with ``bias_tracking.enabled: false``, handed copies of
+the same raw messages; this one listens to all of them. The chamber goes 25 -> -40 ->
+85 -> 25 C, holding at each, then goes down to -40 C again and holds. The
+supply sits at 5.15 V, which shifts the ZRO by +0.3 deg/s: a shift the factory
+table cannot know, and a constant rate the tracker cannot tell from a turn
+(the MLX90609 has no accelerometer). During the hold at 25 C the demo calls
+``imu/recalibrate_zro`` on both nodes; the offset they learn is anchored to the
+thermal model, so it keeps helping on the second sweep, and it seeds the
+tracker, which then follows what the table leaves at the holds. It prints the
+ZRO error (true rate 0) of the raw nominal stream and of the compensated
+streams without and with bias tracking, before and after the recalibration,
+and at each hold the tracker's estimate (``imu/gyro_bias``) beside the error
+of the last seconds of the hold with and without it.
 """
 
 import argparse
+import copy
+import functools
 import os
 import signal
 import subprocess
@@ -21,15 +29,21 @@ import sys
 import tempfile
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TwistWithCovarianceStamped
 import numpy as np
 import rclpy
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
 import yaml
 
+from .compensation_node import CompensationNode
+from .driver_node import DriverNode
 from .messages import stamp_to_ns
 from .qos import SENSOR_INPUT_QOS
+from .runner import run
 from ..core.metrics import ErrorStatistics
 
 RAMP_C_PER_MIN = 40.0
@@ -45,6 +59,16 @@ HOLD_C = 25.0
 HOLD_NEAR_C = 3.0
 # 0.33 deg/s per conversion, averaged over 8.
 NOISE_RAD_S = float(np.radians(0.33 / np.sqrt(8)))
+UNTRACKED = '/untracked'
+# The holds, found afterwards: 1 s bins whose mean moved less than this from the bin before
+# (the ramps move 0.67 C/s), for at least HOLD_MIN_S; their last HOLD_TAIL_S are compared.
+HOLD_SLOPE_C_S = 0.05
+HOLD_MIN_S = 30.0
+HOLD_TAIL_S = 20.0
+# Every estimate and status the tracker sends (they are latched, one kept).
+BIAS_RECORD_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def _run_s() -> float:
@@ -62,16 +86,24 @@ def _holding(temperature: dict, after_ns: int) -> bool:
 
 
 class Listener(Node):
-    """Collects raw and compensated rate and temperature by stamp."""
+    """Collects raw and compensated rate (both nodes), temperature and the tracker's estimate."""
 
     def __init__(self):
         super().__init__('demo_listener')
-        self.raw, self.compensated, self.temperature = {}, {}, {}
+        self.raw, self.compensated, self.untracked, self.temperature = {}, {}, {}, {}
+        self.bias, self.bias_status = [], {}
         self.create_subscription(Imu, 'imu/data_raw', self.on_raw, SENSOR_INPUT_QOS)
         self.create_subscription(Imu, 'imu/data', self.on_compensated, SENSOR_INPUT_QOS)
+        self.create_subscription(Imu, f'{UNTRACKED}/imu/data', self.on_untracked,
+                                 SENSOR_INPUT_QOS)
         self.create_subscription(Temperature, 'imu/temperature_raw', self.on_temperature,
                                  SENSOR_INPUT_QOS)
-        self.client = self.create_client(Trigger, 'imu/recalibrate_zro')
+        self.create_subscription(TwistWithCovarianceStamped, 'imu/gyro_bias', self.on_bias,
+                                 BIAS_RECORD_QOS)
+        self.create_subscription(DiagnosticArray, 'imu/gyro_bias/status', self.on_bias_status,
+                                 BIAS_RECORD_QOS)
+        self.clients_ = [self.create_client(Trigger, 'imu/recalibrate_zro'),
+                         self.create_client(Trigger, f'{UNTRACKED}/imu/recalibrate_zro')]
 
     def on_raw(self, msg: Imu) -> None:
         self.raw[stamp_to_ns(msg.header.stamp)] = msg.angular_velocity.z
@@ -79,8 +111,19 @@ class Listener(Node):
     def on_compensated(self, msg: Imu) -> None:
         self.compensated[stamp_to_ns(msg.header.stamp)] = msg.angular_velocity.z
 
+    def on_untracked(self, msg: Imu) -> None:
+        self.untracked[stamp_to_ns(msg.header.stamp)] = msg.angular_velocity.z
+
     def on_temperature(self, msg: Temperature) -> None:
         self.temperature[stamp_to_ns(msg.header.stamp)] = msg.temperature
+
+    def on_bias(self, msg: TwistWithCovarianceStamped) -> None:
+        self.bias.append((stamp_to_ns(msg.header.stamp), msg.twist.twist.angular.z,
+                          float(np.sqrt(msg.twist.covariance[35]))))
+
+    def on_bias_status(self, msg: DiagnosticArray) -> None:
+        self.bias_status[stamp_to_ns(msg.header.stamp)] = \
+            {kv.key: kv.value for kv in msg.status[0].values}
 
 
 def _phase(values: dict, temperature: dict, first_ns: int, start_s: float, end_s: float):
@@ -90,6 +133,107 @@ def _phase(values: dict, temperature: dict, first_ns: int, start_s: float, end_s
     rates = np.degrees([values[s] for s in stamps])
     temps = [temperature[s] for s in stamps if s in temperature]
     return ErrorStatistics.of(rates), (min(temps), max(temps))
+
+
+def _holds(temperature: dict) -> list:
+    """Give (start_ns, end_ns, mean C) of each hold: a run of steady 1 s bins."""
+    stamps = np.array(sorted(temperature))
+    values = np.array([temperature[s] for s in stamps.tolist()])
+    bins = (stamps - stamps[0]) // 1_000_000_000
+    starts = np.r_[0, np.flatnonzero(np.diff(bins)) + 1]
+    ends = np.r_[starts[1:], len(stamps)] - 1
+    means = np.add.reduceat(values, starts) / (ends - starts + 1)
+    steady = np.r_[False, np.abs(np.diff(means)) < HOLD_SLOPE_C_S, False]
+    edges = np.flatnonzero(np.diff(steady.astype(np.int8)))
+    holds = []
+    for first, stop in zip(edges[::2] + 1, edges[1::2] + 1):
+        start_ns, end_ns = int(stamps[starts[first]]), int(stamps[ends[stop - 1]])
+        if end_ns - start_ns >= HOLD_MIN_S * 1e9:
+            holds.append((start_ns, end_ns, float(np.mean(means[first:stop]))))
+    return holds
+
+
+def _recalibrate(listener, now_s: float) -> list:
+    """Call imu/recalibrate_zro on both nodes."""
+    print(f'at {now_s:.0f} s ({listener.temperature[max(listener.temperature)]:.1f} C, '
+          'holding): calling imu/recalibrate_zro (tracked and untracked node)', flush=True)
+    return [client.call_async(Trigger.Request()) for client in listener.clients_]
+
+
+def _print_tables(listener, first_ns: int, end_s: float, recalibrate_at_s: float,
+                  recalibrated_s: float) -> None:
+    raw, tracked, untracked = listener.raw, listener.compensated, listener.untracked
+    temperature = listener.temperature
+    rows = [('nominal (raw, AN2 method 1)', raw, 0.0, end_s),
+            ('EEPROM, before recalibration', untracked, 0.0, recalibrate_at_s),
+            ('  + bias tracking', tracked, 0.0, recalibrate_at_s),
+            ('EEPROM, after recalibration', untracked, recalibrated_s, end_s),
+            ('  + bias tracking', tracked, recalibrated_s, end_s)]
+    print(f'\nZRO error, deg/s (true rate 0; {len(raw)} raw, {len(untracked)} compensated '
+          f'without and {len(tracked)} with bias tracking)')
+    print(f'{"stream":<30}{"mean":>8}{"1 sigma":>9}{"peak":>8}{"RMS":>8}   sensed range')
+    for name, values, start_s, stop_s in rows:
+        stats, (low, high) = _phase(values, temperature, first_ns, start_s, stop_s)
+        print(f'{name:<30}{stats.mean:>8.3f}{stats.sigma:>9.3f}{stats.peak:>8.3f}'
+              f'{stats.rms:>8.3f}   {low:.0f} .. {high:.0f} C')
+    print(f'\nbias tracking at the holds: mean error of their last {HOLD_TAIL_S:g} s without and '
+          'with it, and its estimate (imu/gyro_bias) at their end, deg/s')
+    print(f'{"hold":<14}{"without":>9}{"with":>8}{"estimate":>10}{"std":>8}   state')
+    for start_ns, end_ns, mean_c in _holds(temperature):
+        tail = end_ns - HOLD_TAIL_S * 1e9
+        means = [np.degrees(np.mean([v for s, v in values.items() if tail <= s <= end_ns]
+                                    or [np.nan])) for values in (untracked, tracked)]
+        bias = [b for b in listener.bias if b[0] <= end_ns]
+        estimate, std = (np.degrees(bias[-1][1]), np.degrees(bias[-1][2])) if bias else \
+            (np.nan, np.nan)
+        state = listener.bias_status.get(bias[-1][0], {}) if bias else {}
+        text = ('still' if state.get('still') == 'True' else 'moving') + \
+            (', stable' if state.get('stable') == 'True' else '') + \
+            (', held: its mean is beyond 0.1 deg/s, a turn to a gyro alone'
+             if state.get('held') == 'True' else '')
+        recalibrated = ' (recal.)' if start_ns <= first_ns + recalibrate_at_s * 1e9 <= end_ns \
+            else ''
+        print(f'{mean_c:>5.0f} C{recalibrated:<8}{means[0]:>9.3f}{means[1]:>8.3f}'
+              f'{estimate:>10.3f}{std:>8.3f}   {text}')
+
+
+def _hand_off(nodes) -> None:
+    """Give both compensation nodes the driver's raw messages, the untracked one copies."""
+    driver, tracked, untracked = nodes
+    # Copies, first: a compensation node rewrites the rate of the Imu it republishes.
+    driver.local_consumers.append(lambda handoff: untracked.take_local(
+        [(stream, copy.deepcopy(msg)) for stream, msg in handoff]))
+    driver.local_consumers.append(tracked.take_local)
+
+
+def run_nodes(args=None) -> int:
+    """Run the demo's three nodes in this process (``python -m mlx_tempcomp.ros.demo --nodes``)."""
+    untracked = functools.partial(CompensationNode, local_input=True, namespace=UNTRACKED,
+                                  cli_args=['--ros-args', '-r', 'imu/eeprom:=/imu/eeprom'])
+    return run([DriverNode, functools.partial(CompensationNode, local_input=True), untracked],
+               args, 'demo_nodes', connect=_hand_off)
+
+
+def _write_params(folder: str, args) -> str:
+    path = os.path.join(folder, 'demo.yaml')
+    with open(path, 'w') as params:
+        yaml.safe_dump({
+            '/**': {'ros__parameters': {'rate_noise_rad_s': NOISE_RAD_S}},
+            'driver_node': {'ros__parameters': {
+                'publish_rate_hz': 10.0, 'sample_rate_hz': 10.0, 'oversample': 8,
+                # Lossless: on a busy machine the simulated clock lags, no sample is skipped.
+                'simulation': {'seed': args.seed, 'real_time_factor': args.real_time_factor,
+                               'lossless': True,
+                               'cycle_temperatures_c': list(CYCLE_C),
+                               'ramp_c_per_min': RAMP_C_PER_MIN, 'hold_s': HOLD_S,
+                               'supply_v': 5.15, 'zro_supply_dps_per_v': 2.0}}},
+            'compensation_node': {'ros__parameters': {
+                'recalibration': {'state_file': os.path.join(folder, 'zro.yaml')}}},
+            f'{UNTRACKED}/compensation_node': {'ros__parameters': {
+                'bias_tracking': {'enabled': False},
+                'recalibration': {'state_file': os.path.join(folder, 'untracked.yaml')}}}},
+            params)
+    return path
 
 
 def main(argv=None) -> int:
@@ -103,34 +247,23 @@ def main(argv=None) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     end_s = _run_s()
     folder = tempfile.mkdtemp(prefix='mlx_tempcomp_demo_')
-    state_file = os.path.join(folder, 'zro.yaml')
-    params_file = os.path.join(folder, 'demo.yaml')
-    with open(params_file, 'w') as params:
-        yaml.safe_dump({
-            '/**': {'ros__parameters': {'rate_noise_rad_s': NOISE_RAD_S}},
-            'driver_node': {'ros__parameters': {
-                'publish_rate_hz': 10.0, 'sample_rate_hz': 10.0, 'oversample': 8,
-                'simulation': {'seed': args.seed, 'real_time_factor': args.real_time_factor,
-                               'cycle_temperatures_c': list(CYCLE_C),
-                               'ramp_c_per_min': RAMP_C_PER_MIN, 'hold_s': HOLD_S,
-                               'supply_v': 5.15, 'zro_supply_dps_per_v': 2.0}}},
-            'compensation_node': {'ros__parameters': {
-                'recalibration': {'state_file': state_file}}}}, params)
-    bringup = subprocess.Popen([sys.executable, '-m', 'mlx_tempcomp.ros.bringup',
-                                '--ros-args', '--params-file', params_file])
+    params_file = _write_params(folder, args)
+    nodes = [subprocess.Popen([sys.executable, '-m', 'mlx_tempcomp.ros.demo', '--nodes',
+                               '--ros-args', '--params-file', params_file])]
     rclpy.init(args=[])
     listener = Listener()
     print(f'simulating {end_s / 60:.1f} min of chamber time at {args.real_time_factor:g}x '
           'real time ...', flush=True)
-    future = None
+    futures = None
     peak_ns = None
     recalibrate_at_s = recalibrated_s = None
     try:
         while True:
             rclpy.spin_once(listener, timeout_sec=0.05)
-            if bringup.poll() is not None:
-                print(f'bringup exited with code {bringup.returncode}', file=sys.stderr)
-                return 1
+            for node in nodes:
+                if node.poll() is not None:
+                    print(f'the nodes exited with code {node.returncode}', file=sys.stderr)
+                    return 1
             if not listener.raw:
                 continue
             first_ns = min(listener.raw)
@@ -138,50 +271,41 @@ def main(argv=None) -> int:
             latest_ns = max(listener.temperature, default=first_ns)
             if peak_ns is None and listener.temperature.get(latest_ns, 0.0) >= PEAK_C:
                 peak_ns = latest_ns
-            if future is None and peak_ns is not None and \
+            if futures is None and peak_ns is not None and \
                     abs(listener.temperature[latest_ns] - HOLD_C) < HOLD_NEAR_C and \
                     _holding(listener.temperature, peak_ns):
-                print(f'at {now_s:.0f} s ({listener.temperature[latest_ns]:.1f} C, holding): '
-                      'calling imu/recalibrate_zro', flush=True)
-                future = listener.client.call_async(Trigger.Request())
+                futures = _recalibrate(listener, now_s)
                 recalibrate_at_s = now_s
-            if future is not None and future.done() and recalibrated_s is None:
-                response = future.result()
-                print(f'  -> success={response.success}: {response.message}', flush=True)
-                if not response.success:
-                    return 1
+            if futures is not None and all(f.done() for f in futures) and \
+                    recalibrated_s is None:
+                for name, future in zip(('tracked', 'untracked'), futures):
+                    response = future.result()
+                    print(f'  -> {name}: success={response.success}: {response.message}',
+                          flush=True)
+                    if not response.success:
+                        return 1
                 recalibrated_s = now_s
             if now_s >= end_s:
                 break
     finally:
         listener.destroy_node()
         rclpy.try_shutdown()
-        bringup.send_signal(signal.SIGINT)
-        try:
-            bringup.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            bringup.kill()
+        for node in nodes:
+            node.send_signal(signal.SIGINT)
+        for node in nodes:
+            try:
+                node.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                node.kill()
 
-    first_ns = min(listener.raw)
-    rows = [('nominal (raw, AN2 method 1)',) + _phase(listener.raw, listener.temperature,
-                                                      first_ns, 0.0, end_s),
-            ('EEPROM, before recalibration',) + _phase(listener.compensated,
-                                                       listener.temperature, first_ns, 0.0,
-                                                       recalibrate_at_s),
-            ('EEPROM, after recalibration',) + _phase(listener.compensated,
-                                                      listener.temperature, first_ns,
-                                                      recalibrated_s, end_s)]
-    print(f'\nZRO error, deg/s (true rate 0; {len(listener.raw)} raw and '
-          f'{len(listener.compensated)} compensated samples)')
-    print(f'{"stream":<30}{"mean":>8}{"1 sigma":>9}{"peak":>8}{"RMS":>8}   sensed range')
-    for name, stats, (low, high) in rows:
-        print(f'{name:<30}{stats.mean:>8.3f}{stats.sigma:>9.3f}{stats.peak:>8.3f}'
-              f'{stats.rms:>8.3f}   {low:.0f} .. {high:.0f} C')
-    print(f'state file: {state_file}')
+    _print_tables(listener, min(listener.raw), end_s, recalibrate_at_s, recalibrated_s)
+    print(f'state files: {folder}')
     return 0
 
 
 if __name__ == '__main__':
+    if sys.argv[1:2] == ['--nodes']:
+        sys.exit(run_nodes(sys.argv[:1] + sys.argv[2:]))
     start = time.monotonic()
     code = main()
     print(f'({time.monotonic() - start:.0f} s wall)')

@@ -2,12 +2,17 @@
 The compensation node's ZRO recalibration: the state file, the window, the offset learned.
 
 `ZroRecalibration` reads the state file at start (checked field by field,
-`zro_state_fields`) and applies its offset only to the model it was learned
+`state_fields`) and applies its offset only to the model it was learned
 on, within the full scale (`saved_offset_model`). For ``imu/recalibrate_zro``
 it opens a window (`start`) that the node's corrected blocks fill (`add`), learns from
 the full window the offset on top of the thermal model (`learn`) and persists
 it atomically (`save`). The node keeps the service: it awaits the window and
 answers.
+
+The file holds the ZRO state, the bias tracking's section (``bias_tracking``,
+`TRACKING_SECTION`, checked by its user), or both: a file written before the
+section existed loads as it did, and a tracked offset is kept before any
+recalibration. Every write holds both parts (`save`, `write`).
 """
 
 from dataclasses import dataclass
@@ -21,10 +26,12 @@ from ..core.errors import CalibrationError, TempCompError
 from ..core.models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..node_parameters import limits_of, ParameterError
-from ..state_file import Field, load_state, reject_state, StateFileError
+from ..state_file import Field, load_state, reject_state, StateFileError, write_state
 
 # How the log names the state.
 ZRO_STATE = 'saved ZRO offset'
+# The key of the bias tracking's section in the state file.
+TRACKING_SECTION = 'bias_tracking'
 # Without sensor.full_scale_dps or the EEPROM's RANGE, a saved offset is held to the widest
 # range of the parts the driver reads (MPU-6000: +-2000 deg/s): no larger offset is real.
 WIDEST_FULL_SCALE_DPS = 2000.0
@@ -37,15 +44,22 @@ def full_scale_rad_s(full_scale_dps: float, sensor) -> float:
 
 
 def zro_state_fields(full_scale_rad_s: float) -> tuple:
-    """Give what the ZRO state file must hold: the keys `ZroRecalibration.learn` gives, checked."""
-    return (Field('model', 'text'), Field('fingerprint', 'text'),
-            Field('axes', 'text', length=(1, len(AXIS_NAMES)), choices=AXIS_NAMES),
-            Field('zro_offset', 'number', length='axes'),
-            Field('offset_unit', 'text', choices=('rad/s', 'LSB', 'mV')),
+    """Give what the ZRO state must hold: the keys `ZroRecalibration.learn` gives, checked."""
+    return (Field('model', 'text', group='zro'), Field('fingerprint', 'text', group='zro'),
+            Field('axes', 'text', length=(1, len(AXIS_NAMES)), choices=AXIS_NAMES,
+                  group='zro'),
+            Field('zro_offset', 'number', length='axes', group='zro'),
+            Field('offset_unit', 'text', choices=('rad/s', 'LSB', 'mV'), group='zro'),
             Field('zro_offset_rad_s', 'number', length='axes', low=-full_scale_rad_s,
-                  high=full_scale_rad_s),
-            Field('temperature_c', 'number', low=-273.15, high=1000.0),
-            Field('samples', 'integer', low=1), Field('time', 'text'))
+                  high=full_scale_rad_s, group='zro'),
+            Field('temperature_c', 'number', low=-273.15, high=1000.0, group='zro'),
+            Field('samples', 'integer', low=1, group='zro'), Field('time', 'text', group='zro'))
+
+
+def state_fields(full_scale_rad_s: float) -> tuple:
+    """Give what the state file may hold: the ZRO state, the bias tracking's section, or both."""
+    return zro_state_fields(full_scale_rad_s) + (
+        Field(TRACKING_SECTION, 'section', group=TRACKING_SECTION),)
 
 
 def saved_offset_model(model, state: dict, full_scale_rad_s: float):
@@ -94,8 +108,10 @@ class ZroRecalibration:
     """
     The ZRO state of the compensation node: what the state file holds, the window open.
 
-    ``saved`` is the state the file holds (None without a usable one);
-    ``last`` the last recalibration, the saved one at start ({} without).
+    ``saved`` is the ZRO state the file holds (None without a usable one);
+    ``last`` the last recalibration, the saved one at start ({} without);
+    ``tracking_section`` the bias tracking's section read at start (None without),
+    unchecked: its user checks it.
     """
 
     def __init__(self, path: str, axes: tuple, logger):
@@ -104,19 +120,21 @@ class ZroRecalibration:
         self.logger = logger
         self.saved: Optional[dict] = None
         self.last = {}
+        self.tracking_section: Optional[dict] = None
         self.window: Optional[ZroWindow] = None
 
     def load(self, full_scale_rad_s: float) -> None:
         """Read the state file, checked field by field (`load_state` logs what it finds)."""
-        self.saved = load_state(self.path, zro_state_fields(full_scale_rad_s), self.logger,
-                                ZRO_STATE)
+        state = load_state(self.path, state_fields(full_scale_rad_s), self.logger, ZRO_STATE)
+        self.tracking_section = None if state is None else state.pop(TRACKING_SECTION, None)
+        self.saved = state or None
         self.last = self.saved or {}
 
     def describe(self) -> str:
         """Say what the state file held at start, for the node's start-up line."""
         state = self.saved
         if not state:
-            return 'nothing saved yet'
+            return 'no ZRO offset saved' if self.tracking_section else 'nothing saved yet'
         return (f"a {state['model']} ZRO offset {state['zro_offset']} {state['offset_unit']} "
                 f"of {state['time']}")
 
@@ -137,7 +155,9 @@ class ZroRecalibration:
             offset_model = saved_offset_model(model, state, full_scale_rad_s)
         except StateFileError as err:
             reject_state(self.path, str(err), self.logger, ZRO_STATE)
+            # The file is gone, and with it the tracking relative to that offset.
             self.saved = None
+            self.tracking_section = None
             self.last = {}
             return model
         self.logger.info(f'applied {ZRO_STATE} {state["zro_offset"]} {state["offset_unit"]} '
@@ -200,7 +220,17 @@ class ZroRecalibration:
         return LearnedOffset(new_model, state, text)
 
     def save(self, learned: LearnedOffset) -> str:
-        """Persist a learned offset atomically; give the answer: what and where, or why not."""
-        self.last = learned.state
-        self.saved = learned.state
+        """
+        Persist a learned offset atomically; give the answer: what and where, or why not.
+
+        ``learned.state`` may hold the bias tracking's section beside the ZRO state:
+        both go in the one write.
+        """
+        zro = {key: value for key, value in learned.state.items() if key != TRACKING_SECTION}
+        self.last = zro
+        self.saved = zro
         return saved_reply(self.path, learned.state, learned.text)
+
+    def write(self, section: dict) -> None:
+        """Write the bias tracking's ``section`` beside the ZRO state held; StateFileError."""
+        write_state(self.path, {**(self.saved or {}), TRACKING_SECTION: section})

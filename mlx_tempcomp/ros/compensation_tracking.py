@@ -1,0 +1,410 @@
+"""
+Bias tracking in the compensation node: the tracker over each corrected block, topics, state.
+
+`CompensationTracking` runs the core's `BiasTracking` (built from ``bias_tracking.*`` by
+`tracking_settings`, as ``mlx-tempcomp evaluate --track-bias`` builds it) over the
+model's output of every block (`track`): the node publishes that rate less the tracked
+offset, and the Imu covariance takes the offset's variance. Time is the header stamp
+in seconds as the bag reader makes it (`stamp_seconds`), so a replayed bag gives the
+offline twin's bits. The tracked offset is relative to one model with one ZRO offset:
+a model with other coefficients starts a tracker from nothing (`follow`), a ZRO
+recalibration seeds it with 0 and the window mean's variance (`seed`).
+
+After each closed window the estimate goes out on ``imu/gyro_bias``
+(geometry_msgs/TwistWithCovarianceStamped: estimate and variance per axis) and
+``imu/gyro_bias/status`` (diagnostic_msgs/DiagnosticArray: per axis, the stable flag
+as the level, estimate, standard deviation, held, still, in exact decimal text), both
+reliable and transient local, so a late subscriber gets the latest.
+
+The state goes into the ZRO state file's ``bias_tracking`` section, with the model,
+fingerprint, axes and ZRO offset it is relative to: written atomically beside the ZRO
+state (`ZroRecalibration.write`) when the tracker learnt something since the last
+write, at most once every ``bias_tracking.save_period_s`` of sensor time, and at a clean
+stop; read back at start (`tracking_state`) and applied when the model matches.
+"""
+
+from datetime import datetime, timezone
+import math
+import reprlib
+from typing import Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistWithCovarianceStamped
+import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from . import messages
+from .zro_recalibration import TRACKING_SECTION, ZroRecalibration
+from ..core.bias_tracker import BiasTracking, tracking_state
+from ..core.errors import CalibrationError
+from ..core.models import AXIS_NAMES
+from ..core.tracking_parameters import tracking_settings
+from ..state_file import check_state, Field, move_aside, reject_state, StateFileError
+
+NS_PER_S = 1_000_000_000
+# The estimate: the latest kept for late joiners, as the EEPROM images are.
+BIAS_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TRACKING_STATE = 'saved bias tracking state'
+# What the section names besides the filter's state (`tracking_state` checks that).
+SECTION_FIELDS = (Field('model', 'text'), Field('fingerprint', 'text'),
+                  Field('axes', 'text', length=(1, len(AXIS_NAMES)), choices=AXIS_NAMES),
+                  Field('zro_offset', 'number', length='axes'), Field('saved', 'text'))
+# REP-145's "no data" for the linear part of the bias message: it holds a rate bias only.
+NO_DATA = -1.0
+
+
+def stamp_seconds(stamps_ns: np.ndarray) -> np.ndarray:
+    """Give int64 stamps in seconds as `sources.recording.load_bag` does: seconds + ns x 1e-9."""
+    return (stamps_ns // NS_PER_S).astype(np.float64) + (stamps_ns % NS_PER_S) * 1e-9
+
+
+def stamp_second(stamp_ns: int) -> float:
+    """Give one stamp in seconds: the same operations, bit for bit, as `stamp_seconds`."""
+    return float(stamp_ns // NS_PER_S) + (stamp_ns % NS_PER_S) * 1e-9
+
+
+def checked_section(section: dict, full_scale_rad_s: float) -> dict:
+    """
+    Check the state file's ``bias_tracking`` section; give its head and its `TrackingState`.
+
+    StateFileError or CalibrationError names the first wrong key.
+    """
+    if not isinstance(section, dict):
+        raise StateFileError(f'{TRACKING_SECTION} must be a mapping, got {reprlib.repr(section)}')
+    head = check_state(section, SECTION_FIELDS)
+    return {**head, 'state': tracking_state(section, len(head['axes']), full_scale_rad_s)}
+
+
+def _acceleration(imu) -> Optional[list]:
+    """Give an Imu's specific force, None when it carries none (REP-145: covariance[0] -1)."""
+    if imu.linear_acceleration_covariance[0] == -1.0:
+        return None
+    a = imu.linear_acceleration
+    return [a.x, a.y, a.z]
+
+
+def _model_key(model) -> tuple:
+    """Give what a tracked offset is relative to: the model, its coefficients, its ZRO offset."""
+    return (model.name, model.fingerprint(), [float(v) for v in model.zro_offset])
+
+
+class CompensationTracking:
+    """
+    The node's bias tracker (None while ``bias_tracking.enabled`` is false or before a model).
+
+    ``recalibration`` holds the state file (its path, the ZRO state written beside the
+    section, the section read at start); ``full_scale_rad_s`` bounds a saved offset.
+    """
+
+    def __init__(self, node, values: dict, axes: tuple, indices: tuple,
+                 recalibration: ZroRecalibration, full_scale_rad_s: float):
+        self.node = node
+        self.axes = axes
+        self.indices = indices
+        self.recalibration = recalibration
+        self.logger = node.get_logger()
+        self.settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
+        self.save_period_s = values['bias_tracking.save_period_s']
+        self.tracker: Optional[BiasTracking] = None
+        self.key = None
+        self.held_state = None          # the state while tracking is off, to resume from
+        self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
+        self.written_updates = None     # the tracker's updates at the last write
+        self.written_s = None           # and its sensor time
+        self.writes = 0
+        self.write_error = ''
+        self.latest_s = None
+        self.windows = 0
+        self.publishers = None
+        if self.settings is not None:
+            self._create_publishers()
+
+    # The state file.
+
+    def _checked(self, section, full_scale_rad_s: float) -> Optional[dict]:
+        """Check the section read at start; report and set aside a bad one (the ZRO part stays)."""
+        if section is None:
+            return None
+        try:
+            return checked_section(section, full_scale_rad_s)
+        except (StateFileError, CalibrationError) as err:
+            path = self.recalibration.path
+            if self.recalibration.saved is None:
+                reject_state(path, str(err), self.logger, TRACKING_STATE)
+                return None
+            try:
+                where = f'a copy kept as {move_aside(path, keep=True)}'
+            except OSError as copy_err:
+                where = f'no copy kept ({copy_err.strerror or copy_err})'
+            self.logger.error(f'{TRACKING_STATE} in {path} unusable: {err}; {where}; the ZRO '
+                              'offset beside it stays in use; tracking starts from nothing')
+            return None
+
+    def describe(self) -> str:
+        """Say what the state file's section holds, for the start-up line ('' without)."""
+        saved = self.saved
+        if saved is None:
+            return ''
+        offsets = [float(f'{v:.6g}') for v in saved['state'].offset_rad_s]
+        return f'; a bias tracking offset {offsets} rad/s of {saved["saved"]}'
+
+    def section(self) -> dict:
+        """Give the state file's section for the tracker now ({} without one)."""
+        if self.tracker is None:
+            return {}
+        name, fingerprint, zro_offset = self.key
+        return {TRACKING_SECTION: {
+            'model': name, 'fingerprint': fingerprint, 'axes': list(self.axes),
+            'zro_offset': zro_offset, **self.tracker.state(),
+            'saved': datetime.now(timezone.utc).isoformat(timespec='seconds')}}
+
+    def _wrote(self, section: dict) -> None:
+        """Note a section written: nothing pending, the file's section is this one."""
+        tracker = self.tracker
+        self.written_updates, self.written_s = tracker.updates, self.latest_s
+        self.writes += 1
+        self.write_error = ''
+        entry = section[TRACKING_SECTION]
+        self.saved = {**entry, 'state': tracking_state(entry, len(self.axes))}
+
+    def _pending(self) -> bool:
+        return self.tracker is not None and self.tracker.updates != self.written_updates
+
+    def save(self, why: str = '') -> None:
+        """Write the section now if the tracker learnt since the last write; log a failure."""
+        if not self._pending():
+            return
+        section = self.section()
+        try:
+            self.recalibration.write(section[TRACKING_SECTION])
+        except StateFileError as err:
+            self.write_error = str(err)
+            self.logger.warn(f'bias tracking state not saved{why}: {err}',
+                             throttle_duration_sec=60.0)
+            return
+        self._wrote(section)
+
+    def _save_if_due(self) -> None:
+        elapsed = None if self.written_s is None else self.latest_s - self.written_s
+        if self._pending() and (elapsed is None or not 0.0 <= elapsed < self.save_period_s):
+            self.save()
+
+    # The model and the parameters.
+
+    def follow(self, model) -> None:
+        """
+        Track relative to ``model`` from the next sample on.
+
+        The same coefficients keep the tracker (a new ZRO offset comes with a `seed`);
+        others start it from the saved state if that was learnt on this very model and
+        ZRO offset, else from nothing.
+        """
+        if model is None:
+            return
+        key = _model_key(model)
+        if self.key is not None and key[:2] == self.key[:2]:
+            self.key = key
+            return
+        self.key = key
+        saved = self.saved
+        state = None
+        if saved is not None:
+            if (saved['model'], saved['fingerprint'], saved['zro_offset']) == key and \
+                    tuple(saved['axes']) == self.axes:
+                state = saved['state']
+                self.logger.info(f'applied {TRACKING_STATE} {list(state.offset_rad_s)} rad/s '
+                                 f'from {self.recalibration.path}')
+            else:
+                self.logger.info(f'{TRACKING_STATE} in {self.recalibration.path} was learnt on '
+                                 f'another model or ZRO offset (model {saved["model"]}, '
+                                 f'fingerprint {saved["fingerprint"]}, axes {saved["axes"]}, '
+                                 f'ZRO offset {saved["zro_offset"]}); tracking starts from '
+                                 'nothing')
+        self.held_state = state
+        self._build(state)
+        # Nothing to write until it learns (a restored state is what the file holds).
+        self.written_updates = None if self.tracker is None else self.tracker.updates
+
+    def _build(self, state) -> None:
+        self.tracker = None if self.settings is None or self.key is None else \
+            BiasTracking(self.settings, self.axes, state=state)
+
+    def configure(self, values: dict) -> None:
+        """Take new ``bias_tracking.*`` values (checked before); the offset carries over."""
+        self.save_period_s = values['bias_tracking.save_period_s']
+        settings = tracking_settings(values, self.axes, values['rate_noise_rad_s'])
+        if settings == self.settings:
+            return
+        if self.tracker is not None:
+            self.save(' (tracking reconfigured)')
+            self.held_state = tracking_state(self.tracker.state(), len(self.axes))
+        self.settings = settings
+        if settings is not None and self.publishers is None:
+            self._create_publishers()
+        updates = self.written_updates
+        self._build(self.held_state)
+        self.written_updates = updates
+
+    def seed(self, samples: int) -> dict:
+        """
+        Start from the re-zeroed model: offset 0, the variance of a mean of ``samples``.
+
+        A new window grid too: the window open holds rates of the model before.
+        Give the state file's section for the write of the ZRO state ({} when off).
+        """
+        if self.tracker is None:
+            return {}
+        noise = self.settings.standstill.rate_noise_rad_s
+        state = tracking_state(self.tracker.state(), len(self.axes))
+        self.tracker = BiasTracking(self.settings, self.axes, state=state)
+        self.tracker.seed([0.0] * len(self.axes), [n * n / samples for n in noise],
+                          self.latest_s)
+        self.held_state = None
+        self.written_updates = None
+        self._publish(None, '')
+        return self.section()
+
+    def wrote_with_zro(self, section: dict) -> None:
+        """Note the section `seed` gave as written with the ZRO state."""
+        if section:
+            self._wrote(section)
+
+    # The stream.
+
+    def track(self, block, rates: list) -> tuple:
+        """
+        Track a corrected block; give (rates to publish, variance of each row or None).
+
+        ``rates``: the model's output of each row of ``block`` (`InputBlock`).
+        """
+        tracker = self.tracker
+        if tracker is None:
+            return rates, None
+        stamps_ns = block.stamps_ns
+        temperatures = block.temperature_c
+        if len(temperatures[0]) == 1:
+            temperature_c = [t[0] for t in temperatures]
+        else:
+            temperature_c = [sum(t) / len(t) for t in temperatures]
+        acceleration = block.columns.get('acceleration_m_s2')
+        if acceleration is None:
+            acceleration = [_acceleration(parts['imu']) for parts in block.messages]
+        if len(rates) == 1:
+            stamp_s = stamp_second(stamps_ns[0])
+            rate, std, _ = tracker.process_one(stamp_s, rates[0], temperature_c[0],
+                                               acceleration[0])
+            tracked, stds = [rate], [std]
+        else:
+            stamp_s, tracked, stds = self._track_block(stamps_ns, rates, temperature_c,
+                                                       acceleration)
+        self.latest_s = stamp_s
+        if tracker.window_count != self.windows:
+            self.windows = tracker.window_count
+            imu = block.messages[-1]['imu']
+            self._publish(imu.header.stamp, imu.header.frame_id)
+            self._save_if_due()
+        return tracked, stds
+
+    def _track_block(self, stamps_ns: list, rates: list, temperature_c: list,
+                     acceleration: list) -> tuple:
+        """Track a block in runs of rows with and without acceleration: (last s, rates, stds)."""
+        time_s = stamp_seconds(np.array(stamps_ns, dtype=np.int64))
+        rate = np.array(rates)
+        temperature = np.array(temperature_c)
+        tracked, stds = [], []
+        start = 0
+        while start < len(rates):
+            has = acceleration[start] is not None
+            end = start + 1
+            while end < len(rates) and (acceleration[end] is not None) == has:
+                end += 1
+            out = self.tracker.process(time_s[start:end], rate[start:end],
+                                       temperature[start:end],
+                                       np.array(acceleration[start:end]) if has else None)
+            tracked += out.rate_rad_s.tolist()
+            stds += out.std_rad_s.tolist()
+            start = end
+        return float(time_s[-1]), tracked, stds
+
+    # Outputs.
+
+    def _create_publishers(self) -> None:
+        node = self.node
+        self.publishers = (
+            node.create_publisher(TwistWithCovarianceStamped, 'imu/gyro_bias', BIAS_QOS),
+            node.create_publisher(DiagnosticArray, 'imu/gyro_bias/status', BIAS_QOS))
+
+    def _publish(self, stamp, frame_id: str) -> None:
+        """Publish the estimate (at ``stamp``; None: the latest sample's time) and its status."""
+        tracker = self.tracker
+        if tracker is None or self.publishers is None:
+            return
+        if stamp is None:
+            stamp = messages.ns_to_stamp(0 if self.latest_s is None else
+                                         round(self.latest_s * NS_PER_S))
+        status = tracker.status()
+        variance = tracker.state()['variance_rad2_s2']
+        bias = TwistWithCovarianceStamped()
+        bias.header.stamp = stamp
+        bias.header.frame_id = frame_id
+        angular = [math.nan] * 3
+        covariance = [0.0] * 36
+        for index in (0, 1, 2):
+            covariance[7 * index] = NO_DATA
+        for index, offset, v in zip(self.indices, status.offset_rad_s, variance):
+            angular[index] = offset
+            covariance[7 * (3 + index)] = v
+        angular_velocity = bias.twist.twist.angular
+        angular_velocity.x, angular_velocity.y, angular_velocity.z = angular
+        bias.twist.covariance = covariance
+        array = DiagnosticArray(status=[
+            self._axis_status(status, i, axis) for i, axis in enumerate(self.axes)])
+        array.header = bias.header
+        self.publishers[0].publish(bias)
+        self.publishers[1].publish(array)
+
+    def _axis_status(self, status, i: int, axis: str) -> DiagnosticStatus:
+        """One axis: OK while its estimate is stable, else WARN saying why not."""
+        stable = status.stable[i]
+        std = status.std_rad_s[i]
+        text = 'stable' if stable else \
+            f'not stable: std {std:.3g} rad/s (stable at {self.settings.stable_std_rad_s:.3g})' \
+            if status.updates or std < self.settings.initial_std_rad_s[i] else \
+            'not stable: nothing learnt yet'
+        values = {'estimate_rad_s': repr(status.offset_rad_s[i]), 'std_rad_s': repr(std),
+                  'stable': str(stable), 'held': str(status.held[i]),
+                  'still': str(status.still), 'updates': str(status.updates),
+                  'last_update_s': repr(status.last_update_s), 'reason': status.reason}
+        return DiagnosticStatus(
+            level=DiagnosticStatus.OK if stable else DiagnosticStatus.WARN,
+            name=f'{self.node.get_name()}: gyro bias {axis}', message=text,
+            hardware_id=self.key[0],
+            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+    def summary(self) -> str:
+        """Say what the tracker did, for the node's closing line ('' while off)."""
+        tracker = self.tracker
+        if tracker is None:
+            return ''
+        return (f'; bias tracking: {tracker.window_count} windows, {tracker.updates} '
+                f'learnt, offset {[float(f"{v:.6g}") for v in tracker.status().offset_rad_s]} '
+                f'rad/s, state written {self.writes} times')
+
+    def status_values(self) -> dict:
+        """Give the diagnostics' tracking values: on or off, still, the estimate, its age."""
+        tracker = self.tracker
+        if tracker is None:
+            return {'bias_tracking': 'off' if self.settings is None else 'waiting for a model'}
+        status = tracker.status()
+        since = math.nan if status.last_update_s is None or self.latest_s is None else \
+            self.latest_s - status.last_update_s
+        return {'bias_tracking': 'still' if status.still else 'moving',
+                'tracking_offset_rad_s': list(status.offset_rad_s),
+                'tracking_std_rad_s': list(status.std_rad_s),
+                'tracking_stable': list(status.stable), 'tracking_held': list(status.held),
+                'tracking_since_update_s': since, 'tracking_updates': status.updates,
+                'tracking_windows': status.windows, 'tracking_reason': status.reason,
+                'tracking_state_writes': self.writes,
+                'tracking_state_error': self.write_error}

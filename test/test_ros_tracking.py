@@ -1,0 +1,361 @@
+"""
+Bias tracking in the compensation node, over DDS: the offline twin's bits, the topics, the state.
+
+A record at rest (a cubic in temperature, a wandering offset, noise, gravity on -z) gets
+known motion from ``mlx-tempcomp inject-motion``; ``fit`` writes the model and its
+``bias_tracking`` section; ``convert`` makes it a bag of the driver's raw topics. The bag
+replayed through driver_node into compensation_node must give what ``evaluate
+--track-bias`` gives on the same bag, bit for bit, and the bias topics and diagnostics the
+twin's final estimate. The learnt offset survives a SIGKILL and applies from the first
+sample after a restart; a ZRO recalibration seeds the tracker; the state file loads in
+every form it can have (the format before tracking included), and a bad tracking section
+is refused without losing the ZRO offset beside it.
+"""
+
+from contextlib import redirect_stdout
+import io
+import json
+import math
+import signal
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TwistWithCovarianceStamped
+from mlx_tempcomp.cli import main
+from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
+from mlx_tempcomp.sources.bag import RawBagReader, RawTopics
+from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.state_file import read_state, write_state
+import numpy as np
+import pytest
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
+                         first_line_with, Probe, simulated_driver_params,
+                         start_model_replay, status_values, write_params)
+from std_srvs.srv import Trigger
+import yaml
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT_S = 60.0
+NOISE = 1e-3
+RAW_TOPICS = ('--imu-topic', '/imu/data_raw', '--temperature-topic', '/imu/temperature_raw')
+TRACKED = {'bias_tracking.enabled': True}
+# Every estimate the node sends, kept for late joiners as the node keeps it.
+BIAS_RECORD_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def rest_record(path, duration_s: float, rate_hz: float = 10.0, seed: int = 0) -> str:
+    """Write a record at rest: a cubic in T, a wandering offset, noise, gravity on -z."""
+    rng = np.random.default_rng(seed)
+    time_s = 100.0 + np.arange(0.0, duration_s, 1.0 / rate_hz)
+    temperature = 30.0 + 10.0 * np.sin(2.0 * np.pi * (time_s - 100.0) / duration_s)
+    x = (temperature - 30.0) / 10.0
+    wander = np.cumsum(rng.normal(0.0, 5e-5 / math.sqrt(rate_hz), (time_s.size, 3)), axis=0)
+    gyro = 0.01 * x[:, None] ** np.arange(1, 4) + wander + rng.normal(0, NOISE, wander.shape)
+    acceleration = np.array([0.1, -0.05, -9.8]) + rng.normal(0.0, 0.005, (time_s.size, 3))
+    columns = {'time': time_s, 'temperature': temperature,
+               **{f'gyro_{a}': gyro[:, i] for i, a in enumerate('xyz')},
+               **{f'acc_{a}': acceleration[:, i] for i, a in enumerate('xyz')}}
+    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
+               header=','.join(columns), comments='', fmt='%.17g')
+    return str(path)
+
+
+def cli(*argv) -> str:
+    """Run an mlx-tempcomp command in this process; give what it printed."""
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main([str(a) for a in argv]) == 0
+    return out.getvalue()
+
+
+def fitted_bag(folder, duration_s: float, motion_seed=None) -> tuple:
+    """Make a record (with motion), fit and convert it: (params file, bag, stamps, messages)."""
+    record = rest_record(folder / 'rest.csv', duration_s)
+    if motion_seed is not None:
+        cli('inject-motion', record, '--schedule', 'mixed', '--seed', motion_seed,
+            '--out', folder / 'moving.csv')
+        record = folder / 'moving.csv'
+    cli('fit', record, '--order', '3', '--out', folder / 'fit.yaml')
+    cli('convert', record, '--out', folder / 'bag')
+    stamps, messages = [], 0
+    with RawBagReader(folder / 'bag', RawTopics()) as reader:
+        for _, topic, item in reader.records():
+            messages += 1
+            if topic == RawTopics.imu:
+                stamps.append(item.stamp_ns)
+    return str(folder / 'fit.yaml'), folder / 'bag', stamps, messages
+
+
+def angular(bias) -> list:
+    """Give the estimate of an imu/gyro_bias message."""
+    vector = bias.twist.twist.angular
+    return [vector.x, vector.y, vector.z]
+
+
+def test_stamps_become_seconds_as_the_bag_reader_makes_them(tmp_path):
+    rng = np.random.default_rng(0)
+    stamps = np.concatenate([rng.integers(0, 2 ** 31 * 10 ** 9, 2000),
+                             [0, 1, 10 ** 9 - 1, 10 ** 9, 1_795_750_249_871_031_036]])
+    seconds = stamp_seconds(stamps.astype(np.int64))
+    assert [stamp_second(s) for s in stamps.tolist()] == seconds.tolist()
+    # The bag reader's own: a recording's time from a bag of these stamps.
+    rest_record(tmp_path / 'rest.csv', 20.0)
+    cli('convert', tmp_path / 'rest.csv', '--out', tmp_path / 'bag')
+    with RawBagReader(tmp_path / 'bag', RawTopics()) as reader:
+        bag_stamps = [item.stamp_ns for _, topic, item in reader.records()
+                      if topic == RawTopics.imu]
+    recording = load_recording(tmp_path / 'bag', imu_topic='/imu/data_raw',
+                               temperature_topic='/imu/temperature_raw')
+    assert np.array_equal(stamp_seconds(np.array(bag_stamps, dtype=np.int64)),
+                          recording.time_s)
+
+
+@pytest.mark.slow
+def test_the_node_tracks_as_evaluate_track_bias_does_to_the_bit(launcher, probe, tmp_path):
+    params, bag, stamps_ns, messages_in_bag = fitted_bag(tmp_path, 600.0, motion_seed=1)
+    report = json.loads(cli('evaluate', bag, *RAW_TOPICS, '--params', params, '--track-bias',
+                            '--json', '--out-csv', tmp_path / 'twin.csv'))['bias_tracking']
+    twin = np.genfromtxt(tmp_path / 'twin.csv', delimiter=',', names=True)
+    axes = ('x', 'y', 'z')
+    expected = np.column_stack([twin[f'gyro_{a}'] for a in axes])
+    offset_std = np.column_stack([twin[f'offset_std_{a}'] for a in axes])
+    # The twin learnt, and the tracked rate is not the model's.
+    assert report['updates'] > 30 and 0.2 < report['still_share_found'] < 0.8
+    assert np.count_nonzero(np.column_stack([twin[f'offset_{a}'] for a in axes])) > 3000
+
+    bias = probe.subscribe(TwistWithCovarianceStamped, 'imu/gyro_bias', BIAS_RECORD_QOS)
+    status = probe.subscribe(DiagnosticArray, 'imu/gyro_bias/status', BIAS_RECORD_QOS)
+    start_model_replay(launcher, probe, tmp_path, bag, params, **TRACKED)
+    got = np.array(finish_model_replay(launcher, probe, stamps_ns, messages_in_bag))
+    differing = np.count_nonzero(np.any(got != expected, axis=1))
+    print(f'{len(got)} samples; {differing} differ from evaluate --track-bias; '
+          f'{report["updates"]} windows learnt')
+    assert differing == 0
+    # The covariance: the noise of a sample plus the tracked offset's variance.
+    noise = node_values(params, 'compensation_node')['rate_noise_rad_s']
+    published = by_stamp(probe.received['imu/data'])
+    for row in range(0, len(stamps_ns), 97):
+        covariance = published[stamps_ns[row]].angular_velocity_covariance
+        assert [covariance[0], covariance[4], covariance[8]] == pytest.approx(
+            noise ** 2 + offset_std[row] ** 2, rel=1e-12)
+
+    # The topics end on the twin's final estimate; so do the diagnostics.
+    final = report['final']
+    probe.spin_until(lambda: bias and angular(bias[-1]) == final['offset_rad_s'],
+                     TIMEOUT_S, 'the final estimate on imu/gyro_bias', launcher)
+    covariance = bias[-1].twist.covariance
+    assert [covariance[21], covariance[28], covariance[35]] == pytest.approx(
+        np.square(final['std_rad_s']), rel=1e-12)
+    assert [covariance[0], covariance[7], covariance[14]] == [-1.0] * 3
+    # Stamped with a sample's stamp: the last block that closed a window (the record's
+    # last window stays open).
+    stamp_ns = messages.stamp_to_ns(bias[-1].header.stamp)
+    window_s = node_values(params, 'compensation_node')['bias_tracking.window_s']
+    assert stamp_ns in published and stamps_ns[-1] - stamp_ns <= 2e9 * window_s
+    per_axis = {s.name.rsplit(' ', 1)[-1]: status_values(s) for s in status[-1].status}
+    assert sorted(per_axis) == list(axes)
+    for i, a in enumerate(axes):
+        assert float(per_axis[a]['estimate_rad_s']) == final['offset_rad_s'][i]
+        assert float(per_axis[a]['std_rad_s']) == final['std_rad_s'][i]
+        assert per_axis[a]['stable'] == str(final['stable'][i])
+    diagnostics = status_values(probe.wait_status(
+        COMPENSATION_DIAGNOSTIC,
+        lambda s: status_values(s).get('tracking_updates') == str(report['updates']),
+        TIMEOUT_S, 'the diagnostics after the replay', launcher))
+    assert diagnostics['bias_tracking'] in ('still', 'moving')
+    offsets = [float(v) for v in diagnostics['tracking_offset_rad_s'][1:-1].split(',')]
+    assert offsets == pytest.approx(final['offset_rad_s'], rel=1e-5)
+    assert float(diagnostics['tracking_since_update_s']) >= 0.0
+    assert diagnostics['tracking_windows'] == str(report['windows'])
+
+
+@pytest.mark.slow
+def test_the_learnt_offset_survives_a_kill_and_applies_from_the_first_sample(
+        launcher, probe, tmp_path):
+    params, bag, stamps_ns, messages_in_bag = fitted_bag(tmp_path, 120.0)
+    state_file = tmp_path / 'zro.yaml'
+    # Written whenever a window was learnt: the SIGKILL below loses nothing learnt.
+    node_params = {**TRACKED, 'bias_tracking.save_period_s': 0.0}
+    start_model_replay(launcher, probe, tmp_path, bag, params, **node_params)
+    first = finish_model_replay(launcher, probe, stamps_ns, messages_in_bag)
+    diagnostics = status_values(probe.wait_status(
+        COMPENSATION_DIAGNOSTIC, lambda s: s.values and int(status_values(s).get(
+            'tracking_updates', '0')) > 5, TIMEOUT_S, 'the tracker learning', launcher))
+    node, driver = launcher.processes[-2:]
+    node.kill()
+    driver.stop()
+    state = read_state(str(state_file))
+    section = state['bias_tracking']
+    assert set(state) == {'bias_tracking'}, 'no recalibration: the tracker alone'
+    assert section['updates'] >= int(diagnostics['tracking_updates'])
+    assert section['axes'] == ['x', 'y', 'z'] and section['zro_offset'] == [0.0] * 3
+    offset = section['offset_rad_s']
+    assert all(v != 0.0 for v in offset)
+
+    # Restarted on the same file and record: the offset applies from the first sample.
+    second_probe = Probe('restarted')
+    try:
+        start_model_replay(launcher, second_probe, tmp_path, bag, params, **node_params)
+        second = finish_model_replay(launcher, second_probe, stamps_ns, messages_in_bag)
+    finally:
+        second_probe.close()
+    log = launcher.processes[-2].output()
+    assert f'applied saved bias tracking state {offset} rad/s from {state_file}' in log, log
+    assert second[0] == [r - o for r, o in zip(first[0], offset)]
+    print(f'first sample {first[0]} before, {second[0]} after the restart; offset {offset}')
+
+
+SERVICE = 'imu/recalibrate_zro'
+
+
+@pytest.mark.slow
+def test_a_recalibration_seeds_the_tracker_and_parameters_turn_it_off(launcher, probe,
+                                                                      tmp_path):
+    state_file = tmp_path / 'zro.yaml'
+    bias = probe.subscribe(TwistWithCovarianceStamped, 'imu/gyro_bias', BIAS_RECORD_QOS)
+    status = probe.subscribe(DiagnosticArray, 'imu/gyro_bias/status', BIAS_RECORD_QOS)
+    probe.subscribe_pipeline()
+    launcher.driver(simulated_driver_params(**{'simulation.seed': 9}))
+    launcher.compensation({'recalibration.state_file': str(state_file),
+                           'recalibration.duration_s': 2.0})
+    probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
+    noise = 0.0058   # the node's rate_noise_rad_s: bias_tracking.rate_noise_rad_s is 0
+    seen = len(bias)
+    response = probe.call(Trigger, SERVICE, Trigger.Request(), TIMEOUT_S)
+    assert response.success, response.message
+    state = read_state(str(state_file))
+    section = state['bias_tracking']
+    variance = noise * noise / state['samples']
+    assert section['offset_rad_s'] == [0.0] and section['variance_rad2_s2'] == [variance]
+    assert section['zro_offset'] == state['zro_offset'] and section['model'] == 'eeprom'
+    assert section['fingerprint'] == state['fingerprint']
+    # The seed goes out at once: estimate 0, the window mean's variance, stable.
+    probe.spin_until(lambda: any(m.twist.twist.angular.z == 0.0 for m in bias[seen:]),
+                     TIMEOUT_S, 'the seeded estimate', launcher)
+    index = next(i for i in range(seen, len(bias)) if bias[i].twist.twist.angular.z == 0.0)
+    assert bias[index].twist.covariance[35] == variance
+    probe.spin_until(lambda: any(a.header == bias[index].header for a in status), TIMEOUT_S,
+                     'the seeded status', launcher)
+    seeded = next(a for a in status if a.header == bias[index].header).status
+    assert len(seeded) == 1 and seeded[0].level == seeded[0].OK and seeded[0].message == 'stable'
+
+    # A bad value is refused, naming the parameter; off, the covariance is the noise alone.
+    results = probe.set_parameters('compensation_node',
+                                   {'bias_tracking.initial_std_rad_s': [1e-3, 2e-3]})
+    assert [r.successful for r in results] == [False]
+    assert results[0].reason.startswith(
+        'invalid parameter bias_tracking.initial_std_rad_s: give one value or one per axis (1)')
+    results = probe.set_parameters('compensation_node', {'bias_tracking.enabled': False})
+    assert [r.successful for r in results] == [True]
+    status_off = probe.wait_status(
+        COMPENSATION_DIAGNOSTIC, lambda s: status_values(s).get('bias_tracking') == 'off',
+        TIMEOUT_S, 'tracking off in the diagnostics', launcher)
+    assert 'tracking_offset_rad_s' not in status_values(status_off)
+    probe.clear()
+    received = probe.wait_count('imu/data', 50, TIMEOUT_S, launcher)
+    assert all(list(m.angular_velocity_covariance) == [0.0] * 8 + [noise ** 2]
+               for m in received[:50])
+
+
+MODEL = {'model': 'polynomial', 'polynomial.bias.z': [0.02, 0.001]}
+ZRO_OFFSET_RAD_S = 0.01
+TRACKED_OFFSET_RAD_S = 0.001
+
+
+def old_format(fingerprint: str) -> str:
+    """Give a ZRO state file as the node wrote it before bias tracking, as text."""
+    return (f'model: polynomial\nfingerprint: {fingerprint}\naxes:\n- z\nzro_offset:\n'
+            f'- {ZRO_OFFSET_RAD_S}\noffset_unit: rad/s\nzro_offset_rad_s:\n- {ZRO_OFFSET_RAD_S}\n'
+            "temperature_c: 25.0\nsamples: 200\ntime: '2026-11-25T12:00:00+00:00'\n")
+
+
+def section(fingerprint: str, **change) -> dict:
+    """Give a bias tracking section of MODEL with a ZRO offset of ZRO_OFFSET_RAD_S."""
+    return {'model': 'polynomial', 'fingerprint': fingerprint, 'axes': ['z'],
+            'zro_offset': [ZRO_OFFSET_RAD_S], 'offset_rad_s': [TRACKED_OFFSET_RAD_S],
+            'variance_rad2_s2': [1e-8], 'time_s': 1.0e9, 'updates': 7,
+            'last_update_s': 1.0e9 - 5.0, 'saved': '2026-11-26T12:00:00+00:00', **change}
+
+
+# case -> (a line of the log, the files left, the offset applied: ZRO + tracked)
+STATE_CASES = {
+    'old format': ('[INFO]', 'applied saved ZRO offset [0.01] rad/s', ['zro.yaml'],
+                   ZRO_OFFSET_RAD_S),
+    'both': ('[INFO]', 'applied saved bias tracking state [0.001] rad/s', ['zro.yaml'],
+             ZRO_OFFSET_RAD_S + TRACKED_OFFSET_RAD_S),
+    'tracking only': ('[INFO]', 'applied saved bias tracking state [0.001] rad/s',
+                      ['zro.yaml'], TRACKED_OFFSET_RAD_S),
+    'bad tracking': ('[ERROR]', 'saved bias tracking state in {path} unusable: '
+                                'variance_rad2_s2[0] -1.0 is outside 0 to inf; a copy kept as '
+                                '{path}.bad-', ['zro.yaml', 'zro.yaml.bad-'], ZRO_OFFSET_RAD_S),
+    'another model': ('[INFO]', 'was learnt on another model or ZRO offset', ['zro.yaml'],
+                      ZRO_OFFSET_RAD_S),
+}
+
+
+def prepare(case: str, path, fingerprint: str) -> None:
+    old = old_format(fingerprint)
+    if case == 'old format':
+        path.write_text(old)
+    elif case == 'both':
+        write_state(str(path), {**yaml.safe_load(old), 'bias_tracking': section(fingerprint)})
+    elif case == 'tracking only':
+        write_state(str(path), {'bias_tracking': section(fingerprint, zro_offset=[0.0])})
+    elif case == 'bad tracking':
+        write_state(str(path), {**yaml.safe_load(old), 'bias_tracking': section(
+            fingerprint, variance_rad2_s2=[-1.0])})
+    elif case == 'another model':
+        write_state(str(path), {**yaml.safe_load(old), 'bias_tracking': section(
+            '0123456789abcdef')})
+
+
+@pytest.mark.slow
+def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offset(
+        launcher, probe, tmp_path):
+    params_path = write_params(tmp_path / 'model.yaml', 'compensation_node', MODEL)
+    model = build_model(node_values(params_path, 'compensation_node'))
+    probe.subscribe_pipeline()
+    # A constant 3 deg/s turn: held, so the tracker learns nothing and the offset stays.
+    launcher.driver(simulated_driver_params(**{'simulation.seed': 4,
+                                               'simulation.rate_dps': [3.0]}))
+    for case, (level, text, files, offset_rad_s) in STATE_CASES.items():
+        folder = tmp_path / case.replace(' ', '_')
+        folder.mkdir()
+        path = folder / 'zro.yaml'
+        prepare(case, path, model.fingerprint())
+        before = path.read_bytes()
+        node = launcher.compensation({**MODEL, 'recalibration.state_file': str(path)},
+                                     label=case)
+        probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
+        probe.spin_until(lambda: len(probe.received['imu/data']) >= 50, TIMEOUT_S,
+                         '50 compensated samples', launcher)
+        out = list(probe.received['imu/data'])
+        raw = by_stamp(probe.received['imu/data_raw'])
+        temperature = by_stamp(probe.received['imu/temperature_raw'])
+        node.signal(signal.SIGINT)
+        assert node.stop() == 0
+        probe.wait_quiet(['imu/data'], 0.3, TIMEOUT_S, launcher)
+        line = first_line_with(node.output(), text.format(path=path))
+        assert line.startswith(level), f'{case}: {node.output()}'
+        assert '[ERROR]' not in node.output().replace(line, ''), node.output()
+        names = sorted(p.name for p in folder.iterdir())
+        assert [n[:len(f)] for n, f in zip(names, files)] == files and \
+            len(names) == len(files), f'{case}: {names}'
+        # Nothing learnt, so nothing written: the file is as it was.
+        assert path.read_bytes() == before, case
+        # Within the first window: the offset as saved, not yet carried forward.
+        stamps = [s for s in by_stamp(out) if s in raw and s in temperature][:20]
+        assert len(stamps) >= 10, case
+        got = np.array([by_stamp(out)[s].angular_velocity.z for s in stamps])
+        expected = model.correct(np.array([[raw[s].angular_velocity.z] for s in stamps]),
+                                 np.array([temperature[s].temperature for s in stamps]))
+        # The saved offset fades toward the model by 1e-4 of itself a window: abs 1e-6.
+        assert got == pytest.approx(expected.rate_rad_s[:, 0] - offset_rad_s, rel=0.0,
+                                    abs=1e-6), case
+        print(f'{case}: {line.split("]: ", 1)[-1]}')
+        probe.clear()
