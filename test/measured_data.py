@@ -6,7 +6,8 @@ flight-controller logs (data/flight_logs, its README.md gives their figures).
 
 Looked up in order: the folder named by MLX_TEMPCOMP_SHARED; ``shared`` beside
 this checkout; ``shared`` beside the checkout this one was cloned from (CI
-clones the repository into a scratch folder). Tests skip when none holds it.
+clones the repository into a scratch folder), or whose worktree this is. Tests skip
+when none holds it.
 """
 
 import os
@@ -17,13 +18,21 @@ RELATIVE = Path('data') / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv'
 _ROOT = Path(__file__).resolve().parents[1]
 
 
-def _origin() -> list:
+def _git(*arguments) -> str:
     try:
-        url = subprocess.run(['git', '-C', str(_ROOT), 'config', '--get', 'remote.origin.url'],
-                             capture_output=True, text=True, check=False).stdout.strip()
+        return subprocess.run(['git', '-C', str(_ROOT), *arguments], capture_output=True,
+                              text=True, check=False).stdout.strip()
     except OSError:
-        return []
-    return [Path(url).parent / 'shared'] if url and Path(url).is_dir() else []
+        return ''
+
+
+def _origin() -> list:
+    """``shared`` beside the repository this one was cloned from, or whose worktree it is."""
+    url = _git('config', '--get', 'remote.origin.url')
+    common = _git('rev-parse', '--path-format=absolute', '--git-common-dir')
+    checkouts = ([Path(url)] if url and Path(url).is_dir() else []) + \
+        ([Path(common).parent] if common else [])
+    return [checkout.parent / 'shared' for checkout in checkouts]
 
 
 def _shared(relative: Path) -> Path:
