@@ -1,0 +1,63 @@
+"""
+The diagnosis's held-out folds: its rows cut into blocks and bins, and what each fold fits on.
+
+The blocks are dealt to folds by `validation.split` (forward or
+round-robin), the code path `fit` uses too; `Folds` maps a split onto the
+bins of one diagnosis.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..validation import record_block_bounds
+
+
+@dataclass(frozen=True)
+class Bins:
+    """
+    The diagnosed rows cut into blocks, and each block into bins of ``average_s`` seconds.
+
+    ``block_edges`` holds each block's first row and the row count,
+    ``first_blocks`` each record's first block; ``starts`` and ``counts``
+    are each bin's first row and number of rows, ``bin_block`` its block.
+    """
+
+    block_edges: np.ndarray
+    first_blocks: tuple
+    starts: np.ndarray
+    counts: np.ndarray
+    bin_block: np.ndarray
+
+
+def cut_bins(time_s: np.ndarray, record_rows: list, blocks: int, average_s: float) -> Bins:
+    """Cut rows into blocks (none spanning two records, `record_rows` each), bins inside blocks."""
+    rows = len(time_s)
+    edges, first_blocks = record_block_bounds(record_rows, blocks)
+    block = np.repeat(np.arange(blocks), np.diff(edges))
+    boundary = np.zeros(rows, dtype=bool)
+    boundary[edges[:-1]] = True
+    if average_s > 0.0:
+        since = time_s - time_s[edges[:-1]][block]
+        index = np.floor(since / average_s).astype(np.int64)
+        boundary[1:] |= index[1:] != index[:-1]
+    else:
+        boundary[:] = True
+    starts = np.flatnonzero(boundary)
+    counts = np.diff(np.append(starts, rows)).astype(np.float64)
+    return Bins(edges, first_blocks, starts, counts, block[starts])
+
+
+class Folds:
+    """The bins each fold of a `validation.Split` fits on and predicts."""
+
+    def __init__(self, split_, bin_block: np.ndarray, block_rows: np.ndarray):
+        self.split = split_
+        self.train = tuple(used[bin_block] for used in split_.training)
+        self.held = tuple(used[bin_block] for used in split_.held)
+        # The fold predicting each block, -1 for blocks no fold predicts.
+        self.block_fold = np.where(split_.predicted, np.argmax(split_.held, axis=0), -1)
+        self.scored = split_.predicted[bin_block]
+        # A fold's model runs from the record start to the end of its last held block.
+        self.stop = tuple(int(block_rows[np.flatnonzero(used)[-1] + 1])
+                          for used in split_.held)

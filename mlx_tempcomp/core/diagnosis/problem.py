@@ -1,0 +1,519 @@
+"""
+One diagnosis's data: `DiagnosisProblem` holds its rows, bins, folds and cached features.
+
+It scores an `AxisSpec` on the held-out bins of each fold (least squares on
+bin means, the polynomial clamped as each fold's model runs it), fits the
+models the folds and the written file hold, and runs them over the record
+as the node does.
+"""
+
+from dataclasses import dataclass, field, replace
+import functools
+import math
+from typing import Optional
+
+import numpy as np
+
+from .fits import AxisSpec, FITS, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_GRID_C
+from .folds import cut_bins, Folds
+from .results import HeldOutError
+from .settings import DiagnosisSettings, Progress
+from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
+from ..errors import CalibrationError
+from ..fitting import MIN_SPAN_C
+from ..model_interface import INPUTS, ModelInputs
+from ..validation import split, training_sums
+
+# The thermal lag's shortest time constant, in median sample intervals.
+MIN_LAG_SAMPLES = 2.0
+# Singular values of the scaled normal matrix below this (relative) count as rank loss.
+RANK_RCOND = 1e-12
+
+
+@dataclass(frozen=True)
+class Score:
+    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
+
+    fold_rms: np.ndarray
+    rms: float
+    rank_ok: bool
+    residual: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class HeldOutRun:
+    """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
+
+    residual: np.ndarray
+    errors: tuple
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    """One axis fitted: its terms, and each fitted record's offset to add to their constant."""
+
+    terms: AxisTerms
+    offsets_rad_s: tuple
+
+
+@dataclass(frozen=True)
+class Centring:
+    """The centre and half span of an input column, which its terms are scaled by."""
+
+    centre: float
+    half_span: float
+
+
+@dataclass(frozen=True)
+class _LagFeatures:
+    """Of one lag: bin means of x^0..x^max_order, and T_eff's lowest and highest per block."""
+
+    powers: np.ndarray
+    block_low_c: np.ndarray
+    block_high_c: np.ndarray
+
+
+def weighted_rms(values, weights) -> float:
+    total = float(np.sum(weights))
+    return math.sqrt(float(np.sum(weights * np.square(values))) / total) if total else math.nan
+
+
+def _solve_normal(gram: np.ndarray, moment: np.ndarray) -> tuple:
+    """
+    Solve normal equations scaled to a unit diagonal; return (coefficients, full rank).
+
+    A column that is zero on every row (a bias step after the training
+    blocks) gets coefficient 0 and does not count as rank loss: the past
+    has nothing to say about it yet.
+    """
+    diagonal = np.sqrt(np.diag(gram))
+    present = np.count_nonzero(diagonal)
+    diagonal[diagonal == 0.0] = 1.0
+    scaled = gram / np.outer(diagonal, diagonal)
+    solution, _, rank, _ = np.linalg.lstsq(scaled, moment / diagonal, rcond=RANK_RCOND)
+    return solution / diagonal, rank == present
+
+
+class DiagnosisProblem:
+    """
+    The rows, bins, folds and cached bin-mean features of one diagnosis.
+
+    ``records`` are the recordings laid end to end (`records.join_records`):
+    their first ``rows`` are diagnosed, the rows after them are the test part
+    (`held_out_part.diagnosed_rows`).
+    """
+
+    def __init__(self, records, rows: int, settings: DiagnosisSettings, progress: Progress):
+        self.settings = settings
+        self.progress = progress
+        recording = self.records = records
+        self.axes = tuple(recording.axes)
+        total = len(recording.time_s)
+        self.rows = rows
+        # The records the diagnosis fits; the last of them gives the written offset.
+        self.fitted_records = recording.record_of(self.rows - 1) + 1
+        self.full = recording
+        rows = slice(0, self.rows)
+
+        def head(values):
+            return None if values is None else np.asarray(values, dtype=np.float64)[rows]
+
+        self.time = head(recording.time_s)
+        self.temperature = head(recording.temperature_c)
+        self.rate = head(recording.gyro_rad_s)
+        self.reference = head(recording.reference_rad_s)
+        # The model inputs the record has (None: not recorded).
+        self.inputs = ModelInputs(**{name: head(getattr(recording, name)) for name in INPUTS})
+        self.test_rows = total - self.rows
+        self._check_size()
+        low, high = float(np.min(self.temperature)), float(np.max(self.temperature))
+        if high - low < MIN_SPAN_C:
+            msg = (f'the temperature spans {high - low:.3g} C ({low:.2f} to {high:.2f} C); '
+                   f'diagnose needs at least {MIN_SPAN_C:g} C to fit any temperature term')
+            raise CalibrationError(msg)
+        self.centre_c = 0.5 * (low + high)
+        self.half_span_c = 0.5 * (high - low)
+        self.time_reference_s = float(self.time[0])
+        # The longest record: a time constant must fit into one (histories restart).
+        self.duration_s = max(max(float(self.time[rows.stop - 1] - self.time[rows.start])
+                                  for rows in recording.segments(self.rows)), 1.0)
+        self.slope = self.each(functools.partial(temperature_rate_c_s,
+                                                 window_s=settings.rate_window_s),
+                               self.time, self.temperature)
+        self._split()
+        self.truth_is_reference = self.reference is not None
+        error = self.rate if self.reference is None else self.rate - self.reference
+        self.target = self.mean(error)
+        self.secondary = _centring(self.inputs.temperature_2_c)
+        self.supply_reference = _centring(self.inputs.supply_voltage_v)
+        self.bounds = self._bounds()
+        self._cache = {}
+
+    def _check_size(self) -> None:
+        needed = 2 * self.settings.blocks
+        if self.rows < needed:
+            msg = (f'{self.rows} rows to diagnose (after the test part); '
+                   f'{self.settings.blocks} blocks need at least {needed}')
+            raise CalibrationError(msg)
+
+    def _bounds(self) -> dict:
+        """Give the search ranges of the nonlinear parameters (record length and span)."""
+        interval = float(np.median(np.diff(self.time)))
+        longest = self.duration_s / TIME_CONSTANTS_PER_RECORD
+        return {'thermal_lag_s': (max(MIN_LAG_SAMPLES * interval, TIME_GRID_S[0]), longest),
+                'gradient_time_constant_s': (self.settings.rate_window_s, longest),
+                'hysteresis_half_width_c': (WIDTH_GRID_C[0], self.half_span_c)}
+
+    def each(self, operator, *columns) -> np.ndarray:
+        """Run a history operator over each record's rows of ``columns`` (`Records.each`)."""
+        return self.records.each(operator, *columns)
+
+    def _split(self) -> None:
+        """Cut rows into blocks and bins (`folds.cut_bins`); deal the blocks to folds."""
+        settings = self.settings
+        rows = [part.stop - part.start for part in self.records.segments(self.rows)]
+        bins = cut_bins(self.time, rows, settings.blocks, settings.average_s)
+        self.block_edges, self.first_blocks = bins.block_edges, bins.first_blocks
+        self.starts, self.counts, self.bin_block = bins.starts, bins.counts, bins.bin_block
+        self.folds = self.folds_of(settings.validation)
+
+    def folds_of(self, scheme: str) -> Folds:
+        """Return the folds of a validation scheme over this problem's bins."""
+        settings = self.settings
+        return Folds(split(settings.blocks, scheme, settings.folds, settings.min_past,
+                           self.first_blocks), self.bin_block, self.block_edges)
+
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        """Return the bin means of row values (rows,) or (rows, k), or of their first rows."""
+        bins = np.searchsorted(self.starts, len(values))
+        sums = np.add.reduceat(values, self.starts[:bins], axis=0)
+        counts = self.counts[:bins]
+        return sums / (counts if sums.ndim == 1 else counts[:, None])
+
+    def cached(self, key, build):
+        """Give ``build()``, computed once per ``key``: the features the trials share."""
+        if key not in self._cache:
+            self._cache[key] = build()
+        return self._cache[key]
+
+    def effective(self, lag_s: float) -> np.ndarray:
+        """T_eff of a thermal lag (`EffectModel`), row by row."""
+        return effective_temperature(self.records, self.time, self.temperature, self.slope, lag_s)
+
+    def x(self, lag_s: float) -> np.ndarray:
+        return (self.effective(lag_s) - self.centre_c) / self.half_span_c
+
+    def powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
+        columns = []
+        power = values ** first
+        for _ in range(first, last + 1):
+            columns.append(self.mean(power))
+            power = power * values
+        return np.column_stack(columns)
+
+    def _lag_features(self, lag_s: float) -> _LagFeatures:
+        """Give the polynomial's bin-mean columns and T_eff's range per block of a lag."""
+        def build():
+            effective = self.effective(lag_s)
+            x = (effective - self.centre_c) / self.half_span_c
+            starts = self.block_edges[:-1]
+            return _LagFeatures(self.powers(x, 0, self.settings.max_order),
+                                np.minimum.reduceat(effective, starts),
+                                np.maximum.reduceat(effective, starts))
+        return self.cached(('lag', lag_s), build)
+
+    def polynomial(self, lag_s: float) -> np.ndarray:
+        return self._lag_features(lag_s).powers
+
+    def predicted_polynomial(self, lag_s: float, folds: Folds) -> np.ndarray:
+        """Return `polynomial` as the folds predict it: T_eff clamped at their training range."""
+        def build():
+            features = self._lag_features(lag_s)
+            powers, block_low, block_high = (features.powers, features.block_low_c,
+                                             features.block_high_c)
+            predicted = powers
+            effective = None
+            for block, fold in enumerate(folds.block_fold):
+                if fold < 0:
+                    continue
+                used = folds.split.training[fold]
+                low, high = np.min(block_low[used]), np.max(block_high[used])
+                if low <= block_low[block] and block_high[block] <= high:
+                    continue
+                # Only the blocks that leave their past's range are computed again.
+                if effective is None:
+                    effective, predicted = self.effective(lag_s), powers.copy()
+                rows = slice(self.block_edges[block], self.block_edges[block + 1])
+                bins = self.bin_block == block
+                x = (np.clip(effective[rows], low, high) - self.centre_c) / self.half_span_c
+                starts = self.starts[bins] - rows.start
+                predicted[bins] = (np.add.reduceat(np.polynomial.polynomial.polyvander(
+                    x, self.settings.max_order), starts, axis=0) / self.counts[bins][:, None])
+            return predicted
+        return self.cached(('predicted', lag_s, folds.split.scheme), build)
+
+    def acceleration_means(self) -> np.ndarray:
+        return self.cached('acceleration', lambda: self.mean(self.inputs.acceleration_m_s2))
+
+    def design(self, axis: int, spec: AxisSpec) -> np.ndarray:
+        """Return the bin-mean design matrix of an axis; columns in `_terms` order."""
+        blocks = [self.polynomial(spec.thermal_lag_s)[:, :spec.order + 1]]
+        for effect, choice in spec.choices:
+            columns = FITS[effect].columns
+            if columns is not None:
+                blocks.append(columns(self, axis, spec, choice))
+        blocks.append(self.offset_columns())
+        return np.column_stack(blocks)
+
+    def offset_columns(self) -> np.ndarray:
+        """
+        Give the bias offset columns of the records after the first (none for one record).
+
+        Last in every design: 1 on the bins of its record. The offsets are the
+        records' bias against the first's; a record with no training bins in
+        a fold has a zero column there, coefficient 0 (`_solve_normal`).
+        """
+        def build():
+            record = np.searchsorted(self.records.starts, self.starts, side='right') - 1
+            return (record[:, None] == np.arange(1, self.fitted_records)[None, :]).astype(
+                np.float64)
+        return self.cached('offsets', build)
+
+    def score_spec(self, axis: int, spec: AxisSpec, folds: Optional[Folds] = None) -> Score:
+        """Score the terms of ``spec`` on an axis, the polynomial clamped as the folds run it."""
+        folds = folds or self.folds
+        design = self.design(axis, spec)
+        predict = design.copy()
+        # The polynomial's columns come first (`design`).
+        width = spec.order + 1
+        predict[:, :width] = self.predicted_polynomial(spec.thermal_lag_s, folds)[:, :width]
+        return self.score(design, predict, axis, folds)
+
+    def score(self, design: np.ndarray, predict: np.ndarray, axis: int,
+              folds: Folds) -> Score:
+        """
+        Fit on the training bins of each fold, predict the held-out bins (NaN elsewhere).
+
+        ``predict`` is the design the held-out bins are predicted from.
+        """
+        target = self.target[:, axis]
+        weighted = design * self.counts[:, None]
+        edges = np.searchsorted(self.bin_block, np.arange(self.settings.blocks + 1))
+        blocks = [slice(first, last) for first, last in zip(edges[:-1], edges[1:])]
+        grams = training_sums(folds.split, np.array([weighted[b].T @ design[b] for b in blocks]))
+        moments = training_sums(folds.split, np.array([weighted[b].T @ target[b]
+                                                       for b in blocks]))
+        residual = np.full_like(target, math.nan)
+        fold_rms = np.empty(folds.split.folds)
+        rank_ok = True
+        for fold, held in enumerate(folds.held):
+            solution, full_rank = _solve_normal(grams[fold], moments[fold])
+            rank_ok = rank_ok and full_rank
+            residual[held] = target[held] - predict[held] @ solution
+            fold_rms[fold] = weighted_rms(residual[held], self.counts[held])
+        scored = folds.scored
+        return Score(fold_rms, weighted_rms(residual[scored], self.counts[scored]), rank_ok,
+                     residual)
+
+    def fit_terms(self, axis: int, spec: AxisSpec, bins=None) -> AxisTerms:
+        """Fit one axis on the given bins (all when None); its terms with the written offset."""
+        fit = self.fit_offsets(axis, spec, bins)
+        return _shifted(fit.terms, fit.offsets_rad_s[-1])
+
+    def fit_offsets(self, axis: int, spec: AxisSpec, bins=None) -> AxisFit:
+        """Fit one axis on the given bins (all when None): the first record's offset is 0."""
+        design = self.design(axis, spec)
+        target = self.target[:, axis]
+        if bins is not None:
+            design, target = design[bins], target[bins]
+        weights = self.counts if bins is None else self.counts[bins]
+        # The solver `score` uses: a fold's model is the one its score was judged on.
+        weighted = design * weights[:, None]
+        solution, _ = _solve_normal(weighted.T @ design, weighted.T @ target)
+        offsets = self.fitted_records - 1
+        return AxisFit(self._terms(axis, spec, solution[:solution.size - offsets]),
+                       (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
+
+    def _terms(self, axis: int, spec: AxisSpec, solution: np.ndarray) -> AxisTerms:
+        values = iter(float(v) for v in solution)
+
+        def take(count: int) -> tuple:
+            return tuple(next(values) for _ in range(count))
+
+        terms = {'bias': take(spec.order + 1)}
+        for effect, choice in spec.choices:
+            terms.update(FITS[effect].terms(self, axis, choice, take))
+        return AxisTerms(**terms)
+
+    def model(self, specs: tuple, fold: Optional[int] = None,
+              folds: Optional[Folds] = None) -> EffectModel:
+        """Fit every axis on all bins, or on the training bins of ``fold``; written offset."""
+        return self.record_models(specs, fold, folds)[-1]
+
+    def record_models(self, specs: tuple, fold: Optional[int] = None,
+                      folds: Optional[Folds] = None) -> tuple:
+        """
+        Fit every axis on all bins, or on the training bins of ``fold``: one model per record.
+
+        Each fitted record's model has its own offset; a record after them
+        (the test record) runs the last one's, the written offset.
+        """
+        folds = folds or self.folds
+        bins = None if fold is None else folds.train[fold]
+        low, high = self.clamp_range(specs, None if fold is None else
+                                     folds.split.training[fold])
+        secondary = self.secondary or Centring(25.0, 1.0)
+        supply = self.supply_reference or Centring(EffectModel.supply_reference_v, 1.0)
+        fits = [self.fit_offsets(axis, spec, bins) for axis, spec in enumerate(specs)]
+        model = EffectModel(
+            terms=tuple(fit.terms for fit in fits),
+            reference_temperature_c=self.centre_c, temperature_scale_c=self.half_span_c,
+            temperature_min_c=low, temperature_max_c=high,
+            temperature_rate_window_s=self.settings.rate_window_s,
+            time_reference_s=self.time_reference_s, secondary_reference_c=secondary.centre,
+            secondary_scale_c=secondary.half_span, supply_reference_v=supply.centre)
+        models = tuple(replace(model, terms=tuple(_shifted(fit.terms, fit.offsets_rad_s[record])
+                                                  for fit in fits))
+                       for record in range(self.fitted_records))
+        return models + models[-1:] * (self.records.count - self.fitted_records)
+
+    def record_offsets(self, specs: tuple) -> np.ndarray:
+        """Give each fitted record's bias offset (records, axes) against the written one."""
+        offsets = np.array([self.fit_offsets(axis, spec).offsets_rad_s
+                            for axis, spec in enumerate(specs)])
+        return (offsets - offsets[:, -1:]).T
+
+    def clamp_range(self, specs: tuple, blocks: Optional[np.ndarray] = None) -> tuple:
+        """Return the range of T_eff over the given blocks (all when None) and all axes."""
+        used = slice(None) if blocks is None else blocks
+        features = [self._lag_features(spec.thermal_lag_s) for spec in specs]
+        return (float(min(np.min(f.block_low_c[used]) for f in features)),
+                float(max(np.max(f.block_high_c[used]) for f in features)))
+
+    def residual(self, model, axis: int, stop: Optional[int] = None) -> np.ndarray:
+        """
+        Return corrected minus truth for one axis up to row ``stop``.
+
+        ``model`` is one `EffectModel`, or one per record (`record_models`);
+        each record runs from its own start, its history fresh.
+        """
+        models = model if isinstance(model, tuple) else (model,) * self.records.count
+        parts = [self._run(models[record], axis, rows)
+                 for record, rows in enumerate(self.records.segments(stop))]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _run(self, model: EffectModel, axis: int, span: slice) -> np.ndarray:
+        """
+        Return corrected minus truth for one axis on the rows of ``span``, from its start.
+
+        Without cross-axis terms the axis runs alone: a third of the memory.
+        """
+        source = self.full
+        column = axis
+        rate = source.gyro_rad_s[span]
+        if not model.has_cross_axis:
+            model = replace(model, terms=(model.terms[axis],),
+                            zro_offset_rad_s=(model.zro_offset_rad_s[axis],))
+            rate = rate[:, axis:axis + 1]
+            column = 0
+
+        inputs = ModelInputs(**{name: getattr(source, name)[span] for name in model.inputs})
+        corrected = model.correct(rate, source.temperature_c[span],
+                                  inputs).rate_rad_s[:, column]
+        if source.reference_rad_s is not None:
+            corrected = corrected - source.reference_rad_s[span, axis]
+        return corrected
+
+    def test_residual(self, model: EffectModel, axis: int) -> np.ndarray:
+        """Return corrected minus truth on the test rows, run from their record's start."""
+        first = self.records.starts[self.records.record_of(self.rows)]
+        return self._run(model, axis, slice(first, len(self.full)))[self.rows - first:]
+
+    def held_out(self, specs: tuple, label: str, folds: Optional[Folds] = None,
+                 axes: Optional[tuple] = None) -> HeldOutRun:
+        """
+        Run each fold's models on the bins it predicts; give the `HeldOutRun`.
+
+        Only ``axes`` (default: all) are run; the others' columns stay NaN,
+        their errors None.
+        """
+        folds = folds or self.folds
+        axes = range(len(self.axes)) if axes is None else axes
+        residual = np.full((len(self.starts), len(self.axes)), math.nan)
+        count = folds.split.folds
+        for fold, held in enumerate(folds.held):
+            self.report(fold, count, label)
+            model = self.record_models(specs, fold, folds)
+            for axis in axes:
+                binned = self.mean(self.residual(model, axis, folds.stop[fold]))
+                residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
+        self.report(count, count, label)
+        return HeldOutRun(residual, tuple(self.error(residual[:, axis], folds) if axis in axes
+                                          else None for axis in range(len(self.axes))))
+
+    def block_rms(self, residual: np.ndarray) -> np.ndarray:
+        """RMS of binned residuals per block, NaN for a block no fold predicts."""
+        known = np.isfinite(residual)
+        weights = np.where(known, self.counts, 0.0)
+        totals = np.bincount(self.bin_block, weights=weights * np.square(np.where(known,
+                                                                                  residual, 0.0)),
+                             minlength=self.settings.blocks)
+        counts = np.bincount(self.bin_block, weights=weights, minlength=self.settings.blocks)
+        return np.sqrt(np.divide(totals, counts, out=np.full(totals.shape, math.nan),
+                                 where=counts > 0))
+
+    def error(self, residual: np.ndarray, folds: Optional[Folds] = None) -> HeldOutError:
+        """Return the `HeldOutError` of binned residuals on the bins the folds predict."""
+        folds = folds or self.folds
+        scored = folds.scored
+        per_fold = tuple(weighted_rms(residual[held], self.counts[held]) for held in folds.held)
+        return HeldOutError(weighted_rms(residual[scored], self.counts[scored]),
+                            float(np.max(np.abs(residual[scored]))), per_fold,
+                            tuple(float(v) for v in self.block_rms(residual)))
+
+    def motion(self) -> tuple:
+        """Return (turn of the specific force in deg, change of its magnitude in m/s^2)."""
+        means = self.acceleration_means()
+        magnitude = np.linalg.norm(means, axis=1)
+        usable = magnitude > 0.0
+        if not usable.any():
+            return 0.0, 0.0
+        direction = means[usable] / magnitude[usable, None]
+        centre = np.median(direction, axis=0)
+        centre /= np.linalg.norm(centre)
+        angle = np.degrees(np.arccos(np.clip(direction @ centre, -1.0, 1.0)))
+        low, high = np.percentile(magnitude[usable], (1.0, 99.0))
+        return float(np.percentile(angle, 99.0)), float(high - low)
+
+    def report(self, done: int, total: int, label: str) -> None:
+        if self.progress is not None:
+            self.progress(done, total, label)
+
+
+def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
+    """Give the terms with ``offset_rad_s`` added to the polynomial's constant."""
+    if not offset_rad_s:
+        return terms
+    return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
+
+
+def effective_temperature(records, time_s: np.ndarray, temperature_c: np.ndarray,
+                          slope_c_s: np.ndarray, lag_s: float) -> np.ndarray:
+    """
+    T_eff of a thermal lag (`EffectModel`), row by row; ``slope_c_s`` the windowed dT/dt.
+
+    A lag filter starts afresh at each record's first row (`Records.each`).
+    """
+    if lag_s > 0.0:
+        return temperature_c + lag_s * slope_c_s
+    if lag_s < 0.0:
+        return records.each(FirstOrderLag(-lag_s).batch, time_s, temperature_c)
+    return temperature_c
+
+
+def _centring(values) -> Optional[Centring]:
+    """Give the centre and half span of a column, None when absent or constant."""
+    if values is None:
+        return None
+    low, high = float(np.min(values)), float(np.max(values))
+    return Centring(0.5 * (low + high), 0.5 * (high - low)) if high > low else None

@@ -1,0 +1,77 @@
+"""
+The compensation node's outputs: ``imu/data`` and ``imu/temperature``, and what went out.
+
+The input messages go out again with the rate rewritten (acceleration and
+orientation pass through); the angular velocity covariance is
+``rate_noise_rad_s``^2, plus the square of the model's error at the sample's
+temperature when ``model_error.*`` gives a table.
+"""
+
+from sensor_msgs.msg import Imu, Temperature
+
+from . import messages
+from .compensation_inputs import InputBlock
+from .qos import stream_publisher
+from ..node_parameters import model_error_of
+
+
+class CompensationOutputs:
+    """
+    Publish corrected blocks and count them.
+
+    ``clamped_recent`` says a sample was clamped since the last status.
+    """
+
+    def __init__(self, node, values: dict, indices: tuple, temperature_streams: tuple):
+        self.imu_publisher = stream_publisher(node, Imu, 'imu/data')
+        self.temperature_publisher = stream_publisher(node, Temperature, 'imu/temperature')
+        self.indices = indices
+        self.temperature_streams = temperature_streams
+        self.configure(values)
+        self.samples_out = 0
+        self.blocks = 0
+        self.largest_block = 0
+        self.clamped_samples = 0
+        self.clamped_recent = False
+
+    def configure(self, values: dict) -> None:
+        """Take the parameter values the covariance depends on (checked before)."""
+        self.rate_noise_rad_s = values['rate_noise_rad_s']
+        self.covariance = messages.rate_covariance(self.indices, self.rate_noise_rad_s)
+        self.model_error = model_error_of(values)
+
+    def publish(self, block: InputBlock, rates: list, clamped: int) -> None:
+        """Publish the corrected rows of ``block`` and their temperatures; count them."""
+        streams = self.temperature_streams
+        for parts, temperatures, rate, covariance in zip(
+                block.messages, block.temperature_c, rates,
+                self.covariances(block.temperature_c)):
+            # The input messages go out again, rate rewritten (the rest passes through
+            # unchanged): building new ones would cost more than the model.
+            imu = parts['imu']
+            if len(streams) == 1:
+                self.temperature_publisher.publish(parts[streams[0]])
+            else:
+                self.temperature_publisher.publish(messages.temperature_message(
+                    imu.header.stamp, imu.header.frame_id,
+                    sum(temperatures) / len(temperatures), parts[streams[0]].variance))
+            self.imu_publisher.publish(messages.set_rates(imu, self.indices, rate, covariance))
+        if clamped:
+            self.clamped_samples += clamped
+            self.clamped_recent = True
+        self.samples_out += len(rates)
+        self.blocks += 1
+        self.largest_block = max(self.largest_block, len(rates))
+
+    def covariances(self, temperatures: list) -> list:
+        """
+        Give the angular velocity covariance of each sample at its temperatures.
+
+        rate_noise_rad_s^2, plus the model error's square at the temperature
+        when a table is given; with the noise unknown (0) it stays all 0.
+        """
+        noise = self.rate_noise_rad_s
+        if self.model_error is None or noise <= 0.0:
+            return [self.covariance] * len(temperatures)
+        return [messages.diagonal_covariance(self.indices, row)
+                for row in self.model_error.variance(noise, temperatures).tolist()]

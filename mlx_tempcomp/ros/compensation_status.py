@@ -1,0 +1,98 @@
+"""
+What the compensation node reports: its diagnostic status, and what it still waits for.
+
+`compensation_status` gives the level, text and values of its ``/diagnostics``
+status from the node's parts: the parameter values, the model, the factory
+tables, the inputs (`CompensationInputs`), what it compensated
+(`OutputCounts`) and the ZRO recalibration (`ZroRecalibration`).
+`missing_inputs` says, for the start-up WARN, which input has not come and
+what to set.
+"""
+
+from typing import Optional
+
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from .compensation_inputs import CompensationInputs
+from .compensation_outputs import CompensationOutputs
+from .zro_recalibration import ZroRecalibration
+
+
+def missing_inputs(model_name: str, sampled: bool, tables: bool,
+                   inputs: CompensationInputs) -> list:
+    """Say what has not come yet and what to set: raw samples, factory tables, a voltage."""
+    missing = []
+    if not sampled:
+        missing.append('no raw samples yet: start a driver_node (same namespace and '
+                       'ROS_DOMAIN_ID) publishing imu/data_raw and imu/temperature_raw')
+    if model_name == 'eeprom' and not tables:
+        missing.append('the eeprom model waits for the factory tables on imu/eeprom, which '
+                       'only an MLX90609 driver (device: mlx90609) or a bag holding them '
+                       'sends; with an ADIS16130 or MPU-6000 choose another model '
+                       '(polynomial, linear_btc, effects or chain)')
+    if inputs.waiting_for_supply:
+        missing.append(f'the {model_name} model has supply_voltage terms and waits for a '
+                       'voltage on imu/supply_voltage (sensor_msgs/BatteryState): remap '
+                       "your supply monitor's topic to it, or set "
+                       'simulation.supply_monitor_hz on a simulated MLX90609 driver')
+    return missing
+
+
+def compensation_status(*, values: dict, model, sensor, eeprom_error: str,
+                        input_age_s: Optional[float], inputs: CompensationInputs,
+                        outputs: CompensationOutputs,
+                        recalibration: ZroRecalibration) -> tuple:
+    """
+    Give (level, text, values) of the node's status.
+
+    ``values`` are the parameter values, ``sensor`` the factory tables (None
+    before the EEPROM message), ``input_age_s`` the time since the last input
+    (None before the first).
+    """
+    model_name = values['model']
+    model_error = outputs.model_error
+    recal = recalibration.last
+    diagnostic_values = {
+        'model': model_name,
+        'fingerprint': '' if model is None else model.fingerprint(),
+        'zro_offset': [] if model is None else list(model.zro_offset),
+        'offset_unit': '' if model is None else model.offset_unit,
+        'samples_out': outputs.samples_out, 'samples_waiting': inputs.samples_waiting,
+        'blocks': outputs.blocks, 'largest_block': outputs.largest_block,
+        'unpaired_dropped': inputs.unpaired_dropped,
+        'temperature_clamped_samples': outputs.clamped_samples,
+        'model_error_temperatures': 0 if model_error is None else
+        len(model_error.temperature_c),
+        'no_acceleration_samples': inputs.no_acceleration_samples,
+        'no_supply_voltage_samples': inputs.no_supply_samples,
+        'input_age_s': float('nan') if input_age_s is None else input_age_s,
+        'last_recalibration_time': recal.get('time', 'never'),
+        'last_recalibration_offset_rad_s': recal.get('zro_offset_rad_s', []),
+        'last_recalibration_temperature_c': recal.get('temperature_c', float('nan')),
+        'state_file': recalibration.path,
+        'eeprom_outvoted_bits': 0 if sensor is None else sensor.outvoted_bits,
+    }
+    if input_age_s is None or input_age_s > values['stale_timeout_s']:
+        level, text = DiagnosticStatus.ERROR, 'stale input: no raw samples'
+    elif eeprom_error:
+        level, text = DiagnosticStatus.ERROR, f'EEPROM unusable: {eeprom_error}'
+    elif inputs.no_acceleration_recent:
+        level, text = (DiagnosticStatus.ERROR,
+                       f'the {model_name} model needs acceleration but Imu '
+                       'messages carry none (linear_acceleration_covariance[0] = -1): '
+                       f'{inputs.no_acceleration_samples} samples not compensated')
+    elif inputs.no_supply_recent:
+        level, text = (DiagnosticStatus.ERROR,
+                       f'the {model_name} model needs the supply voltage but '
+                       'imu/supply_voltage gave none within supply_voltage.max_age_s '
+                       f'({values["supply_voltage.max_age_s"]:g} s) of the samples: '
+                       f'{inputs.no_supply_samples} samples not compensated')
+    elif model is None:
+        level, text = DiagnosticStatus.WARN, 'waiting for the EEPROM tables'
+    elif inputs.waiting_for_supply:
+        level, text = DiagnosticStatus.WARN, 'waiting for a supply voltage on imu/supply_voltage'
+    elif outputs.clamped_recent:
+        level, text = DiagnosticStatus.WARN, 'temperature outside the calibrated range: clamped'
+    else:
+        level, text = DiagnosticStatus.OK, f'compensating ({model_name})'
+    return level, text, diagnostic_values
