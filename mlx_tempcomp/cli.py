@@ -14,13 +14,13 @@ import sys
 
 from .errors import MlxTempCompError
 from .fleet import command as fleet
-from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, fit, inspection,
-                      simulate)
+from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, fit,
+                      inject_motion, inspection, simulate)
 from .toolkit.common import EXIT_USER_ERROR, run_command
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
 _COMMAND_MODULES = (inspection, eeprom, fit, allan, adis_bias, convert, diagnose, evaluate,
-                    simulate, fleet)
+                    simulate, inject_motion, fleet)
 
 # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
 EXIT_BROKEN_PIPE = 141

@@ -18,7 +18,8 @@ from typing import Any, Optional
 import numpy as np
 import yaml
 
-from .core.chain import CalibrationChain, ChainModel
+from .core.chain import (CalibrationChain, ChainModel,
+                         PARAMETER_DESCRIPTIONS as CHAIN_DESCRIPTIONS)
 from .core.compensation import table_compensation
 from .core.conversion import Output, SensorTransfer
 from .core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
@@ -29,6 +30,7 @@ from .core.model_error import ModelErrorTable, table_temperatures
 from .core.model_interface import ModelInputs
 from .core.models import AXIS_NAMES, EepromModel
 from .core.recalibration import RecalibrationLimits
+from .core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
 from .errors import MlxTempCompError
 from .simulation.mlx90609 import Fault
 from .simulation.physics import Effects
@@ -275,20 +277,6 @@ DRIVER_SPECS = COMMON_SPECS + (
          'last write', read_only=True, low=0.001, high=100.0),
 )
 
-_CHAIN_DESCRIPTIONS = {
-    'full_scale_rad_s': 'full scale; the polynomials run in x = rate / full scale',
-    'reference_temperature_c': 'Tref of dT = T - Tref',
-    'reference_temperature_2_c': 'T2ref of dT2 = T2 - T2ref',
-    'nonlinearity_rad_s': 'stage 1, axis {axis}: measured -> reference rate P(x), rad/s',
-    'offset_rad_s': 'stage 2: offset b of x, y, z, rad/s',
-    'offset_gradient_rad_s_per_c': 'stage 2: offset gradient g of x, y, z, rad/s/C',
-    'sensitivity_slope_rad_s_per_c': 'stage 3, axis {axis}: K(x), rad/s per degC',
-    'sensitivity_intercept_rad_s': 'stage 3, axis {axis}: C(x), rad/s',
-    'offset_2_rad_s': 'stage 4: offset d of x, y, z, rad/s',
-    'offset_2_gradient_rad_s_per_c': 'stage 4: gradient h of x, y, z, rad/s per degC of T2',
-    'misalignment': 'stage 5: 3 x 3 matrix M row by row, rate = M @ y4',
-}
-
 
 def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bool) -> tuple:
     """Give a Spec per key of a model's ``to_parameters``; lists become arrays."""
@@ -315,7 +303,7 @@ CHAIN_SPECS = _model_specs('chain.', CalibrationChain(
     sensitivity_slope_rad_s_per_c=_POLYNOMIALS, sensitivity_intercept_rad_s=_POLYNOMIALS,
     offset_2_rad_s=_ZEROS, offset_2_gradient_rad_s_per_c=_ZEROS,
     misalignment=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))).to_parameters(),
-    _CHAIN_DESCRIPTIONS, required=True)
+    CHAIN_DESCRIPTIONS, required=True)
 
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model',
@@ -373,7 +361,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('supply_voltage.max_age_s', 5.0,
          'hold: a voltage further than this from the sample stamp is not used; the sample '
          'is skipped and counted', low=0.0, high=3600.0),
-)
+) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
+          for p in TRACKING_PARAMETERS)
 
 
 # Every parameter of the package's nodes: a /** section gives both nodes all of them.

@@ -38,6 +38,21 @@ from .models import AXIS_NAMES, model_fingerprint, OffsetModel, one_row
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 
+# The descriptions of the node's chain.* parameters, by key of `CalibrationChain.to_parameters`.
+PARAMETER_DESCRIPTIONS = {
+    'full_scale_rad_s': 'full scale; the polynomials run in x = rate / full scale',
+    'reference_temperature_c': 'Tref of dT = T - Tref',
+    'reference_temperature_2_c': 'T2ref of dT2 = T2 - T2ref',
+    'nonlinearity_rad_s': 'stage 1, axis {axis}: measured -> reference rate P(x), rad/s',
+    'offset_rad_s': 'stage 2: offset b of x, y, z, rad/s',
+    'offset_gradient_rad_s_per_c': 'stage 2: offset gradient g of x, y, z, rad/s/C',
+    'sensitivity_slope_rad_s_per_c': 'stage 3, axis {axis}: K(x), rad/s per degC',
+    'sensitivity_intercept_rad_s': 'stage 3, axis {axis}: C(x), rad/s',
+    'offset_2_rad_s': 'stage 4: offset d of x, y, z, rad/s',
+    'offset_2_gradient_rad_s_per_c': 'stage 4: gradient h of x, y, z, rad/s per degC of T2',
+    'misalignment': 'stage 5: 3 x 3 matrix M row by row, rate = M @ y4',
+}
+
 _SCALARS = ('full_scale_rad_s', 'reference_temperature_c', 'reference_temperature_2_c')
 _POLYNOMIALS = ('nonlinearity_rad_s', 'sensitivity_slope_rad_s_per_c',
                 'sensitivity_intercept_rad_s')

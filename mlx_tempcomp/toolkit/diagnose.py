@@ -11,7 +11,8 @@ residual_vs_temperature.png, residual_vs_time.png, error_per_step.png,
 error_by_temperature.png and params.yaml, which compensation_node loads:
 live-runnable effects only, unless --record-effects put time drift and bias
 steps into the search, and the held-out error by temperature
-(``model_error.*``, for the Imu covariance). The report says how much of the
+(``model_error.*``, for the Imu covariance) and the bias tracking's bounds
+(``bias_tracking.*``, `toolkit.tracking`). The report says how much of the
 test set and of each forward held-out block lies outside the temperature
 range the model predicting it was fitted on (`uncertainty`).
 ``--test each`` diagnoses once per record with that record held out, then
@@ -28,6 +29,7 @@ from .common import (add_recording_options, add_validation_options, check_output
                      positive_float, UserError, validation_settings, write_json, write_result)
 from .exports import add_export_options, check_export_outputs, write_exports
 from .progress import add_progress_option, Progress
+from .tracking import tracking_section
 from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
                           outside_lines, outside_range_json, params_model_error,
                           plot_error_by_temperature)
@@ -248,8 +250,9 @@ def diagnose_command(args: argparse.Namespace) -> int:
         _plots(out, diagnosis)
         model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
                                             diagnosis.settings.average_s)
-        content = parameter_file(args.node_name, {
-            **effect_parameters(diagnosis.model, diagnosis.axes), **model_error})
+        parameters = effect_parameters(diagnosis.model, diagnosis.axes)
+        tracking, tracking_lines = tracking_section(recordings, parameters)
+        content = parameter_file(args.node_name, {**parameters, **model_error, **tracking})
         record = diagnosis.model.record_effects
         header = (f'Effects model diagnosed by mlx-tempcomp diagnose from {source}\n'
                   + (f'Holds record-only effects ({", ".join(record)}): they use the stamps '
@@ -265,6 +268,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
         msg = f'cannot write to {out}: {err.strerror}'
         raise UserError(msg) from None
     print(_summary(report))
+    print('\n'.join(tracking_lines))
     print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
     if len(recordings) == 1:
         held = diagnosis.test_rows

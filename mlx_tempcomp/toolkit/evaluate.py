@@ -12,6 +12,8 @@ minus the truth: the reference rate when the recording has one, else 0 (at
 rest). Statistics per axis cover every sample and averages over bins of
 ``--average-s`` (weighted by their sample counts), optionally only the last
 ``--test-fraction`` of the rows: the test part and bins `diagnose` reports.
+``--track-bias`` then runs the node's bias tracking over the model's output
+(`toolkit.tracking.offline_twin`) and reports the error with and without it.
 """
 
 import argparse
@@ -24,6 +26,7 @@ import numpy as np
 
 from .common import (add_recording_options, check_output_file, float_type, load,
                      positive_float, UserError)
+from .tracking import offline_twin, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
@@ -125,15 +128,29 @@ def _statistics(error: np.ndarray, weights=None) -> dict:
 
 
 def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, axes: tuple,
-                     corrected: np.ndarray) -> None:
-    """Write time, temperature and corrected rate as a canonical CSV recording."""
+                     corrected: np.ndarray, twin=None) -> None:
+    """
+    Write time, temperature and corrected rate as a canonical CSV recording.
+
+    With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
+    ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
+    learnt from) follow.
+    """
+    header = ['time', 'temperature'] + [f'gyro_{a}' for a in axes]
+    columns = [corrected]
+    if twin is not None:
+        header += ['still'] + [f'{name}_{a}' for name in ('offset', 'offset_std', 'learnt')
+                               for a in axes]
+        columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
+                   twin.offset_std_rad_s, twin.learnt.astype(int)]
     try:
         with open(path, 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
-            writer.writerow(['time', 'temperature'] + [f'gyro_{a}' for a in axes])
-            for t, temperature, row in zip(time_s.tolist(), temperature_c.tolist(),
-                                           corrected.tolist()):
-                writer.writerow([repr(t), repr(temperature)] + [repr(v) for v in row])
+            writer.writerow(header)
+            for t, temperature, *row in zip(time_s.tolist(), temperature_c.tolist(),
+                                            *(c.tolist() for c in columns)):
+                writer.writerow([repr(t), repr(temperature)] + [repr(v) for part in row
+                                                                for v in part])
     except OSError as err:
         msg = f'cannot write {path}: {err.strerror}'
         raise UserError(msg) from None
@@ -200,9 +217,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'per_sample': {a: _statistics(error[part, i]) for i, a in enumerate(axes)},
         'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
+    twin = offline_twin(values, axes, recording, corrected, part, args.params,
+                        args.average_s) if args.track_bias else None
+    if twin:
+        report['bias_tracking'] = twin.report
     if args.out_csv is not None:
         _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
-                         corrected)
+                         corrected, twin)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -218,6 +239,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
             s = report[key][a]
             print(f'{a:<6}{label:<14}{s["mean"]:>12.3e}{s["sigma"]:>12.3e}{s["rms"]:>12.3e}'
                   f'{s["peak"]:>12.3e}')
+    if twin:
+        print('\n'.join(twin_lines(twin.report, axes)))
     if args.out_csv is not None:
         print(f'wrote {args.out_csv}')
     return 0
@@ -245,5 +268,10 @@ def add_parser(commands) -> None:
                           help='EEPROM images (128 bytes, one per axis) for the eeprom model')
     evaluate.add_argument('--json', action='store_true', help='print JSON')
     evaluate.add_argument('--out-csv', metavar='FILE',
-                          help='write time, temperature and corrected rate of every sample')
+                          help='write time, temperature and corrected rate of every sample '
+                               '(with --track-bias: tracked, and the still flag and offset)')
+    evaluate.add_argument('--track-bias', action='store_true',
+                          help="then run the node's bias tracking (bias_tracking.* of the "
+                               "file) over the model's output, as the node does, and report "
+                               'the error with and without it')
     evaluate.set_defaults(handler=evaluate_command)

@@ -4,7 +4,8 @@ The ``mlx-tempcomp fit`` command: one compensation model fitted, written as a pa
 Each ``--model`` has a function that fits it to the recording, prints what
 it fitted and returns the node parameters with a header; `fit_command`
 refuses options of other models, then writes the file the compensation
-node loads (atomically). docs/toolkit-fit.md describes the models.
+node loads (atomically), with the ``bias_tracking`` section the record's
+residual gives (`toolkit.tracking`). docs/toolkit-fit.md describes the models.
 """
 
 import argparse
@@ -19,6 +20,7 @@ from .common import (add_parameter_file_options, add_recording_options,
                      non_negative_int, positive_float, UserError, validation_settings,
                      write_node_parameters)
 from .exports import add_export_options, check_export_outputs, node_model, write_exports
+from .tracking import tracking_section
 from .uncertainty import block_lines
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.effects import LinearBtc
@@ -322,11 +324,13 @@ def fit_command(args: argparse.Namespace) -> int:
     recording = load(args)
     try:
         parameters, header = fit(args, recording)
+        tracking, lines = tracking_section([recording], parameters)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+    print('\n'.join(lines))
     write_exports(args, recording, lambda part: _refit(args, fit, part))
-    write_node_parameters(args, parameters, header)
+    write_node_parameters(args, {**parameters, **tracking}, header)
     print(f'wrote {args.out} (model {parameters["model"]})')
     return 0
 

@@ -127,7 +127,8 @@ def _device_recording(args, out: Path, progress_enabled,
     noise = dataclasses.replace(
         noise, density_dps_rt_hz=noise.density_dps_rt_hz * args.noise_scale,
         bias_instability_dps=noise.bias_instability_dps * args.noise_scale,
-        temperature_noise_mv=noise.temperature_noise_mv * args.noise_scale)
+        temperature_noise_mv=noise.temperature_noise_mv * args.noise_scale,
+        rate_random_walk_dps_rt_s=args.bias_random_walk_dps_rt_s)
     config = SimulationConfig(
         seed=args.seed, full_scale_dps=args.full_scale_dps, eeprom_version=args.eeprom_version,
         start_temperature_c=args.start_c, cycle_temperatures_c=tuple(args.cycle_c or ()),
@@ -271,7 +272,7 @@ def _write_csv(path: Path, recording: Recording) -> None:
 
 def _check_turntable_options(args: argparse.Namespace) -> None:
     effects = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v', 'bias_step',
-               'orientation_period_s')
+               'orientation_period_s', 'bias_random_walk_dps_rt_s')
     given = [name for name in effects if getattr(args, name)]
     if any(args.acceleration_dps_per_m_s2):
         given.append('acceleration_dps_per_m_s2')
@@ -467,6 +468,8 @@ def add_parser(commands) -> None:
                          help='temperature change that flips the branch (default: %(default)s)')
     effects.add_argument('--bias-step', type=_time_value, action='append', metavar='T:DPS',
                          help='bias step of DPS at time T s (repeatable)')
+    effects.add_argument('--bias-random-walk-dps-rt-s', type=non_negative_float, default=0.0,
+                         metavar='K', help='bias random walk in deg/s per sqrt(s) (default: 0)')
     effects.add_argument('--acceleration-dps-per-m-s2', type=float, nargs=3,
                          default=[0.0, 0.0, 0.0], metavar=('GX', 'GY', 'GZ'),
                          help='g-sensitivity: deg/s per m/s^2 of specific force x, y, z')

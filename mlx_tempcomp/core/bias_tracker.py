@@ -1,0 +1,493 @@
+"""
+Bias tracking at standstill: the offset the temperature model leaves, followed while still.
+
+`BiasTracking` takes the rate after the temperature model and gives it less the tracked
+offset, the offset's standard deviation and whether the gyro is still, sample by sample.
+Per axis, a scalar Kalman filter holds the offset relative to the model as a bounded
+random walk (first-order Gauss-Markov): its variance grows by q dt at first (q =
+``random_walk_rad_s_rt_s`` squared, the unit's own wander) and levels off at
+``initial_std_rad_s`` squared (what is known without tracking: the model's own error),
+as the offset fades back to the model, with the time constant 2 initial_std^2 / q; each
+window the `StandstillDetector` says to learn from is a measurement of the offset on the
+axes it does not hold, its mean, with the variance noise^2 / samples. In motion nothing
+is learnt: the temperature model carries the shape, the offset stays (and fades).
+
+- **Shifts.** When the gyro has just become still and its first window's innovation is
+  beyond ``agreement_multiple`` standard deviations (a bias step, or the bias moved in a
+  long motion), the variance is widened by the innovation squared so that the windows
+  that agreed on the shift are taken at once: a step is followed within the
+  ``enter_windows`` still windows.
+- **Slow ramps.** Within a still run the offset measured may move from where the run
+  began by ``agreement_multiple`` standard deviations of its random walk at most (per
+  axis; with an accelerometer its part along gravity), else the run ends; and a shift a
+  turn could explain (without an accelerometer any, with one its part along gravity) is
+  provisional: undone unless the run holds it `CONFIRM_WINDOWS` windows more, or twice as
+  long as the run before it held when that one drifted out. A ramp, which looks like a
+  staircase of steps, is never followed past a provisional step.
+
+Every sample goes through the same steps whether it comes in a block (`process`, numpy)
+or alone (`process_one`, plain floats): the offset changes only when a window closes,
+the window sums are added in sample order, the decisions are plain floats. Any split
+into blocks gives the same bits (``test/test_fuzz_bias_tracking.py``).
+
+`seed` sets the offset and its variance (the ZRO recalibration's window); `state` gives
+a plain dict for a state file and `tracking_state` checks one read back.
+"""
+
+from dataclasses import dataclass
+import math
+from typing import Optional
+
+import numpy as np
+
+from .errors import CalibrationError, ConfigError
+from .standstill import (per_axis, StandstillDetector, StandstillSettings, WindowStatistics,
+                         WindowSums)
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """
+    The detector's settings, the offset's prior and when it counts as stable.
+
+    ``initial_std_rad_s`` (one per axis): the offset's standard deviation before any
+    window, and the most its variance grows to in motion. ``stable_std_rad_s``: an
+    axis's estimate is stable while its standard deviation is at most this and it has
+    learnt from a window or a seed.
+    """
+
+    standstill: StandstillSettings
+    initial_std_rad_s: tuple
+    stable_std_rad_s: float = math.radians(0.05)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'initial_std_rad_s', per_axis(
+            'initial_std_rad_s', self.initial_std_rad_s, self.standstill.axes))
+        if not (math.isfinite(self.stable_std_rad_s) and self.stable_std_rad_s > 0.0):
+            msg = f'stable_std_rad_s must be a positive number, got {self.stable_std_rad_s!r}'
+            raise ConfigError(msg)
+
+
+@dataclass(frozen=True)
+class TrackedBlock:
+    """Per sample: the rate less the offset, the offset's standard deviation, still or not."""
+
+    rate_rad_s: np.ndarray
+    std_rad_s: np.ndarray
+    still: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrackingStatus:
+    """What the tracker holds now (for /diagnostics and the bias topic)."""
+
+    still: bool
+    offset_rad_s: tuple
+    std_rad_s: tuple
+    stable: tuple
+    updates: int
+    last_update_s: Optional[float]
+    windows: int
+    reason: str
+    # Per axis: its mean was beyond the bound in the last window (a turn it may see).
+    held: tuple
+
+
+@dataclass(frozen=True)
+class WindowRecord:
+    """One closed window as the tracker judged it (kept with ``keep_windows``)."""
+
+    start_s: float
+    end_s: float
+    samples: int
+    quiet: bool
+    still: bool
+    # The (start_s, end_s, axes) of each window learnt when this one closed.
+    learnt: tuple
+    reason: str
+    offset_rad_s: tuple
+
+
+# A still run that began with a shift must hold it this many windows more (at least), or
+# the shift is undone.
+CONFIRM_WINDOWS = 4
+
+
+@dataclass
+class _StillRun:
+    """Where a still run began: the offset and variance after its first windows."""
+
+    offset_rad_s: tuple
+    variance: tuple
+    time_s: float
+    # The filter before a shift the run began with (None: no shift), and how many more
+    # windows must agree with it before it stays.
+    before: Optional[tuple]
+    unconfirmed: int
+    windows: int
+
+
+STATE_KEYS = ('offset_rad_s', 'variance_rad2_s2', 'time_s', 'updates', 'last_update_s')
+
+
+@dataclass(frozen=True)
+class TrackingState:
+    """The filter's state, as a state file holds it (see `BiasTracking.state`)."""
+
+    offset_rad_s: tuple
+    variance_rad2_s2: tuple
+    time_s: Optional[float]
+    updates: int
+    last_update_s: Optional[float]
+
+
+def _number(state: dict, key: str, index=None, low=-math.inf, high=math.inf,
+            integer=False):
+    value = state[key] if index is None else state[key][index]
+    name = key if index is None else f'{key}[{index}]'
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            (integer and not isinstance(value, int)):
+        kind = 'an integer' if integer else 'a number'
+        raise CalibrationError(f'{name} must be {kind}, got {value!r}')
+    if not math.isfinite(value) or not low <= value <= high:
+        raise CalibrationError(f'{name} {value!r} is outside {low:g} to {high:g}')
+    return value if integer else float(value)
+
+
+def tracking_state(state, axes: int, max_offset_rad_s: float = math.inf) -> TrackingState:
+    """
+    Check a state dict read back (`BiasTracking.state`); CalibrationError names the key.
+
+    Offsets within +-``max_offset_rad_s`` (the full scale), variances >= 0, times
+    finite (``time_s`` and ``last_update_s`` may be null: never), ``updates`` >= 0.
+    """
+    if not isinstance(state, dict):
+        raise CalibrationError(f'the tracking state must be a mapping, got {state!r}')
+    missing = [key for key in STATE_KEYS if key not in state]
+    if missing:
+        raise CalibrationError(f'damaged: {", ".join(missing)} missing (truncated?)')
+    for key in ('offset_rad_s', 'variance_rad2_s2'):
+        if not isinstance(state[key], list) or len(state[key]) != axes:
+            raise CalibrationError(f'{key} must be a list of {axes} values, got {state[key]!r}')
+    offset = tuple(_number(state, 'offset_rad_s', i, -max_offset_rad_s, max_offset_rad_s)
+                   for i in range(axes))
+    variance = tuple(_number(state, 'variance_rad2_s2', i, 0.0) for i in range(axes))
+    times = [None if state[key] is None else _number(state, key)
+             for key in ('time_s', 'last_update_s')]
+    return TrackingState(offset_rad_s=offset, variance_rad2_s2=variance, time_s=times[0],
+                         updates=_number(state, 'updates', low=0, integer=True),
+                         last_update_s=times[1])
+
+
+class BiasTracking:
+    """
+    The standstill detector and the offset filter over a stream; see the module notes.
+
+    ``axes`` names the gyro axes (x, y, z: which specific force axis is which);
+    ``state`` a checked `TrackingState` to start from; ``keep_windows`` keeps a
+    `WindowRecord` of every closed window in ``windows`` (the offline twin's report).
+    """
+
+    def __init__(self, settings: TrackingSettings, axes: tuple,
+                 state: Optional[TrackingState] = None, keep_windows: bool = False):
+        self.settings = settings
+        self.axes = tuple(axes)
+        self._detector = StandstillDetector(settings.standstill, self.axes)
+        standstill = settings.standstill
+        self._q = [w * w for w in standstill.random_walk_rad_s_rt_s]
+        self._noise2 = [s * s for s in standstill.rate_noise_rad_s]
+        self._cap = [s * s for s in settings.initial_std_rad_s]
+        self._offset = [0.0] * len(self.axes)
+        self._variance = list(self._cap)
+        self._time_s = None
+        self.updates = 0
+        self.last_update_s = None
+        if state is not None:
+            self._restore(state)
+        self._std = [math.sqrt(v) for v in self._variance]
+        self._window = None
+        self._origin_s = None
+        self.window_count = 0
+        self.held = (False,) * len(self.axes)
+        self._still = False
+        self.withdrawn = 0
+        self._run = None
+        self._drifted_windows = 0
+        self.reason = 'no window yet'
+        self.windows = [] if keep_windows else None
+
+    def _restore(self, state: TrackingState) -> None:
+        if len(state.offset_rad_s) != len(self.axes):
+            msg = f'the tracking state has {len(state.offset_rad_s)} axes, not {len(self.axes)}'
+            raise CalibrationError(msg)
+        self._offset = list(state.offset_rad_s)
+        self._variance = list(state.variance_rad2_s2)
+        self._time_s = state.time_s
+        self.updates = state.updates
+        self.last_update_s = state.last_update_s
+
+    @property
+    def still(self) -> bool:
+        """Tell whether the gyro is still now: in a still run, no axis held."""
+        return self._still
+
+    def seed(self, offset_rad_s, variance_rad2_s2, time_s: Optional[float] = None) -> None:
+        """Set the offset and its variance (a ZRO recalibration's mean and noise^2 / n)."""
+        offset = [float(v) for v in offset_rad_s]
+        variance = [float(v) for v in variance_rad2_s2]
+        if len(offset) != len(self.axes) or len(variance) != len(self.axes) or \
+                not all(math.isfinite(v) for v in offset) or \
+                not all(math.isfinite(v) and v >= 0.0 for v in variance):
+            msg = (f'a seed needs {len(self.axes)} finite offsets and variances >= 0, got '
+                   f'{offset} and {variance}')
+            raise CalibrationError(msg)
+        self._offset, self._variance = offset, variance
+        self._std = [math.sqrt(v) for v in variance]
+        self._run = None
+        if time_s is not None:
+            self._time_s = float(time_s)
+
+    def state(self) -> dict:
+        """Give the state as plain YAML-safe values (`tracking_state` checks it back)."""
+        return {'offset_rad_s': list(self._offset), 'variance_rad2_s2': list(self._variance),
+                'time_s': self._time_s, 'updates': self.updates,
+                'last_update_s': self.last_update_s}
+
+    def status(self) -> TrackingStatus:
+        """Give what the tracker holds now."""
+        learnt = self.updates > 0 or self._variance != self._cap
+        return TrackingStatus(
+            still=self.still, offset_rad_s=tuple(self._offset), std_rad_s=tuple(self._std),
+            stable=tuple(learnt and s <= self.settings.stable_std_rad_s for s in self._std),
+            updates=self.updates, last_update_s=self.last_update_s, windows=self.window_count,
+            reason=self.reason, held=self.held)
+
+    # The stream.
+
+    def process(self, time_s, rate_rad_s, temperature_c, acceleration_m_s2=None
+                ) -> TrackedBlock:
+        """
+        Track over a block of samples in time order; give them less the offset.
+
+        ``time_s`` (n,), ``rate_rad_s`` (n, axes) after the temperature model,
+        ``temperature_c`` (n,), ``acceleration_m_s2`` (n, 3) or None (no accelerometer).
+        """
+        time_s = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        rows = time_s.size
+        rate = np.asarray(rate_rad_s, dtype=np.float64).reshape(rows, len(self.axes))
+        temperature = np.asarray(temperature_c, dtype=np.float64).reshape(rows)
+        acceleration = None if acceleration_m_s2 is None else \
+            np.asarray(acceleration_m_s2, dtype=np.float64).reshape(rows, 3)
+        out = np.empty_like(rate)
+        std = np.empty_like(rate)
+        still = np.empty(rows, dtype=bool)
+        first = 0
+        while first < rows:
+            if self._window is None:
+                self._open(float(time_s[first]))
+            times = time_s[first:]
+            outside = ((times >= self._window.end_s) | (times < self._window.start_s)) & \
+                np.isfinite(times)
+            end = first + int(np.argmax(outside)) if outside.any() else rows
+            if end == first:
+                self._roll(float(time_s[first]))
+                continue
+            part = slice(first, end)
+            out[part] = rate[part] - self._offset
+            std[part] = self._std
+            still[part] = self._still
+            self._window.add_block(time_s[part], out[part], temperature[part],
+                                   None if acceleration is None else acceleration[part])
+            first = end
+        return TrackedBlock(rate_rad_s=out, std_rad_s=std, still=still)
+
+    def process_one(self, time_s: float, rate_rad_s, temperature_c: float,
+                    acceleration_m_s2=None) -> tuple:
+        """Track one sample in plain floats; give (rates less the offset, stds, still)."""
+        if self._window is None:
+            self._open(time_s)
+        elif (time_s >= self._window.end_s or time_s < self._window.start_s) and \
+                math.isfinite(time_s):
+            self._roll(time_s)
+        out = [r - o for r, o in zip(rate_rad_s, self._offset)]
+        self._window.add_row(time_s, out, temperature_c, acceleration_m_s2)
+        return out, list(self._std), self._still
+
+    def _open(self, time_s: float) -> None:
+        """Start the window grid at ``time_s`` (a finite stamp) and its first window."""
+        if not math.isfinite(time_s):
+            msg = f'the first sample of a tracked stream needs a finite time, got {time_s}'
+            raise CalibrationError(msg)
+        self._origin_s = time_s
+        self._start_window(0)
+
+    def _start_window(self, index: int) -> None:
+        width = self.settings.standstill.window_s
+        self._window = WindowSums(index, self._origin_s + index * width,
+                                  self._origin_s + (index + 1) * width, tuple(self._offset),
+                                  len(self.axes))
+
+    def _roll(self, time_s: float) -> None:
+        """Close the window and start the one that holds ``time_s``."""
+        window = self._window
+        self._close(window.statistics())
+        if time_s < window.start_s:
+            # The clock went back (a replay restarted): a new grid, nothing carried over.
+            self._detector.reset()
+            self._end_run()
+            self._still = False
+            self._open(time_s)
+            return
+        width = self.settings.standstill.window_s
+        index = math.floor((time_s - self._origin_s) / width)
+        if self._origin_s + index * width > time_s:
+            index -= 1
+        elif self._origin_s + (index + 1) * width <= time_s:
+            index += 1
+        self._start_window(index)
+
+    def _close(self, w: WindowStatistics) -> None:
+        verdict = self._detector.judge(w)
+        self.window_count += 1
+        self.held = tuple(i in verdict.held for i in range(len(self.axes)))
+        self._predict(w.end_s)
+        reason, learnt = verdict.reason, ()
+        if verdict.entered:
+            self._begin_run(verdict.learn, w.end_s)
+            learnt = verdict.learn
+        elif verdict.learn:
+            ((window, axes),) = verdict.learn
+            drift = self._drift(window, axes)
+            if drift:
+                reason = drift
+                self._detector.interrupt(w, verdict.held)
+                self._end_run(drifted=True)
+            else:
+                self._learn(window, axes, shift=False)
+                learnt = verdict.learn
+                self._run.windows += 1
+                self._run.unconfirmed = max(self._run.unconfirmed - 1, 0)
+        elif not verdict.still:
+            self._end_run()
+        self._still = self._detector.still and not verdict.held
+        self.reason = reason or ('still' if self._still else 'moving')
+        self._std = [math.sqrt(v) for v in self._variance]
+        if self.windows is not None:
+            self.windows.append(WindowRecord(
+                start_s=w.start_s, end_s=w.end_s, samples=w.samples, quiet=verdict.quiet,
+                still=self._still,
+                learnt=tuple((v.start_s, v.end_s, tuple(sorted(axes))) for v, axes in learnt),
+                reason=reason, offset_rad_s=tuple(self._offset)))
+
+    def _begin_run(self, learn: tuple, time_s: float) -> None:
+        """
+        Learn the windows that made the gyro still; a shift a turn could explain is provisional.
+
+        Without an accelerometer any shift could be a slow turn; with one, only its part
+        about gravity (a turn about another axis tilts the specific force).
+        """
+        if self._run is not None:
+            self._end_run()
+        before = (list(self._offset), list(self._variance))
+        shifted = False
+        for order, (window, axes) in enumerate(learn):
+            shifted |= self._learn(window, axes, shift=order == 0)
+        last = learn[-1][0] if learn else None
+        vertical = None if last is None or last.acceleration_m_s2 is None else \
+            self._detector.vertical(last.acceleration_m_s2)
+        if shifted and vertical is not None:
+            gate = self.settings.standstill.agreement_multiple
+            change = sum(u * (x - b) for u, x, b in zip(vertical, self._offset, before[0]))
+            spread = sum(u * u * (v + n / last.samples)
+                         for u, v, n in zip(vertical, before[1], self._noise2))
+            shifted = not change * change <= gate * gate * spread
+        # A slow ramp shows as a still run that drifts out, then shifts, drifts out again:
+        # a shift after a drift must hold twice as long as the run it ended held.
+        unconfirmed = max(CONFIRM_WINDOWS, 2 * self._drifted_windows) if shifted else 0
+        self._run = _StillRun(offset_rad_s=tuple(self._offset),
+                              variance=tuple(self._variance),
+                              time_s=last.end_s if last else time_s,
+                              before=before + (vertical,) if shifted else None,
+                              unconfirmed=unconfirmed, windows=len(learn))
+
+    def _end_run(self, drifted: bool = False) -> None:
+        """End the still run; a shift it has not confirmed yet is undone (about gravity)."""
+        run, self._run = self._run, None
+        self._drifted_windows = run.windows if drifted and run is not None else 0
+        if run is None or not run.unconfirmed:
+            return
+        offset, variance, vertical = run.before
+        if vertical is None:
+            self._offset = offset
+        else:
+            change = [x - b for x, b in zip(self._offset, offset)]
+            along = sum(u * c for u, c in zip(vertical, change)) / sum(u * u for u in vertical)
+            self._offset = [x - u * along for x, u in zip(self._offset, vertical)]
+        self._variance = [max(v, b) for v, b in zip(self._variance, variance)]
+        self.withdrawn += 1
+
+    def _drift(self, w: WindowStatistics, axes: frozenset) -> str:
+        """
+        Give how ``w`` drifted on ``axes`` from where its still run began beyond the walk.
+
+        Per axis without an accelerometer; with one, only the drift about gravity (the
+        accelerometer sees a turn about any other axis tilt the specific force).
+        """
+        run = self._run
+        if run is None:
+            return ''
+        gate = self.settings.standstill.agreement_multiple
+        axes = sorted(axes)
+        moved = [w.measured_rad_s[i] - run.offset_rad_s[i] for i in axes]
+        variance = [run.variance[i] + self._noise2[i] / w.samples +
+                    self._q[i] * (w.end_s - run.time_s) for i in axes]
+        if w.acceleration_m_s2 is not None:
+            vertical = self._detector.vertical(w.acceleration_m_s2)
+            up = [vertical[i] for i in axes]
+            moved = [sum(m * u for m, u in zip(moved, up))]
+            variance = [sum(v * u * u for v, u in zip(variance, up))]
+        for i, (drift, var) in enumerate(zip(moved, variance)):
+            if not drift * drift <= gate * gate * var:
+                where = 'about gravity' if w.acceleration_m_s2 is not None else \
+                    f'on axis {axes[i]}'
+                return f'offset drifted {drift:.3g} rad/s {where} since the still run began'
+        return ''
+
+    def _predict(self, time_s: float) -> None:
+        """
+        Carry the offsets from the last time to ``time_s``: a first-order Gauss-Markov process.
+
+        Its standard deviation is ``initial_std_rad_s`` (the model's own error: the offset
+        stays within it) and its variance grows at first by q dt (the random walk), so its
+        time constant is 2 initial_std^2 / q: the offset fades back to the model over it,
+        and its variance grows back to initial_std^2.
+        """
+        if self._time_s is not None and time_s > self._time_s:
+            elapsed = time_s - self._time_s
+            for i, (q, cap) in enumerate(zip(self._q, self._cap)):
+                if q > 0.0:
+                    decay = math.exp(-elapsed * q / (2.0 * cap))
+                    self._offset[i] *= decay
+                    self._variance[i] = decay * decay * self._variance[i] + \
+                        cap * (1.0 - decay * decay)
+        if self._time_s is None or time_s > self._time_s:
+            self._time_s = time_s
+
+    def _learn(self, w: WindowStatistics, axes: frozenset, shift: bool) -> bool:
+        """Update ``axes`` with the offsets the window measures; tell whether one shifted."""
+        gate = self.settings.standstill.agreement_multiple
+        shifted = False
+        for i in sorted(axes):
+            measured = w.measured_rad_s[i]
+            noise = self._noise2[i] / w.samples
+            variance = self._variance[i]
+            innovation = measured - self._offset[i]
+            if shift and innovation * innovation > gate * gate * (variance + noise):
+                variance += innovation * innovation
+                shifted = True
+            gain = variance / (variance + noise)
+            self._offset[i] += gain * innovation
+            self._variance[i] = (1.0 - gain) * variance
+        self.updates += 1
+        self.last_update_s = w.end_s
+        return shifted

@@ -1,0 +1,114 @@
+"""
+The ``mlx-tempcomp inject-motion`` command: known motion added to a record taken at rest.
+
+A schedule of rests and turns (`simulation.motion`: ``cycle`` rests 90 s every 5 min and
+turns about every axis between, ``mixed`` rests 10 s to 10 min between slow, ramped and
+fast turns about every axis and gravity) is drawn from ``--seed`` and added to the
+record's gyro columns; the rate added is written as ``ref_x|y|z`` and the specific
+force, when the record has one, turned with the sensor. The output is a canonical CSV
+(``fit``, ``evaluate --track-bias`` and the rest read it as they read any record); the
+schedule goes to ``<stem>.schedule.json`` beside it. ``fit`` on the output fits the
+bias to gyro minus ref, the record at rest; ``evaluate --track-bias`` judges the
+tracker against the truth.
+"""
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from .common import (add_recording_options, check_output_file, load, non_negative_int,
+                     UserError, write_json)
+from ..core.errors import TempCompError
+from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings
+from ..sources.recording import AXES
+
+SCHEDULES = ('cycle', 'mixed')
+_CSV_FORMAT = '%.17g'   # round trip: the reference is exact
+
+
+def _columns(recording, injected) -> dict:
+    columns = {'time': recording.time_s, 'temperature': recording.temperature_c}
+    columns.update((f'gyro_{a}', injected.gyro_rad_s[:, i])
+                   for i, a in enumerate(recording.axes))
+    columns.update((f'ref_{a}', injected.reference_rad_s[:, i])
+                   for i, a in enumerate(recording.axes))
+    if injected.acceleration_m_s2 is not None:
+        columns.update((f'acc_{a}', injected.acceleration_m_s2[:, i])
+                       for i, a in enumerate(AXES))
+    if recording.temperature_2_c is not None:
+        columns['temperature_2'] = recording.temperature_2_c
+    if recording.supply_voltage_v is not None:
+        columns['supply_voltage'] = recording.supply_voltage_v
+    return columns
+
+
+def inject_motion_command(args: argparse.Namespace) -> int:
+    check_output_file(args.out, '--out')
+    out = Path(args.out)
+    schedule_path = out.with_name(out.stem + '.schedule.json')
+    recording = load(args)
+    if recording.reference_rad_s is not None:
+        msg = (f'{args.input} has a reference rate already (ref columns): inject motion into '
+               'a record taken at rest')
+        raise UserError(msg)
+    try:
+        settings = getattr(ScheduleSettings, args.schedule)(level_rests=not args.free_attitude)
+        schedule = motion_schedule(recording.duration_s + 1e-9, settings, args.seed)
+        injected = inject_motion(recording.time_s, recording.gyro_rad_s, recording.axes,
+                                 schedule, recording.acceleration_m_s2)
+    except TempCompError as err:
+        raise UserError(f'{args.input}: {err}') from None
+    columns = _columns(recording, injected)
+    try:
+        np.savetxt(out, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
+                   delimiter=',', header=','.join(columns), comments='')
+        write_json(schedule_path, {
+            'input': args.input, 'schedule': args.schedule, 'seed': args.seed,
+            'settings': dataclasses.asdict(settings),
+            'time_zero_s': float(recording.time_s[0]),
+            'still_share': schedule.still_share, 'segments': schedule.to_json()})
+    except OSError as err:
+        msg = f'cannot write {err.filename}: {err.strerror}'
+        raise UserError(msg) from None
+    turns = {}
+    for segment in schedule.segments:
+        if segment.kind != REST:
+            turns.setdefault((segment.kind, segment.axis), set()).add(segment.turn)
+    summary = ', '.join(f'{len(ids)} {kind} about {axis}'
+                        for (kind, axis), ids in sorted(turns.items()))
+    print(f'{args.schedule} schedule (seed {args.seed}) over {schedule.duration_s:.1f} s: '
+          f'still {100 * schedule.still_share:.1f} % in {len(schedule.rests())} rests; turns: '
+          f'{summary}')
+    accelerometer = 'turned with the sensor' if injected.acceleration_m_s2 is not None else \
+        'none in the record: turns about gravity are about z'
+    print(f'specific force: {accelerometer}')
+    print(f'wrote {out} (gyro with the motion, ref_{"|".join(recording.axes)}) and '
+          f'{schedule_path}')
+    return 0
+
+
+def add_parser(commands) -> None:
+    """Add the ``inject-motion`` subcommand."""
+    parser = commands.add_parser(
+        'inject-motion', help='add known turns to a record taken at rest (ref columns)',
+        description='Draw a schedule of rests and turns (slow 0.2-2 deg/s constant and '
+                    'ramped, fast, about x, y, z and gravity), add it to the gyro of a record '
+                    'taken at rest, turn its specific force with the sensor, and write a '
+                    'CSV with the added rate as ref_x|y|z, to test the bias tracking '
+                    '(evaluate --track-bias) on your own unit: the truth is known, the bias '
+                    "is the record's own.")
+    add_recording_options(parser)
+    parser.add_argument('--out', required=True, metavar='FILE.csv',
+                        help='CSV to write; the schedule goes to <stem>.schedule.json')
+    parser.add_argument('--schedule', choices=SCHEDULES, default='cycle',
+                        help='cycle: still 30 %% of the time, a 90 s rest every 5 min, turns '
+                             'about every axis between; mixed: rests of 10 s to 10 min '
+                             'between stretches of turns (default: %(default)s)')
+    parser.add_argument('--seed', type=non_negative_int, default=0, metavar='N',
+                        help='seed of the schedule (default: %(default)s)')
+    parser.add_argument('--free-attitude', action='store_true',
+                        help='turns about x and y do not come back: the sensor rests at '
+                             'whatever attitude they leave (default: every rest level)')
+    parser.set_defaults(handler=inject_motion_command, per_instance=True)
