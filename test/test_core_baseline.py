@@ -15,7 +15,7 @@ import pytest
 
 
 def record(seed: int = 0) -> tuple:
-    """A cooling and a heating ramp, a bias curve no cubic follows exactly, and noise."""
+    """Give a cooling and a heating ramp, a bias curve no cubic follows exactly, and noise."""
     rng = np.random.default_rng(seed)
     temperature_c = np.concatenate([np.linspace(52.0, -17.0, 3000),
                                     np.linspace(-17.0, 74.0, 4000)]) + rng.normal(0, 0.02, 7000)

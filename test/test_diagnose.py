@@ -28,7 +28,7 @@ from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
 from mlx_tempcomp.node_parameters import flat_parameters, model_error_of, node_values
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
-from mlx_tempcomp.sources.recording import load_recording, Recording
+from mlx_tempcomp.sources.recording import Recording
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np

@@ -120,9 +120,9 @@ class Split:
                          + ', '.join(str(b) for b in self.record_starts) + ')')
             return text
         if self.scheme == PURGED:
-            return (f'purged: each of {self.folds} blocks predicted from the others but '
-                    f'{self.buffer} on either side' + (f' (in {records} records)'
-                                                        if records > 1 else ''))
+            text = (f'purged: each of {self.folds} blocks predicted from the others but '
+                    f'{self.buffer} on either side')
+            return text + (f' (in {records} records)' if records > 1 else '')
         return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds' + (
             f' (in {records} records)' if records > 1 else '')
 

@@ -85,7 +85,7 @@ def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> N
                              'block from a fit on the blocks before it (as a node runs a model '
                              'fitted on the past), round-robin deals blocks to --folds folds, '
                              'purged predicts each block from the others but a buffer of '
-                             'neighbours as long as the model\'s memory '
+                             "neighbours as long as the model's memory "
                              f'(default: {default})')
     parser.add_argument('--min-past', type=fraction, metavar='F',
                         help=f'{when}forward: the first predicted block starts after this '

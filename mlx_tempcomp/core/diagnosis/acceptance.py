@@ -70,7 +70,7 @@ def unbounded(problem: DiagnosisProblem, effect: str, spec: AxisSpec) -> str:
         width = spec.get('hysteresis')
         return '' if width < top else (
             f'half width {width:.3g} C at the upper search bound ({HYSTERESIS_SPAN_SHARE:g} of '
-            'the span wide): a shape of the temperature over the record, the polynomial\'s')
+            "the span wide): a shape of the temperature over the record, the polynomial's")
     if effect == 'thermal_lag':
         values = (abs(spec.thermal_lag_s),)
         _, high = problem.bounds['thermal_lag_s']

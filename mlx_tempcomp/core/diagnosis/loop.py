@@ -16,11 +16,10 @@ from .problem import DiagnosisProblem, HeldOutRun, Score
 from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
                       RecordFit, Step)
 from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
+from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
-from ..errors import CalibrationError
 from ..model_interface import INPUTS
 from ..records import join_records
-from ..baseline import PX4_ORDER
 from ..validation import one_standard_error, order_score, paired
 
 # The record shows motion when the specific force turns by this much, or its
@@ -67,7 +66,7 @@ def _paired_best(problem: DiagnosisProblem, axis: int, incumbent: AxisSpec,
 
 
 def _step_zero_order(problem: DiagnosisProblem, axis: int) -> AxisSpec:
-    """The PX4-style cubic, unless another order beats it fold by fold."""
+    """Give the PX4-style cubic, unless another order beats it fold by fold."""
     orders = [AxisSpec(order) for order in range(problem.settings.max_order + 1)
               if order != PX4_ORDER]
     return _paired_best(problem, axis, CUBIC, orders)

@@ -482,20 +482,10 @@ class DiagnosisProblem:
                        (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
 
     def _cubic_fit(self, axis: int, bins) -> AxisFit:
-        """The PX4-style cubic as an `AxisFit` in this problem's x: the last record's terms."""
-        cubics = self.cubics(self.rows_of(bins))
-        reference = cubics[-1].reference_c
-
-        def bias(cubic) -> tuple:
-            # About this problem's centre: exact where the cubic's TREF is that centre.
-            shift = np.polynomial.polynomial.Polynomial(cubic.coefficients[axis])(
-                np.polynomial.polynomial.Polynomial((self.centre_c - reference, self.scale_c)))
-            exact = reference == self.centre_c
-            return tuple(c * self.scale_c ** k for k, c in enumerate(cubic.coefficients[axis])) \
-                if exact else tuple(float(c) for c in np.pad(shift.coef, (0, PX4_ORDER + 1
-                                                                         - shift.coef.size)))
-        written = bias(cubics[-1])
-        return AxisFit(AxisTerms(bias=written), tuple(bias(c)[0] - written[0] for c in cubics))
+        """Give the PX4-style cubic as an `AxisFit` in x: its terms are the last record's."""
+        biases = [_cubic_bias(cubic, axis, self.centre_c, self.scale_c)
+                  for cubic in self.cubics(self.rows_of(bins))]
+        return AxisFit(AxisTerms(bias=biases[-1]), tuple(b[0] - biases[-1][0] for b in biases))
 
     def _terms(self, axis: int, spec: AxisSpec, solution: np.ndarray) -> AxisTerms:
         values = iter(float(v) for v in solution)
@@ -675,6 +665,21 @@ def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
     if not offset_rad_s:
         return terms
     return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
+
+
+def _cubic_bias(cubic, axis: int, centre_c: float, scale_c: float) -> tuple:
+    """
+    Give a cubic's coefficients in x = (T - centre) / scale, lowest first.
+
+    Exact where the centre is the cubic's TREF (scale a power of two): the
+    written cubic; a fold's, fitted on part of the range, is re-expanded.
+    """
+    coefficients = cubic.coefficients[axis]
+    if cubic.reference_c == centre_c:
+        return tuple(c * scale_c ** k for k, c in enumerate(coefficients))
+    polynomial = np.polynomial.Polynomial
+    shifted = polynomial(coefficients)(polynomial((centre_c - cubic.reference_c, scale_c))).coef
+    return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))
 
 
 def effective_temperature(records, time_s: np.ndarray, temperature_c: np.ndarray,

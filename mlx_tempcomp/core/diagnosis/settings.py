@@ -4,10 +4,10 @@ from dataclasses import dataclass
 import math
 from typing import Callable, Optional
 
+from .folds import INSIDE_ROWS, SCORING
 from ..effects import DEFAULT_RATE_WINDOW_S, LIVE_EFFECTS
 from ..errors import CalibrationError
 from ..recalibration import RecalibrationLimits
-from .folds import INSIDE_ROWS, SCORING
 from ..validation import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
                           DEFAULT_SIGNIFICANCE, DEFAULT_VALIDATION, FORWARD, PURGED, split)
 
