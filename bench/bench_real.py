@@ -220,7 +220,7 @@ def written_effects(params: Path) -> dict:
 def judge(record: dict, work: Path, test: float, average_s: float, extra: list) -> list:
     """Diagnose, evaluate the written file, judge it against the clamped cubic; rows per axis."""
     average_s = record.get('average_s', average_s)
-    work.mkdir()
+    work.mkdir(parents=True)
     out = work / 'diagnose'
     run_cli(['diagnose', record['path'], *record['read'], '--test', test, '--average-s',
              average_s, '--out', out, *extra])
@@ -288,6 +288,39 @@ def print_table(title: str, rows: list) -> None:
               f'over {gains.size} axis-cases')
 
 
+# --compare: the validation schemes and row scorings diagnose can decide by.
+CONFIGURATIONS = tuple((scheme, scoring) for scheme in ('forward', 'round-robin', 'purged')
+                       for scoring in ('all', 'inside'))
+
+
+def judge_all(records: list, folder: Path, args, extra: list) -> dict:
+    """Judge every record with the extra diagnose options: rows per axis, real and simulated."""
+    results = {'real': [], 'simulated': []}
+    for index, record in enumerate(records):
+        kind = 'simulated' if 'expected' in record else 'real'
+        results[kind] += judge(record, folder / str(index), args.test, args.average_s, extra)
+    return results
+
+
+def geometric_mean(rows: list) -> float:
+    return math.exp(float(np.mean(np.log([row['gain'] for row in rows])))) if rows else math.nan
+
+
+def summary(results: dict) -> str:
+    """One line: the real records' gains per axis, and the simulated records in three kinds."""
+    real = ', '.join(f'{row["axis"]} {row["gain"]:.2f}' for row in results['real'])
+    simulated = results['simulated']
+    effects = [row for row in simulated if row['expected']]
+    others = [row for row in simulated if row['expected'] == '']
+    named = sum(row['named'].split(' ')[0] == row['expected'] for row in effects)
+    live = sum(row['named'].split(' ')[0] not in ('', 'bias_step', 'time_drift')
+               for row in others)
+    lowest = min((row['gain'] for row in others), default=math.nan)
+    return (f'{real or "-":<26} | {named}/{len(effects)} named, {geometric_mean(effects):5.2f}x '
+            f'| {live}/{len(others)} live, lowest {lowest:.2f}x, '
+            f'{geometric_mean(others):.3f}x')
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--record', action='append', default=[], metavar='SPEC',
@@ -298,28 +331,39 @@ def main() -> int:
     parser.add_argument('--test', type=float, default=TEST_FRACTION)
     parser.add_argument('--average-s', type=float, default=1.0)
     parser.add_argument('--diagnose-args', default='', help='extra diagnose options, quoted')
+    parser.add_argument('--compare', action='store_true',
+                        help='judge every record under each validation scheme and scoring '
+                             '(--validation, --scoring) and print one line each')
     parser.add_argument('--json', metavar='FILE', help='also write every row as JSON')
     args = parser.parse_args()
     extra = shlex.split(args.diagnose_args)
-    real = (shared_records() if args.shared else []) + [parse_record(r) for r in args.record]
-    results = {'real': [], 'simulated': []}
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        for index, record in enumerate(real):
-            results['real'] += judge(record, folder / f'real{index}', args.test,
-                                     args.average_s, extra)
+        records = (shared_records() if args.shared else []) + \
+            [parse_record(r) for r in args.record]
         if args.simulated:
-            for name in (*SIMULATED, *SLOW_PERIODS):
-                for seed in range(args.seeds):
-                    record = simulated_record(folder, name, seed)
-                    results['simulated'] += judge(record, folder / f'{name}{seed}', args.test,
-                                                  1.0, extra)
-    print(f'diagnose --test {args.test:g} {args.diagnose_args}'.rstrip() + ', then evaluate; '
-          'gain = clamped cubic RMS / written RMS on the held-out part')
-    if results['real']:
-        print_table('real records', results['real'])
-    if results['simulated']:
-        print_table('simulated records', results['simulated'])
+            records += [simulated_record(folder, name, seed)
+                        for name in (*SIMULATED, *SLOW_PERIODS) for seed in range(args.seeds)]
+        if args.compare:
+            compared = {}
+            print(f'{"validation":<13}{"scoring":<8} real (gain per axis)         | simulated '
+                  'effects (named first, geometric mean) | clean, random walk, step, drift, '
+                  'slow ramps (live added, lowest, geometric mean)')
+            for scheme, scoring in CONFIGURATIONS:
+                options = extra + ['--validation', scheme, '--scoring', scoring]
+                compared[f'{scheme} {scoring}'] = judge_all(
+                    records, folder / f'{scheme}-{scoring}', args, options)
+                print(f'{scheme:<13}{scoring:<8}{summary(compared[f"{scheme} {scoring}"])}')
+            results = compared
+        else:
+            results = judge_all(records, folder / 'judged', args, extra)
+            print(f'diagnose --test {args.test:g} {args.diagnose_args}'.rstrip()
+                  + ', then evaluate; gain = clamped cubic RMS / written RMS on the held-out '
+                  'part')
+            if results['real']:
+                print_table('real records', results['real'])
+            if results['simulated']:
+                print_table('simulated records', results['simulated'])
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0

@@ -124,21 +124,23 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     result = diagnosed(effect)
     steps = result.per_axis[0].steps
     test = result.comparison['test']
-    robin = result.comparison['round_robin']
-    print(f'{effect}: added {", ".join(s.effect for s in steps[1:])}; forward RMS '
-          f'{steps[0].after.rms_rad_s:.3e} -> {steps[-1].after.rms_rad_s:.3e}, round-robin '
-          f'{robin["temperature_polynomial"][0].rms_rad_s:.3e} -> '
-          f'{robin["diagnosed"][0].rms_rad_s:.3e}, test '
+    robin, forward = result.comparison['round_robin'], result.comparison['forward']
+    print(f'{effect}: added {", ".join(s.effect for s in steps[1:])}; round-robin RMS '
+          f'{steps[0].after.rms_rad_s:.3e} -> {steps[-1].after.rms_rad_s:.3e}, forward '
+          f'{forward["temperature_polynomial"][0].rms_rad_s:.3e} -> '
+          f'{forward["diagnosed"][0].rms_rad_s:.3e}, test '
           f'{test["temperature_polynomial"][0].rms_rad_s:.3e} -> '
           f'{test["diagnosed"][0].rms_rad_s:.3e} rad/s (PX4 cubic '
           f'{test["px4_cubic"][0].rms_rad_s:.3e})')
     assert [s.effect for s in steps[:2]] == ['temperature_polynomial', effect]
     # Held-out errors chain: each step starts where the one before ended.
     assert steps[1].before == steps[0].after
+    assert steps[-1].after.rms_rad_s <= 0.5 * steps[0].after.rms_rad_s
+    assert robin['diagnosed'][0] == steps[-1].after
     # Forward, each block is predicted from a past of at least a quarter of the part: the
     # first ones from little supply wander or few turns, so less than the 2x elsewhere.
-    assert steps[-1].after.rms_rad_s <= 0.7 * steps[0].after.rms_rad_s
-    assert robin['diagnosed'][0].rms_rad_s <= 0.5 * robin['temperature_polynomial'][0].rms_rad_s
+    assert forward['diagnosed'][0].rms_rad_s <= 0.7 * forward['temperature_polynomial'][
+        0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['temperature_polynomial'][0].rms_rad_s
     assert test['diagnosed'][0].rms_rad_s <= 0.5 * test['px4_cubic'][0].rms_rad_s
     assert not result.model.record_effects and result.per_axis[0].cause is None
@@ -146,7 +148,7 @@ def test_diagnose_names_the_undeclared_effect_and_halves_the_error(effect):
     if effect == 'thermal_lag':
         assert parameters['thermal_lag_s'] == pytest.approx(LAG_S, rel=0.15)
     elif effect == 'thermal_gradient':
-        # One time constant between the truth's two (a second gains too little forward).
+        # One time constant between the truth's two (a second gains too little).
         (time_constant_s,) = result.model.terms[0].gradient_time_constants_s
         assert 120.0 < time_constant_s < 900.0
     elif effect == 'supply_voltage':

@@ -505,3 +505,29 @@ def test_the_local_clusters_workers_run_with_the_fleet_settings(monkeypatch):
         client.close()
         cluster.close()
     assert list(seen.values()) == [WORKER_SETTINGS]
+
+
+@pytest.mark.slow
+def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(tmp_path):
+    """
+    docs/fleet.md's simulated fleet, 20 units: the outliers are flagged on their slope, alone.
+
+    An effect may not stand in for the temperature polynomial (a play operator as wide as
+    the range once took an outlier's slope to 0), so the slope each unit writes is its own.
+    """
+    fleet = tmp_path / 'fleet'
+    code, _, _ = run_cli(['simulate', '--fleet', 20, '--fleet-outliers', 3, '--out', fleet,
+                          '--axes', 'z', '--cycle-c', 70, -20, '--ramp-c-per-min', 3,
+                          '--rate-hz', 0.5, '--thermal-lag-s', 60])
+    assert code == 0
+    truth = json.loads((fleet / 'fleet_truth.json').read_text())
+    planted = {unit['unit'] for unit in truth['units'] if unit['outlier']}
+    assert len(planted) == 3
+    out = tmp_path / 'out'
+    code, _, _ = run_cli(['fleet', 'diagnose', '--manifest', fleet / 'units.csv', '--out', out])
+    assert code == 0
+    report = json.loads((out / 'fleet.json').read_text())
+    flagged = {(o['unit'], o['metric']) for o in report['outliers']}
+    print(sorted(flagged))
+    assert {unit for unit, metric in flagged if metric == 'slope_rad_s_per_c'} == planted
+    assert {unit for unit, _ in flagged} == planted

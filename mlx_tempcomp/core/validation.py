@@ -249,13 +249,19 @@ def training_sums(split_: Split, per_block: np.ndarray) -> np.ndarray:
 
 
 def order_score(order: int, fold_rms_rad_s) -> OrderScore:
-    """Summarise an order's held-out RMS per fold; inf when a fold could not fit it."""
+    """
+    Summarise an order's held-out RMS per fold; inf when a fold could not fit it.
+
+    A fold with no held-out rows to count (NaN: every one beyond its training
+    range, scoring 'inside') is left out of the mean and its standard error.
+    """
     values = np.asarray(fold_rms_rad_s, dtype=np.float64)
     folds = tuple(float(v) for v in values)
-    if not np.all(np.isfinite(values)):
+    counted = values[~np.isnan(values)]
+    if counted.size < 2 or not np.all(np.isfinite(counted)):
         return OrderScore(order, folds, math.inf, math.inf)
-    error = float(np.std(values, ddof=1) / math.sqrt(values.size))
-    return OrderScore(order, folds, float(np.mean(values)), error)
+    error = float(np.std(counted, ddof=1) / math.sqrt(counted.size))
+    return OrderScore(order, folds, float(np.mean(counted)), error)
 
 
 def best_score(scores) -> OrderScore:

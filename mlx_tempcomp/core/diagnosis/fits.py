@@ -409,5 +409,5 @@ def fitted_parameters(effect: str, terms: AxisTerms, problem: DiagnosisProblem) 
     if effect == BASE_EFFECT:
         return {'order': len(terms.bias) - 1, 'bias_rad_s': list(terms.bias),
                 'reference_temperature_c': problem.centre_c,
-                'temperature_scale_c': problem.half_span_c}
+                'temperature_scale_c': problem.scale_c}
     return FITS[effect].report(terms, problem)

@@ -165,11 +165,12 @@ def rezero_window_rows(records, record: int, window_s: float) -> int:
 def outside_fitted_range(problem: DiagnosisProblem, specs: tuple,
                          model: EffectModel) -> OutsideFittedRange:
     """
-    Measure which rows the written model and the forward folds' models run clamped.
+    Measure which rows the written model and the folds' models run clamped.
 
     Each axis's effective temperature over the whole record (history states
     from its start, as the node runs them), against the range of the blocks
-    before each forward block and against the written model's range.
+    before each forward block, of each deciding fold's training blocks, and
+    against the written model's range.
     """
     full = problem.full
     slope = problem.each(functools.partial(temperature_rate_c_s,
@@ -183,7 +184,10 @@ def outside_fitted_range(problem: DiagnosisProblem, specs: tuple,
                                     problem.folds_of(FORWARD).split)
     test = outside_range(effective[problem.rows:], model.temperature_min_c,
                          model.temperature_max_c) if problem.test_rows else None
-    return OutsideFittedRange(len(set(lags)) > 1, blocks, test)
+    deciding = problem.settings.validation
+    deciding_blocks = None if deciding == FORWARD else held_out_outside_range(
+        effective[:problem.rows], problem.block_edges, problem.folds.split)
+    return OutsideFittedRange(len(set(lags)) > 1, blocks, test, deciding, deciding_blocks)
 
 
 def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResidual,

@@ -192,7 +192,7 @@ class DiagnosisProblem:
         """
         interval = float(np.median(np.diff(self.time)))
         longest = min(self.duration_s / TIME_CONSTANTS_PER_RECORD, self.thermal_cycle_s())
-        widest = 0.5 * HYSTERESIS_SPAN_SHARE * (2.0 * self.half_span_c)
+        widest = HYSTERESIS_SPAN_SHARE * self.half_span_c
         return {'thermal_lag_s': (max(MIN_LAG_SAMPLES * interval, TIME_GRID_S[0]), longest),
                 'gradient_time_constant_s': (self.settings.rate_window_s, longest),
                 'hysteresis_half_width_c': (WIDTH_GRID_C[0], widest)}

@@ -141,12 +141,16 @@ class OutsideFittedRange:
     T_eff with a thermal lag), one column per axis; ``per_axis`` says whether
     they differ. ``blocks`` holds per block of the forward scheme the
     `OutsideRange` of its rows against the blocks before it (None: not
-    predicted), ``test`` the test part's against the written model's range.
+    predicted), ``deciding_blocks`` the same against its fold's training
+    blocks under the deciding scheme (``deciding``; None when it is forward),
+    ``test`` the test part's against the written model's range.
     """
 
     per_axis: bool
     blocks: tuple
     test: Optional[OutsideRange] = None
+    deciding: str = ''
+    deciding_blocks: Optional[tuple] = None
 
 
 @dataclass(frozen=True)
