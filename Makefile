@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 # start-up and DDS, which the other process fills. TEST_WORKERS=0 runs it in this process.
 TEST_WORKERS ?= 2
 
-.PHONY: venv demo test bench clean
+.PHONY: venv demo test test-fast bench clean
 
 venv: $(STAMP)
 
@@ -37,6 +37,12 @@ demo: $(NODES_STAMP)
 
 test: venv
 	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+
+# The suite without the tests marked ros (nodes over DDS) or slow (setup.cfg): the quick check
+# while working.
+test-fast: venv
+	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile -m 'not ros and not slow' \
+		$(PYTEST_ARGS)
 
 bench: venv
 	@set -e; for script in bench/*.py; do \

@@ -14,7 +14,7 @@ import sys
 
 from .errors import MlxTempCompError
 from .fleet import command as fleet
-from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, fit,
+from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, extras, fit,
                       inject_motion, inspection, simulate)
 from .toolkit.common import EXIT_USER_ERROR, run_command
 
@@ -24,6 +24,8 @@ _COMMAND_MODULES = (inspection, eeprom, fit, allan, adis_bias, convert, diagnose
 
 # 128 + SIGPIPE, what a shell reports for a command killed by a broken pipe.
 EXIT_BROKEN_PIPE = 141
+# 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C.
+EXIT_INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,10 +41,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        extras.check(args)
         return run_command(args)
     except MlxTempCompError as err:
         print(f'error: {err}', file=sys.stderr)
         return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        # Outputs are staged (toolkit/outputs.py): nothing of this run was put in place.
+        print('interrupted: no output of this run was written', file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # The reader went away (e.g. `| head`): stop quietly, as Unix tools do.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

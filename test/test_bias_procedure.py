@@ -99,7 +99,7 @@ def figures_with_minimum_at(tau_s):
     taus = 2.0 ** np.arange(-3, 12)
     return NoiseFigures(axis='z', taus_s=taus, adev_rad_s=np.ones_like(taus),
                         angle_random_walk_rad_s_rt_hz=1.0, bias_instability_rad_s=1.0,
-                        bias_instability_tau_s=tau_s, rate_noise_rad_s=1.0)
+                        bias_instability_tau_s=tau_s, rate_noise_rad_s=1.0, duration_s=4096.0)
 
 
 def test_averaging_time_is_the_allan_minimum_clipped():

@@ -60,6 +60,7 @@ def without_first_line(text: str) -> str:
     return text.split('\n', 1)[1]
 
 
+@pytest.mark.slow
 def test_a_spliced_block_is_sorted_and_said_by_every_subcommand(tmp_path, capsys):
     folders = {name: tmp_path / name for name in ('clean', 'moved')}
     for folder in folders.values():

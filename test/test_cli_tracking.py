@@ -150,6 +150,7 @@ def test_diagnose_writes_the_section_beside_the_effects(tmp_path, capsys):
     assert report['still_share_found'] > 0.9
 
 
+@pytest.mark.slow
 def test_simulated_sensor_with_a_random_walk_and_a_step_in_a_rest(tmp_path, capsys):
     """The simulated MLX90609 (no accelerometer) through the CLI; the step is followed."""
     seed, duration_s = 2, 1500.0

@@ -57,6 +57,7 @@ def _install_pythonpath(prefix):
 
 
 @pytest.mark.slow
+@pytest.mark.ros   # it starts the executables, rclpy and DDS with them
 def test_colcon_build_installs_ros2_run_executable(tmp_path, monkeypatch):
     colcon = Path(sys.executable).with_name('colcon')
     assert colcon.exists(), f'colcon is not installed next to {sys.executable}'

@@ -676,6 +676,7 @@ def test_single_sample_residuals_write_no_model_error():
     assert written == {} and 'white noise' in why
 
 
+@pytest.mark.slow
 def test_cli_record_effects_puts_the_step_into_the_parameter_file(tmp_path):
     path = write_csv(tmp_path)
     out = tmp_path / 'out'

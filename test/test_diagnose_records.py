@@ -24,6 +24,7 @@ from mlx_tempcomp.fleet.unit import parse_command
 from mlx_tempcomp.node_parameters import flat_parameters
 from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.sources.recording import Recording
+from mlx_tempcomp.toolkit.common import run_handler
 import numpy as np
 import pytest
 from test_diagnose import (chamber, device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
@@ -213,6 +214,7 @@ def test_cli_test_record_holds_out_the_last_run_as_the_node_would_run_it(runs_cs
     assert f'### Test record {full}, after a re-zero' in report_md
 
 
+@pytest.mark.slow
 def test_cli_test_each_leaves_each_record_out_then_writes_all(runs_csv, tmp_path):
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *runs_csv, '--test', 'each', '--rezero-s', REZERO_S,
@@ -301,14 +303,15 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
             assert gain >= 1.0 / 1.05, (kind, axis)
 
 
+@pytest.mark.slow
 def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
-    """A fleet worker parses the command with diagnose's own parser and calls its handler."""
+    """A fleet worker parses the command with diagnose's own parser and runs its handler."""
     out = tmp_path / 'out'
     args = parse_command(['diagnose', *runs_csv, '--out', str(out), '--test', 'record',
                           '--rezero-s', str(REZERO_S)])
     assert args.records == runs_csv and args.input == runs_csv[0]
     with contextlib.redirect_stdout(io.StringIO()):
-        assert args.handler(args) == 0
+        assert run_handler(args) == 0
     report = json.loads((out / 'report.json').read_text())
     assert [r['record'] for r in report['records']] == runs_csv
     assert report['held_out_records'][0]['record'] == runs_csv[-1]

@@ -221,6 +221,7 @@ def test_fit_reports_the_cubic_against_the_full_model_on_held_out_rows(exported,
     assert (folder / 'again.params').read_text() == (folder / 'gyro.params').read_text()
 
 
+@pytest.mark.slow
 def test_diagnose_writes_the_same_exports_as_fit(exported, capsys):
     folder = exported['folder']
     code = main(['diagnose', str(exported['train']), '--preset', 'tofupilot', '--out',

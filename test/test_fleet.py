@@ -118,10 +118,12 @@ def same_as_diagnose(paths: list, unit: Path, single: Path) -> dict:
     return fleet
 
 
+@pytest.mark.slow
 def test_fleet_unit_is_the_single_record_command(records, fleet_run, tmp_path):
     same_as_diagnose([records / 'a1.csv'], fleet_run[0] / 'units' / 'a1', tmp_path / 'single')
 
 
+@pytest.mark.slow
 def test_a_unit_of_several_records_is_one_diagnose_of_them(records, fleet_run, tmp_path):
     fleet = same_as_diagnose([records / name for name in PAIR], fleet_run[0] / 'units' / 'pair',
                              tmp_path / 'single')
@@ -217,6 +219,7 @@ def test_fit_runs_per_record_and_a_unit_read_two_ways_is_refused(records, tmp_pa
     assert '\n' not in outcome['error'] and first not in outcome['error']
 
 
+@pytest.mark.slow
 def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
     out, (code, stdout, stderr) = fleet_run
     assert code == 1
@@ -237,6 +240,7 @@ def test_a_bad_record_is_its_units_error_and_the_rest_complete(fleet_run):
     assert not [p for p in (out / 'units').iterdir() if p.name.startswith('.')]
 
 
+@pytest.mark.slow
 def test_the_report_has_a_row_per_unit_and_flags_the_outlier(records, fleet_run):
     out = fleet_run[0]
     fleet = json.loads((out / 'fleet.json').read_text())
@@ -263,6 +267,7 @@ def test_the_report_has_a_row_per_unit_and_flags_the_outlier(records, fleet_run)
     assert json.loads((out / 'fleet.json').read_text()) == fleet
 
 
+@pytest.mark.slow
 def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tmp_path):
     out = fleet_run[0]
     assert 'fleet prior of 6 units (1 flagged unit left out' in fleet_run[1][1]
@@ -298,6 +303,7 @@ def test_the_fleet_prior_and_shrunk_fits_load_in_the_node(records, fleet_run, tm
     assert (out / FLEET_PARAMS).read_text() == params
 
 
+@pytest.mark.slow
 def test_a_record_that_contradicts_the_fleet_keeps_its_params(fleet_run, tmp_path):
     """A unit's worker task and the report into a copy of the run: the prior tests its record."""
     out = tmp_path / 'out'
@@ -343,6 +349,7 @@ def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():
     assert robust_z([0.0] * 9 + [1.0])[-1] == pytest.approx(1.0 / (1.253314 * 0.1))
 
 
+@pytest.mark.slow
 def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     out = fleet_run[0]
     manifest = records / 'units.csv'
@@ -367,6 +374,7 @@ def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     assert (out / 'units' / 'a1' / 'unit.json').stat().st_ino != inode['a1']
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
     manifest = tmp_path / 'good.csv'
     manifest.write_text('unit,path\n' + ''.join(f'{u},{records / u}.csv\n' for u in GOOD_UNITS),
@@ -445,6 +453,7 @@ def _wait_for(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.1)
 
 
+@pytest.mark.slow
 def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
     """A real scheduler and two workers; one is killed mid-run; the results are identical."""
     manifest = tmp_path / 'good.csv'

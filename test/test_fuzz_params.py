@@ -168,6 +168,7 @@ def leaves(tree: dict, prefix=()) -> list:
 
 # More examples here: an overflow takes a huge number in the right place (300 missed the one
 # 3000 found: a bias of 1.8e308 rad/s).
+@pytest.mark.slow
 @settings(FUZZ, max_examples=800)
 @given(case=st.one_of(polynomial_models(), linear_btc_models()), data=st.data())
 def test_written_files_with_values_replaced(case, data):

@@ -179,6 +179,7 @@ def test_mutated_valid_csv(mutations, data):
         assert len(result) == len({tuple(row) for row in rows})
 
 
+@pytest.mark.slow
 @FUZZ
 @given(mutations=st.lists(st.sampled_from(MUTATIONS), min_size=1, max_size=3),
        seed=st.integers(0, 2**32 - 1))

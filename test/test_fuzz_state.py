@@ -152,6 +152,7 @@ BOMB = b''.join(b'%s: &%s [%s]\n' % (level, level, b', '.join([b'*' + previous] 
                                            [b'l%d' % i for i in range(1, 10)]))
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.binary(max_size=400), schema=st.sampled_from(sorted(SCHEMAS)))
 @example(data=b'[' * 100000, schema='zro')

@@ -4,10 +4,13 @@ Gyro noise figures from the overlapping Allan deviation (IEEE Std 952-1997, anne
 `allan_deviation` computes, per gyro axis, the overlapping Allan deviation
 of a rate record at octave-spaced averaging times and reads from it the
 angle random walk, the bias instability and the per-sample white rate noise
-that the compensation node's ``rate_noise_rad_s`` parameter expects.
+that the compensation node's ``rate_noise_rad_s`` parameter expects, and the
+two continuous-time densities Kalibr's ``imu.yaml`` takes (`noise_lines`).
+It takes an accelerometer's record the same way (m/s^2 for rad/s).
 """
 
 from dataclasses import dataclass
+import itertools
 
 import numpy as np
 
@@ -22,6 +25,16 @@ MIN_CLUSTERS = 10
 # Ratio of the flat floor of the Allan deviation to the bias instability
 # coefficient B of flicker (1/f) rate noise: sqrt(2 ln 2 / pi) (IEEE 952, C.1.4).
 FLICKER_FLOOR_FACTOR = 0.664
+# Where Kalibr's noise figures are read: the white-noise line (slope -1/2) at 1 s gives the
+# noise density N (sigma = N / sqrt(tau)), the random-walk line (slope +1/2) at 3 s the random
+# walk K (sigma = K sqrt(tau / 3)).
+NOISE_DENSITY_TAU_S = 1.0
+RANDOM_WALK_TAU_S = 3.0
+# The powers of tau of the Allan variance terms of IEEE 952, annex C: quantization
+# (3 Q^2 / tau^2), white noise (N^2 / tau), the flicker floor (constant), random walk
+# (K^2 tau / 3) and rate ramp (R^2 tau^2 / 2).
+_TERM_POWERS = (-2.0, -1.0, 0.0, 1.0, 2.0)
+_WHITE, _WALK = 1, 3
 
 
 @dataclass(frozen=True)
@@ -41,7 +54,8 @@ class NoiseFigures:
     curve still falls there the record is too short to reach the floor and
     the figure is an upper bound. ``rate_noise_rad_s`` is the
     1-sigma white noise of one sample implied by the angle random walk at
-    the sample rate, ``ARW * sqrt(rate_hz)``.
+    the sample rate, ``ARW * sqrt(rate_hz)``. ``duration_s`` is the record's
+    length (samples / rate).
     """
 
     axis: str
@@ -51,6 +65,27 @@ class NoiseFigures:
     bias_instability_rad_s: float
     bias_instability_tau_s: float
     rate_noise_rad_s: float
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class NoiseLines:
+    """
+    The white-noise and random-walk lines of an Allan deviation: Kalibr's two densities.
+
+    In the record's unit U (rad/s for a gyro, m/s^2 for an accelerometer):
+    ``noise_density`` N in U/sqrt(Hz), the line sigma = N / sqrt(tau) read at
+    tau = 1 s; ``random_walk`` K in U/s/sqrt(Hz), the line sigma = K
+    sqrt(tau / 3) read at tau = 3 s. Each ``*_bound`` is True when the
+    curve holds no such term within the trusted taus (too short a record,
+    or a floor above it): the value is then the largest the curve allows,
+    an upper bound.
+    """
+
+    noise_density: float
+    noise_density_bound: bool
+    random_walk: float
+    random_walk_bound: bool
 
 
 def _sample_rate_hz(time_s: np.ndarray) -> float:
@@ -73,7 +108,7 @@ def _sample_rate_hz(time_s: np.ndarray) -> float:
     return 1.0 / median_s
 
 
-def _figures(axis: str, rate_rad_s: np.ndarray, rate_hz: float) -> NoiseFigures:
+def _figures(axis: str, rate_rad_s: np.ndarray, rate_hz: float, taus) -> NoiseFigures:
     # Imported here: only the noise figures need it, and it brings scipy (about 1.4 s to
     # import, 110 MB), which the nodes' environment of `make demo` does not install.
     try:
@@ -83,7 +118,7 @@ def _figures(axis: str, rate_rad_s: np.ndarray, rate_hz: float) -> NoiseFigures:
                "pip install allantools (or the package's toolkit extra)")
         raise CalibrationError(msg) from None
     taus_s, adev_rad_s, _, _ = allantools.oadev(rate_rad_s, rate=rate_hz, data_type='freq',
-                                                taus='octave')
+                                                taus=taus)
     taus_s = np.asarray(taus_s, dtype=np.float64)
     adev_rad_s = np.asarray(adev_rad_s, dtype=np.float64)
     read_tau_s = float(np.clip(ARW_TAU_S, taus_s[0], taus_s[-1]))
@@ -96,10 +131,61 @@ def _figures(axis: str, rate_rad_s: np.ndarray, rate_hz: float) -> NoiseFigures:
                         angle_random_walk_rad_s_rt_hz=arw_rad_s_rt_hz,
                         bias_instability_rad_s=float(adev_rad_s[floor] / FLICKER_FLOOR_FACTOR),
                         bias_instability_tau_s=float(taus_s[floor]),
-                        rate_noise_rad_s=arw_rad_s_rt_hz * float(np.sqrt(rate_hz)))
+                        rate_noise_rad_s=arw_rad_s_rt_hz * float(np.sqrt(rate_hz)),
+                        duration_s=duration_s)
 
 
-def allan_deviation(time_s, rate_rad_s, axes) -> tuple[NoiseFigures, ...]:
+def _term_fit(taus_s: np.ndarray, avar: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """
+    Fit the Allan variance with non-negative terms c_i tau^p_i (`_TERM_POWERS`).
+
+    Least squares of the relative misfit, each tau weighted by ``weights``;
+    the non-negative solution is the best of those on every subset of terms
+    (five terms: 31 subsets, each an ordinary least-squares problem).
+    """
+    design = taus_s[:, None] ** np.asarray(_TERM_POWERS)[None, :] / avar[:, None]
+    design, target = design * weights[:, None], weights
+    best, coefficients = np.inf, np.zeros(len(_TERM_POWERS))
+    for size in range(1, min(len(_TERM_POWERS), taus_s.size) + 1):
+        for terms in itertools.combinations(range(len(_TERM_POWERS)), size):
+            solution, *_ = np.linalg.lstsq(design[:, terms], target, rcond=None)
+            if np.all(solution >= 0.0):
+                misfit = float(np.sum((design[:, terms] @ solution - target) ** 2))
+                if misfit < best:
+                    best = misfit
+                    coefficients = np.zeros(len(_TERM_POWERS))
+                    coefficients[list(terms)] = solution
+    return coefficients
+
+
+def noise_lines(figures: NoiseFigures) -> NoiseLines:
+    """
+    Give the white-noise and random-walk lines of an axis's Allan deviation (Kalibr's figures).
+
+    The Allan variance at the trusted taus (those the record holds at least
+    `MIN_CLUSTERS` times) is fitted with the non-negative terms of IEEE 952,
+    annex C (quantization, white noise, flicker floor, random walk, rate
+    ramp), each tau weighted by the square root of its number of clusters,
+    its estimate's precision. N is the white-noise term's line read at
+    tau = 1 s, K the random-walk term's at tau = 3 s: the asymptotes the
+    curve follows at slope -1/2 and +1/2, found without picking the taus
+    where either alone holds. A term the fit finds zero is replaced by the
+    largest value the curve allows (its minimum of sigma sqrt(tau) for N, of
+    sigma sqrt(3 / tau) for K), flagged as a bound.
+    """
+    taus_s, adev = figures.taus_s, figures.adev_rad_s
+    trusted = taus_s <= max(figures.duration_s / MIN_CLUSTERS, taus_s[0])
+    taus_s, adev = taus_s[trusted], adev[trusted]
+    coefficients = _term_fit(taus_s, adev ** 2, np.sqrt(figures.duration_s / taus_s))
+    white, walk = coefficients[_WHITE], coefficients[_WALK]
+    density = float(np.sqrt(white)) if white > 0.0 else float(np.min(adev * np.sqrt(taus_s)))
+    random_walk = float(np.sqrt(3.0 * walk)) if walk > 0.0 else \
+        float(np.min(adev * np.sqrt(3.0 / taus_s)))
+    return NoiseLines(noise_density=density, noise_density_bound=not white > 0.0,
+                      random_walk=random_walk, random_walk_bound=not walk > 0.0)
+
+
+def allan_deviation(time_s, rate_rad_s, axes, taus='octave') -> tuple[NoiseFigures, ...]:
     """
     Compute the overlapping Allan deviation and noise figures of each gyro axis.
 
@@ -112,6 +198,9 @@ def allan_deviation(time_s, rate_rad_s, axes) -> tuple[NoiseFigures, ...]:
         Gyro rate, one row per sample and one column per axis.
     axes
         Axis names, one per column of ``rate_rad_s``.
+    taus
+        The averaging times, as allantools takes them: 'octave' (1, 2, 4, ...
+        sample intervals), 'decade' or a list in seconds.
 
     Returns
     -------
@@ -137,4 +226,4 @@ def allan_deviation(time_s, rate_rad_s, axes) -> tuple[NoiseFigures, ...]:
         msg = 'time and rate must be finite'
         raise CalibrationError(msg)
     rate_hz = _sample_rate_hz(time_s)
-    return tuple(_figures(axis, rate_rad_s[:, i], rate_hz) for i, axis in enumerate(axes))
+    return tuple(_figures(axis, rate_rad_s[:, i], rate_hz, taus) for i, axis in enumerate(axes))

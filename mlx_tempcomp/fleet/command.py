@@ -14,12 +14,14 @@ from pathlib import Path
 import shlex
 import sys
 
-from .manifest import find_records, read_manifest
+from .manifest import find_records, is_url, read_manifest
 from .prior import write_fleet_prior
 from .report import write_fleet_report
 from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitError,
                    UnitJob)
+from ..sources.recording import column_preset, parse_column_map, RecordingError
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
+from ..toolkit.extras import readers, require
 from ..toolkit.progress import add_progress_option
 
 # What a shell reports for a command stopped by Ctrl-C (128 + SIGINT).
@@ -64,13 +66,24 @@ def add_parser(commands) -> None:
         action.add_argument('--force', action='store_true',
                             help='run finished units again')
         add_progress_option(action)
-        action.set_defaults(handler=fleet_command)
+        action.set_defaults(handler=fleet_command, needs=_needs)
     report = actions.add_parser('report', help='write the fleet report from OUT',
                                 description='Write OUT/fleet.md, OUT/fleet.json and the '
                                             'fleet plots from the units in OUT/units/.')
     report.add_argument('--out', required=True, metavar='OUT',
                         help='folder a fleet diagnose or fit wrote')
-    report.set_defaults(handler=report_command)
+    report.set_defaults(handler=report_command, needs=_needs)
+
+
+def _needs(args: argparse.Namespace) -> list:
+    """
+    Give the optional packages the fleet command imports on this machine (extras.require).
+
+    Dask's scheduler and workers, and matplotlib for the fleet report's plot
+    (and diagnose's); what the records need is checked once they are known.
+    """
+    engine = [] if args.fleet_command == 'report' else [('dask', ''), ('distributed', '')]
+    return engine + [('matplotlib', '')]
 
 
 def _options(command: str, text: str) -> tuple:
@@ -90,13 +103,36 @@ def _options(command: str, text: str) -> tuple:
     return options
 
 
+def _check_read_options(units: list) -> None:
+    """Refuse a record's column map or preset before any unit is sent (UserError)."""
+    for unit in units:
+        for record in unit.records:
+            try:
+                if record.columns is not None and record.preset is not None:
+                    raise RecordingError('give a column map or a preset, not both')
+                if record.columns is not None:
+                    parse_column_map(record.columns)
+                if record.preset is not None:
+                    column_preset(record.preset)
+            except RecordingError as err:
+                msg = f'unit {unit.unit}, {record.path}: {err}'
+                raise UserError(msg) from None
+
+
 def fleet_command(args: argparse.Namespace) -> int:
     """Run ``fleet diagnose`` or ``fleet fit``, then write the fleet report."""
     from .run import run_fleet
     command = args.fleet_command
     options = _options(command, args.options)
     check_output_folder(args.out, '--out')
+    fetched = [('fsspec', '')]
+    if args.records is not None and is_url(args.records):
+        require(f'fleet {command}', fetched)
     units = read_manifest(args.manifest) if args.manifest else find_records(args.records)
+    paths = [record.path for unit in units for record in unit.records]
+    require(f'fleet {command}',
+            readers(paths) + (fetched if any(is_url(path) for path in paths) else []))
+    _check_read_options(units)
     folder = Path(args.out).resolve() / 'units'
     jobs = [UnitJob(command, unit, options, str(folder / unit.unit)) for unit in units]
     outcome = run_fleet(jobs, scheduler=args.scheduler, workers=args.workers,

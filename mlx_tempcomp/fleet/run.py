@@ -20,11 +20,11 @@ import logging
 import os
 from pathlib import Path
 import shutil
-import tempfile
 import uuid
 
 from .unit import LOG_FILE, one_line, run_unit, UNIT_FILE, UnitJob
 from ..toolkit.common import UserError, write_json
+from ..toolkit.outputs import staged_outputs
 from ..toolkit.progress import Progress
 
 UNITS_FOLDER = 'units'
@@ -80,25 +80,13 @@ def finished(job: UnitJob) -> bool:
 
 def store_unit(job: UnitJob, outcome: dict) -> None:
     """Put a unit's files (or its error entry) in its folder: a whole folder, renamed in."""
-    folder = Path(job.folder)
-    staging = Path(tempfile.mkdtemp(prefix=f'.{folder.name}.', dir=folder.parent))
-    try:
+    with staged_outputs() as outputs:
+        staging = outputs.folder(job.folder)
         for name, data in outcome['files'].items():
             target = staging / name
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(data)
         write_json(staging / UNIT_FILE, unit_entry(job, outcome['status'], outcome['error']))
-        os.chmod(staging, 0o755)
-        if folder.exists():
-            retired = folder.with_name(f'.{folder.name}.old-{uuid.uuid4().hex[:8]}')
-            folder.rename(retired)
-            staging.rename(folder)
-            shutil.rmtree(retired)
-        else:
-            staging.rename(folder)
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging)
 
 
 def _clear_leftovers(units: Path) -> None:

@@ -30,7 +30,7 @@ from .manifest import is_url, OPTIONAL_COLUMNS, RecordSpec, UnitSpec
 from ..core.pooling import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
-from ..toolkit.common import load
+from ..toolkit.common import load, run_handler
 
 COMMANDS = ('diagnose', 'fit')
 # The commands that fit one model over several records of a unit.
@@ -190,7 +190,7 @@ def _run(job: UnitJob, run: int, work: Path, files: dict, moments: dict) -> None
     log = io.StringIO()
     try:
         with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-            args.handler(args)
+            run_handler(args)
     except MlxTempCompError as err:
         raise UnitError(named(str(err))) from None
     except Exception as err:  # a crash of the command is this unit's, in the user's names

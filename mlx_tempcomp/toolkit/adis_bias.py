@@ -71,6 +71,11 @@ def _check_options(args: argparse.Namespace) -> None:
         raise UserError(msg)
 
 
+def _needs(args: argparse.Namespace) -> list:
+    """Give the optional packages adis-bias will import (extras.require): the rest record's."""
+    return [('allantools', 'give --allan-record-s 0')] if args.allan_record_s > 0 else []
+
+
 def _open_sensor(args: argparse.Namespace):
     """Start the part; give the sensor and a description of it."""
     try:
@@ -322,4 +327,4 @@ def add_parser(commands) -> None:
                              'as possible)')
     add_parameter_file_options(parser, ' at the end')
     add_progress_option(parser)
-    parser.set_defaults(handler=adis_bias_command)
+    parser.set_defaults(handler=adis_bias_command, needs=_needs)

@@ -2,66 +2,98 @@
 The ``mlx-tempcomp allan`` command: Allan deviation and noise figures of a recording.
 
 Prints, per gyro axis, the angle random walk, the bias instability and the
-compensation node's ``rate_noise_rad_s``; ``--out DIR`` also writes
-allan.json (figures and curves) and allan.png (log-log curves). matplotlib
-is imported only when the plot is written.
+compensation node's ``rate_noise_rad_s``, then per gyro and accelerometer
+axis the two continuous-time densities visual-inertial tools take (`noise_lines`):
+the noise density and the random walk. ``--kalibr-yaml FILE`` writes them as
+Kalibr's ``imu.yaml``; ``--out DIR`` also writes allan.json (figures and
+curves) and allan.png (log-log curves). matplotlib is imported only when the
+plot is written.
 """
 
 import argparse
 import math
 from pathlib import Path
 
-from .common import add_recording_options, check_output_folder, load, UserError, write_json
+import numpy as np
+
+from .common import (add_recording_options, check_output_file, check_output_folder, load,
+                     UserError, write_json, write_result)
 from ..core.errors import TempCompError
-from ..core.noise import allan_deviation
+from ..core.noise import allan_deviation, NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S
+from ..sources.recording import AXES
 
 SECONDS_PER_HOUR = 3600.0
+# The topic a visual-inertial tool reads: the compensation node's output.
+KALIBR_TOPIC = '/imu/data'
 
 
 def add_parser(commands) -> None:
     """Add the ``allan`` subcommand."""
     allan = commands.add_parser(
-        'allan', help='Allan deviation and noise figures of a recording',
-        description='Compute the overlapping Allan deviation of each gyro axis of a '
-                    'recording (CSV or rosbag2 bag) at octave-spaced taus and print the '
-                    'angle random walk, bias instability and the rate_noise_rad_s '
-                    'parameter of the compensation node.')
+        'allan', help='Allan deviation and noise figures of a recording (Kalibr imu.yaml)',
+        description='Compute the overlapping Allan deviation of each gyro and accelerometer '
+                    'axis of a recording (CSV or rosbag2 bag) at octave-spaced taus and print '
+                    'the angle random walk, bias instability and the rate_noise_rad_s '
+                    'parameter of the compensation node, and the noise density and random '
+                    "walk Kalibr's imu.yaml takes. Record the sensor still, at a steady "
+                    'temperature.')
     add_recording_options(allan)
     allan.add_argument('--out', metavar='DIR',
                        help='also write allan.json and allan.png into this folder')
-    allan.set_defaults(handler=allan_command)
+    allan.add_argument('--kalibr-yaml', metavar='FILE',
+                       help="write the noise figures as Kalibr's imu.yaml (the largest of the "
+                            'axes; accelerometer entries when the record has acceleration)')
+    allan.add_argument('--kalibr-topic', default=KALIBR_TOPIC, metavar='TOPIC',
+                       help='rostopic written into the imu.yaml (default: %(default)s, the '
+                            "compensation node's output)")
+    allan.set_defaults(handler=allan_command, needs=_needs)
 
 
-def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
-    """Write allan.json (figures and curves) and allan.png (log-log curves) into out_dir."""
+def _needs(args: argparse.Namespace) -> list:
+    """Give the optional packages allan will import (extras.require)."""
+    return [('allantools', '')] + ([('matplotlib', '')] if args.out is not None else [])
+
+
+def _axis_json(figures, lines, unit: str) -> dict:
+    return {'axis': figures.axis,
+            'angle_random_walk_rad_s_rt_hz': figures.angle_random_walk_rad_s_rt_hz,
+            'bias_instability_rad_s': figures.bias_instability_rad_s,
+            'bias_instability_tau_s': figures.bias_instability_tau_s,
+            'rate_noise_rad_s': figures.rate_noise_rad_s,
+            f'noise_density_{unit}_rt_hz': lines.noise_density,
+            'noise_density_upper_bound': lines.noise_density_bound,
+            f'random_walk_{unit}_s_rt_hz': lines.random_walk,
+            'random_walk_upper_bound': lines.random_walk_bound,
+            'taus_s': figures.taus_s.tolist(),
+            'adev_rad_s': figures.adev_rad_s.tolist()}
+
+
+def _write_allan_files(args: argparse.Namespace, gyro: tuple, accel: tuple) -> None:
+    """Write allan.json (figures and curves) and allan.png (log-log curves) into --out."""
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
 
-    result = {
-        'source': source,
-        'axes': [{
-            'axis': f.axis,
-            'angle_random_walk_rad_s_rt_hz': f.angle_random_walk_rad_s_rt_hz,
-            'bias_instability_rad_s': f.bias_instability_rad_s,
-            'bias_instability_tau_s': f.bias_instability_tau_s,
-            'rate_noise_rad_s': f.rate_noise_rad_s,
-            'taus_s': f.taus_s.tolist(),
-            'adev_rad_s': f.adev_rad_s.tolist(),
-        } for f in figures],
-    }
+    out_dir, source = args.out, args.input
+    result = {'source': source, 'axes': [_axis_json(f, lines, 'rad_s') for f, lines in gyro]}
+    if accel:
+        # The accelerometer's curve is in m/s^2, under the same keys as the gyro's.
+        result['accelerometer_axes'] = [_axis_json(f, lines, 'm_s2') for f, lines in accel]
     figure, axes = pyplot.subplots(figsize=(7.0, 5.0))
-    for f in figures:
-        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', label=f'gyro {f.axis}')
+    for f, _ in gyro:
+        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', label=f'gyro {f.axis} (rad/s)')
+    for f, _ in accel:
+        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', linestyle='--',
+                    label=f'accelerometer {f.axis} (m/s^2)')
     axes.set_xlabel('tau (s)')
-    axes.set_ylabel('Allan deviation (rad/s)')
+    axes.set_ylabel('Allan deviation')
     axes.set_title(f'Overlapping Allan deviation: {Path(source).name}')
     axes.grid(True, which='both', alpha=0.3)
     axes.legend()
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        write_json(Path(out_dir) / 'allan.json', result)
-        figure.savefig(Path(out_dir) / 'allan.png', dpi=100)
+        write_json(args.outputs.file(Path(out_dir) / 'allan.json'), result)
+        figure.savefig(args.outputs.file(Path(out_dir) / 'allan.png'), dpi=100, format='png')
     except OSError as err:
         msg = f'cannot write to {out_dir}: {err.strerror}'
         raise UserError(msg) from None
@@ -69,21 +101,78 @@ def _write_allan_files(out_dir: str, source: str, figures: tuple) -> None:
         pyplot.close(figure)
 
 
-def allan_command(args: argparse.Namespace) -> int:
-    if args.out is not None:
-        check_output_folder(args.out, '--out')
-    recording = load(args)
+def _largest(pairs: tuple) -> tuple:
+    """Give the largest noise density and random walk over the axes, and whether each bounds."""
+    density = max(pairs, key=lambda pair: pair[1].noise_density)[1]
+    walk = max(pairs, key=lambda pair: pair[1].random_walk)[1]
+    return (density.noise_density, density.noise_density_bound, walk.random_walk,
+            walk.random_walk_bound)
+
+
+def kalibr_yaml(gyro: tuple, accel: tuple, topic: str, rate_hz: float, source: str) -> str:
+    """
+    Give the text of Kalibr's imu.yaml for (NoiseFigures, NoiseLines) pairs per axis.
+
+    Kalibr takes one noise density and one random walk per sensor: the
+    largest of the axes is written (a filter told too little noise trusts
+    the sensor too much), the axes' own values in comments beside.
+    """
+    def entries(name: str, pairs: tuple, units: tuple) -> list:
+        density, density_bound, walk, walk_bound = _largest(pairs)
+        axes = ', '.join(f'{f.axis} {lines.noise_density:.3e} / {lines.random_walk:.3e}'
+                         for f, lines in pairs)
+        return [f'# {name} axes (noise density / random walk): {axes}',
+                f'{name}_noise_density: {density:.6e}  # {units[0]}'
+                + (', an upper bound: no white-noise line in the record' if density_bound
+                   else ''),
+                f'{name}_random_walk: {walk:.6e}  # {units[1]}'
+                + (', an upper bound: the record shows no random walk' if walk_bound else '')]
+
+    lines = [f'# IMU noise model for Kalibr, by mlx-tempcomp allan from {source}',
+             '# Continuous-time densities from the overlapping Allan deviation: the noise '
+             f'density is the white-noise line (slope -1/2) at tau = {NOISE_DENSITY_TAU_S:g} s,',
+             '# the random walk the random-walk line (slope +1/2) at tau = '
+             f'{RANDOM_WALK_TAU_S:g} s; the largest of the axes.']
+    if accel:
+        lines += entries('accelerometer', accel, ('m/s^2/sqrt(Hz)', 'm/s^3/sqrt(Hz)'))
+    else:
+        lines.append('# no accelerometer in the record: accelerometer_* left out')
+    lines += entries('gyroscope', gyro, ('rad/s/sqrt(Hz)', 'rad/s^2/sqrt(Hz)'))
+    rate = float(f'{rate_hz:.6g}')
+    lines += [f'rostopic: {topic}', f"update_rate: {rate!r}  # Hz, the record's"]
+    return '\n'.join(lines) + '\n'
+
+
+def _figures(args: argparse.Namespace, recording) -> tuple:
+    """Give ((NoiseFigures, NoiseLines) per gyro axis, the same per accelerometer axis)."""
     try:
-        figures = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)
+        gyro = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)
+        accel = () if recording.acceleration_m_s2 is None else \
+            allan_deviation(recording.time_s, recording.acceleration_m_s2, AXES)
+        return (tuple((f, noise_lines(f)) for f in gyro),
+                tuple((f, noise_lines(f)) for f in accel))
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+
+
+def _bound(flag: bool) -> str:
+    return ' <' if flag else ''
+
+
+def allan_command(args: argparse.Namespace) -> int:
+    if args.out is not None:
+        check_output_folder(args.out, '--out')
+    if args.kalibr_yaml is not None:
+        check_output_file(args.kalibr_yaml, '--kalibr-yaml')
+    recording = load(args)
+    gyro, accel = _figures(args, recording)
     print(f'{args.input}: {len(recording)} samples over {recording.duration_s:.1f} s')
     print(f'{"axis":<6}{"ARW":>12}{"ARW":>14}{"bias inst.":>12}{"bias inst.":>12}'
           f'{"at tau":>10}{"rate_noise":>12}')
     print(f'{"":<6}{"deg/sqrt(h)":>12}{"rad/s/rt(Hz)":>14}{"deg/h":>12}{"rad/s":>12}'
           f'{"s":>10}{"rad/s":>12}')
-    for f in figures:
+    for f, _ in gyro:
         arw_deg_rt_h = math.degrees(f.angle_random_walk_rad_s_rt_hz) * SECONDS_PER_HOUR ** 0.5
         bias_deg_h = math.degrees(f.bias_instability_rad_s) * SECONDS_PER_HOUR
         print(f'{f.axis:<6}{arw_deg_rt_h:>12.4g}{f.angle_random_walk_rad_s_rt_hz:>14.4g}'
@@ -91,7 +180,27 @@ def allan_command(args: argparse.Namespace) -> int:
               f'{f.bias_instability_tau_s:>10.4g}{f.rate_noise_rad_s:>12.4g}')
     print('ARW read at tau = 1 s; bias instability = ADEV minimum / 0.664; '
           'rate_noise is the compensation node parameter')
+    print(f'{"sensor":<16}{"noise density":>16}{"random walk":>16}   (Kalibr imu.yaml)')
+    for sensor, pairs, units in (('gyro', gyro, 'rad/s, rad/s^2'),
+                                 ('accelerometer', accel, 'm/s^2, m/s^3')):
+        for f, lines in pairs:
+            print(f'{sensor + " " + f.axis:<16}{lines.noise_density:>14.4e}'
+                  f'{_bound(lines.noise_density_bound):<2}{lines.random_walk:>14.4e}'
+                  f'{_bound(lines.random_walk_bound):<2} {units} /sqrt(Hz)')
+    print(f'noise density: white-noise line at tau = {NOISE_DENSITY_TAU_S:g} s; random walk: '
+          f'+1/2 line at tau = {RANDOM_WALK_TAU_S:g} s; < an upper bound (the record holds no '
+          'such term)' + ('' if accel else '; no accelerometer in the record'))
+    if args.kalibr_yaml is not None:
+        rate_hz = 1.0 / float(np.median(np.diff(recording.time_s)))   # as the figures take it
+        text = kalibr_yaml(gyro, accel, args.kalibr_topic, rate_hz, args.input)
+        try:
+            write_result(args.outputs.file(args.kalibr_yaml), text)
+        except OSError as err:
+            msg = f'cannot write {args.kalibr_yaml}: {err.strerror}'
+            raise UserError(msg) from None
+        print(f'wrote {args.kalibr_yaml} (Kalibr imu.yaml, rostopic {args.kalibr_topic}, '
+              f'update_rate {rate_hz:.6g} Hz)')
     if args.out is not None:
-        _write_allan_files(args.out, args.input, figures)
+        _write_allan_files(args, gyro, accel)
         print(f'wrote {Path(args.out) / "allan.json"} and {Path(args.out) / "allan.png"}')
     return 0

@@ -9,8 +9,9 @@ deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
 (rows used, rows skipped by reason, rows sorted into time order) through
 `load`. Output paths are checked before the work (`check_output_file`,
 `check_output_folder`), so a typo'd folder fails at once, not after a long
-fit. Parameter files (`write_node_parameters`) and JSON or text results
-(`write_json`, `write_result`) are replaced atomically.
+fit. Every output is staged and put in place when the command is done
+(`run_handler`, `outputs.Outputs`): an interrupted or failed run leaves the
+previous outputs, or none, never part of them.
 """
 
 import argparse
@@ -18,10 +19,12 @@ import json
 import math
 import os
 from pathlib import Path
+import re
 import sys
 
 import numpy as np
 
+from .outputs import Outputs
 from ..core.validation import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                                DEFAULT_VALIDATION, SCHEMES)
 from ..errors import MlxTempCompError
@@ -32,6 +35,10 @@ from ..sources.recording import load_flight_log, load_recording, Recording, Reco
 from ..state_file import atomic_write
 
 EXIT_USER_ERROR = 2
+# The topics a bag is read from by default: the driver's raw output, what `simulate` and
+# `convert` write and every driver publishes (the compensated imu/data is the node's output).
+RAW_IMU_TOPIC = '/imu/data_raw'
+RAW_TEMPERATURE_TOPIC = '/imu/temperature_raw'
 
 
 class UserError(MlxTempCompError):
@@ -148,34 +155,54 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
                          help='column map of a known data set (CSV only)')
     columns.add_argument('--columns', metavar='SPEC',
                          help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
-    parser.add_argument('--imu-topic', default='/imu/data', metavar='TOPIC',
-                        help='Imu topic of a bag (default: %(default)s)')
-    parser.add_argument('--temperature-topic', default='/imu/temperature', metavar='TOPIC',
-                        help='Temperature topic of a bag (default: %(default)s)')
+    parser.add_argument('--imu-topic', default=RAW_IMU_TOPIC, metavar='TOPIC',
+                        help="Imu topic read from a bag (default: %(default)s, the driver's raw "
+                             'output, which every bag the package writes holds; calibration '
+                             'fits raw data)')
+    parser.add_argument('--temperature-topic', default=RAW_TEMPERATURE_TOPIC, metavar='TOPIC',
+                        help='Temperature topic read from a bag (default: %(default)s)')
     parser.add_argument('--supply-voltage-topic', default='/imu/supply_voltage',
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '
                              'it (default: %(default)s)')
 
 
+def node_name(text: str) -> str:
+    """
+    Parse a node name for a parameter file's section (argparse type).
+
+    What rcl matches a section against: a node name (letters, digits and
+    underscores, not starting with a digit), optionally with its namespace
+    (``/robot/compensation_node``), or ``/**`` for every node.
+    """
+    if text == '/**' or re.fullmatch(r'(/?[A-Za-z_][A-Za-z0-9_]*)+', text):
+        return text
+    msg = (f'expected a ROS node name (letters, digits, underscores; /namespace/name or /**), '
+           f'got {text!r}')
+    raise argparse.ArgumentTypeError(msg)
+
+
 def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') -> None:
     """Add ``--out`` and ``--node-name``: the compensation node's parameter file to write."""
     parser.add_argument('--out', required=True, metavar='PARAMS.yaml',
                         help=f'parameter file to write{when} (replaced atomically)')
-    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
+    parser.add_argument('--node-name', type=node_name, default='compensation_node',
+                        metavar='NAME',
                         help='node section of the parameter file (default: %(default)s)')
 
 
 def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
     """
-    Write ``parameters`` as the file `add_parameter_file_options` names, atomically.
+    Write ``parameters`` as the file `add_parameter_file_options` names, staged.
 
     ``header`` becomes its comment lines, followed by the command that loads
-    the file; a file that cannot be written is a UserError.
+    the file; a file that cannot be written is a UserError. The file is
+    written under its staging name (``args.outputs``, `run_handler`).
     """
     header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
     try:
-        write_parameter_file(args.out, parameter_file(args.node_name, parameters), header)
+        write_parameter_file(args.outputs.file(args.out),
+                             parameter_file(args.node_name, parameters), header)
     except OSError as err:
         msg = f'cannot write {args.out}: {err.strerror}'
         raise UserError(msg) from None
@@ -269,16 +296,38 @@ def _suffixed(path, index: int) -> str:
     return str(path.with_name(f'{path.stem}.imu{index}{path.suffix}'))
 
 
+def run_handler(args: argparse.Namespace) -> int:
+    """
+    Run the subcommand's handler with its outputs staged (``args.outputs``), all or none.
+
+    The handler writes each output under the staging name ``args.outputs``
+    gives (`outputs.Outputs`); they replace their targets together when it
+    returns, and are removed when it raises (an error, Ctrl-C).
+    """
+    outputs = args.outputs = Outputs()
+    try:
+        status = args.handler(args)
+    except BaseException:
+        outputs.discard()
+        raise
+    try:
+        outputs.commit()
+    except OSError as err:
+        msg = f'cannot write {err.filename}: {err.strerror}; no output was written'
+        raise UserError(msg) from None
+    return status
+
+
 def run_command(args: argparse.Namespace) -> int:
     """
-    Run the subcommand's handler.
+    Run the subcommand's handler (`run_handler`).
 
     With ``--instance all`` on a flight log, once per usable IMU instance,
     each output path (--out, --out-csv, --px4-params, --ardupilot-parm)
     suffixed with ``.imuN`` before its extension.
     """
     if getattr(args, 'instance', None) != 'all' or not getattr(args, 'per_instance', True):
-        return args.handler(args)
+        return run_handler(args)
     if getattr(args, 'json', False):
         msg = '--json prints one document: give one --instance, not all'
         raise UserError(msg)
@@ -302,7 +351,7 @@ def run_command(args: argparse.Namespace) -> int:
         for name in _OUTPUT_OPTIONS:
             if getattr(each, name, None) is not None:
                 setattr(each, name, _suffixed(getattr(each, name), index))
-        status = args.handler(each)
+        status = run_handler(each)
         if status:
             return status
     return 0
@@ -332,11 +381,13 @@ def check_output_file(path, option: str) -> None:
         raise UserError(msg)
 
 
-def check_output_folder(path, option: str, new: bool = False) -> None:
+def check_output_folder(path, option: str, new: bool = False, owns=None) -> None:
     """
     Raise UserError unless files can be written into folder ``path``.
 
     The folder may exist (unless ``new``) or be created; its parent must exist.
+    ``owns`` names the files of a folder the command replaces as a whole: an
+    existing folder holding anything else is refused, not deleted.
     """
     target = Path(path)
     if target.exists():
@@ -347,5 +398,13 @@ def check_output_folder(path, option: str, new: bool = False) -> None:
             msg = f'{option} {path} is a file, not a folder'
             raise UserError(msg)
         _check_writable_folder(target, option, path)
+        foreign = sorted(p.name for p in target.iterdir() if owns is not None
+                         and p.name not in owns)
+        if foreign:
+            msg = (f'{option} {path} holds {", ".join(foreign[:3])}'
+                   + (f' and {len(foreign) - 3} more' if len(foreign) > 3 else '')
+                   + ', which this command does not write: the folder is replaced as a whole '
+                   'when the command is done; give a new or empty folder')
+            raise UserError(msg)
         return
     _check_writable_folder(target.parent, option, path)

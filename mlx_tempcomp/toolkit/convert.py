@@ -47,13 +47,14 @@ def stamps_ns(time_s: np.ndarray, source: str) -> np.ndarray:
 
 
 def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=None,
-                  eeprom_images=None, progress_enabled=None) -> int:
+                  eeprom_images=None, progress_enabled=None, name=None) -> int:
     """
     Write ``recording`` on the raw topics into a new bag folder; return the messages written.
 
     ``axis_temperatures_c`` (samples, axes) adds ``/imu/temperature_raw/<axis>``
     per chip (the driver publishes those with several chips) and
-    ``eeprom_images`` an ``/imu/eeprom`` message at the first stamp.
+    ``eeprom_images`` an ``/imu/eeprom`` message at the first stamp. ``name``
+    is the bag's name on the console when ``path`` is its staging name.
     """
     stamps = stamps_ns(recording.time_s, recording.source)
     per_axis = axis_temperatures_c is not None and len(recording.axes) > 1
@@ -67,7 +68,8 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
     written = 0
     try:
         with RawBagWriter(path, storage, RawTopics(), extra) as bag, \
-                Progress(len(recording), f'writing {path}', progress_enabled) as progress:
+                Progress(len(recording), f'writing {name or path}',
+                         progress_enabled) as progress:
             if eeprom_images is not None:
                 bag.write_eeprom(int(stamps[0]), EepromRecord(tuple(eeprom_images)))
                 written += 1
@@ -98,15 +100,16 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
                 written += 2 + len(extra)
                 progress.update(row + 1)
     except BagError as err:
-        raise UserError(str(err)) from None
+        raise UserError(str(err).replace(str(path), str(name or path))) from None
     return written
 
 
 def convert_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out', new=True)
     recording = load(args)
-    messages = write_raw_bag(args.out, args.storage, recording,
-                             progress_enabled=args.progress or None)
+    messages = write_raw_bag(args.outputs.folder(args.out, create=False, replace=False),
+                             args.storage, recording, progress_enabled=args.progress or None,
+                             name=args.out)
     print(f'{args.input}: axes {", ".join(recording.axes)}, {recording.duration_s:.1f} s')
     topics = ['/imu/data_raw', '/imu/temperature_raw']
     if recording.temperature_2_c is not None:
@@ -115,7 +118,9 @@ def convert_command(args: argparse.Namespace) -> int:
         topics.append(RawTopics.supply_voltage)
     print(f'wrote {args.out} ({args.storage}): {messages} messages on {", ".join(topics)}')
     print(f'replay: driver_node --ros-args -p source:=bag -p bag.path:={args.out} '
-          f"-p \"axes:=[{', '.join(repr(a) for a in recording.axes)}]\"")
+          f"-p bag.rate_factor:=0.0 -p \"axes:=[{', '.join(repr(a) for a in recording.axes)}]\""
+          + (f' -p bag.temperature_2_topic:={TEMPERATURE_2_TOPIC}'
+             if recording.temperature_2_c is not None else ''))
     return 0
 
 

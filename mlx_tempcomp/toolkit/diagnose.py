@@ -25,9 +25,10 @@ import math
 from pathlib import Path
 
 from .common import (add_recording_options, add_validation_options, check_output_folder,
-                     fraction, load_records, non_negative_float, non_negative_int,
+                     fraction, load_records, node_name, non_negative_float, non_negative_int,
                      positive_float, UserError, validation_settings, write_json, write_result)
-from .exports import add_export_options, check_export_outputs, write_exports
+from .exports import (add_export_options, check_export_outputs, check_export_record,
+                      write_exports)
 from .progress import add_progress_option, Progress
 from .tracking import tracking_section
 from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
@@ -43,6 +44,9 @@ from ..model_params import effect_parameters, parameter_file, write_parameter_fi
 
 PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png',
          'error_by_temperature.png')
+CUBIC_ORDER = 3
+# The other files of --out, which diagnose replaces as a whole.
+OWN_FILES = ('report.md', 'report.json', 'params.yaml')
 # Plots draw at most this many bins per axis (every k-th bin beyond).
 MAX_PLOT_POINTS = 20000
 METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
@@ -55,6 +59,16 @@ TEST_EACH = 'each'
 WRITTEN_OFFSET = ('the last record fitted: the robot runs after it, on that mount and '
                   'power-up; on a new run, recalibrate the ZRO at rest (imu/recalibrate_zro) '
                   "to take up that run's own offset")
+
+
+def _max_order(text: str) -> int:
+    """Parse --max-order: the cubic the written model is judged against needs order 3."""
+    order = non_negative_int(text)
+    if order < CUBIC_ORDER:
+        msg = (f'expected an order of at least {CUBIC_ORDER} (the PX4-style cubic is fitted '
+               f'beside every model), got {text!r}')
+        raise argparse.ArgumentTypeError(msg)
+    return order
 
 
 def _test_part(text: str):
@@ -88,9 +102,10 @@ def add_parser(commands) -> None:
     parser.add_argument('--average-s', type=non_negative_float, default=defaults.average_s,
                         metavar='S', help='bin length the residual is averaged over, 0 per '
                                           'sample (default: %(default)s)')
-    parser.add_argument('--max-order', type=non_negative_int, default=defaults.max_order,
-                        metavar='N', help='highest polynomial order tried (default: '
-                                          '%(default)s)')
+    parser.add_argument('--max-order', type=_max_order, default=defaults.max_order,
+                        metavar='N', help='highest polynomial order tried, at least 3: the '
+                                          'PX4-style cubic is fitted beside every model '
+                                          '(default: %(default)s)')
     parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
@@ -124,11 +139,20 @@ def add_parser(commands) -> None:
                         help='also search time drift and bias steps, which are tied to the '
                              "record's clock, and write them into params.yaml (default: "
                              'report them as findings only)')
-    parser.add_argument('--node-name', default='compensation_node', metavar='NAME',
-                        help='node section of params.yaml (default: %(default)s)')
+    parser.add_argument('--node-name', type=node_name, default='compensation_node',
+                        metavar='NAME', help='node section of params.yaml (default: '
+                                             '%(default)s)')
+    parser.add_argument('--no-plots', action='store_true',
+                        help='write the report and params.yaml without the PNG plots (and '
+                             'without matplotlib)')
     add_progress_option(parser)
     add_export_options(parser)
-    parser.set_defaults(handler=diagnose_command)
+    parser.set_defaults(handler=diagnose_command, needs=_needs)
+
+
+def _needs(args: argparse.Namespace) -> list:
+    """Give the optional packages diagnose will import (extras.require): the plots'."""
+    return [] if args.no_plots else [('matplotlib', 'give --no-plots')]
 
 
 class _Bars:
@@ -219,13 +243,13 @@ def _rezero_s(args: argparse.Namespace, recordings: list, test) -> float:
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
-    check_output_folder(args.out, '--out')
+    exports = {Path(p).name for p in (args.px4_params, args.ardupilot_parm)
+               if p is not None and Path(p).resolve().parent == Path(args.out).resolve()}
+    check_output_folder(args.out, '--out', owns={*OWN_FILES, *PLOTS, *exports})
     test = args.test if args.test is not None else args.test_fraction or 0.0
     _check_records(args, test)
     check_export_outputs(args)
-    recordings = load_records(args)
-    bars = _Bars(True if args.progress else None)
-    try:
+    try:   # the settings are checked before the records are read
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
@@ -233,8 +257,15 @@ def diagnose_command(args: argparse.Namespace) -> int:
             error_bins=args.error_bins,
             test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
             test_fraction=test if isinstance(test, float) else 0.0,
-            rezero_s=_rezero_s(args, recordings, test),
+            rezero_s=args.rezero_s or DEFAULT_REZERO_S,
             record_effects=args.record_effects, **validation_settings(args))
+    except TempCompError as err:
+        raise UserError(str(err)) from None
+    recordings = load_records(args)
+    check_export_record(args, recordings[0])
+    bars = _Bars(True if args.progress else None)
+    try:
+        settings = dataclasses.replace(settings, rezero_s=_rezero_s(args, recordings, test))
         diagnosis, held_out = _diagnoses(args, recordings, settings, bars)
     except TempCompError as err:
         raise UserError(_error_text(args.records, err)) from None
@@ -243,11 +274,13 @@ def diagnose_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     source = ', '.join(args.records)
     report = _report(source, recordings, diagnosis, held_out)
+    plots = () if args.no_plots else PLOTS
     try:
-        out.mkdir(exist_ok=True)
-        write_json(out / 'report.json', report)
-        write_result(out / 'report.md', _markdown(report))
-        _plots(out, diagnosis)
+        folder = args.outputs.folder(out)   # replaces --out when the command is done
+        write_json(folder / 'report.json', report)
+        write_result(folder / 'report.md', _markdown(report, plots))
+        if not args.no_plots:
+            _plots(folder, diagnosis)
         model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
                                             diagnosis.settings.average_s)
         parameters = effect_parameters(diagnosis.model, diagnosis.axes)
@@ -263,18 +296,19 @@ def diagnose_command(args: argparse.Namespace) -> int:
                   + ('model_error: held-out RMS by temperature (a bias error), added to the '
                      'Imu covariance\n' if model_error else '')
                   + f'Use: compensation_node --ros-args --params-file {out / "params.yaml"}')
-        write_parameter_file(out / 'params.yaml', content, header)
+        write_parameter_file(folder / 'params.yaml', content, header)
     except OSError as err:
         msg = f'cannot write to {out}: {err.strerror}'
         raise UserError(msg) from None
     print(_summary(report))
     print('\n'.join(tracking_lines))
-    print(f'wrote {out / "report.md"}, report.json, params.yaml and {len(PLOTS)} plots')
     if len(recordings) == 1:
         held = diagnosis.test_rows
         write_exports(args, recordings[0], lambda part: diagnosis.model,
                       start=len(recordings[0]) - held if held else None,
                       full_saw_held_out=not held)
+    print(f'wrote {out / "report.md"}, report.json, params.yaml and '
+          + (f'{len(plots)} plots' if plots else 'no plots (--no-plots)'))
     print('\n'.join(_held_out_lines(report) + _written_lines(report)))
     return 0
 
@@ -680,7 +714,7 @@ def _written_lines(report: dict) -> list:
     return lines
 
 
-def _markdown(report: dict) -> str:
+def _markdown(report: dict, plots=PLOTS) -> str:
     rows = report['rows']
     settings = report['settings']
     effects = report['effects']
@@ -734,7 +768,7 @@ def _markdown(report: dict) -> str:
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
-    lines += [f'- ![{name}]({name})' for name in PLOTS]
+    lines += [f'- ![{name}]({name})' for name in plots] or ['none (--no-plots)']
     return '\n'.join(lines) + '\n'
 
 

@@ -127,10 +127,12 @@ def _statistics(error: np.ndarray, weights=None) -> dict:
             'samples': stats.samples}
 
 
-def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, axes: tuple,
-                     corrected: np.ndarray, twin=None) -> None:
+def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.ndarray,
+                     axes: tuple, corrected: np.ndarray, twin=None) -> None:
     """
-    Write time, temperature and corrected rate as a canonical CSV recording.
+    Write time, temperature and corrected rate as a canonical CSV recording at ``staged``.
+
+    ``path`` is its name (``staged`` its staging name, `outputs`).
 
     With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
     ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
@@ -144,7 +146,7 @@ def _write_corrected(path: str, time_s: np.ndarray, temperature_c: np.ndarray, a
         columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
                    twin.offset_std_rad_s, twin.learnt.astype(int)]
     try:
-        with open(path, 'w', newline='', encoding='utf-8') as stream:
+        with open(staged, 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
             writer.writerow(header)
             for t, temperature, *row in zip(time_s.tolist(), temperature_c.tolist(),
@@ -222,15 +224,16 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if twin:
         report['bias_tracking'] = twin.report
     if args.out_csv is not None:
-        _write_corrected(args.out_csv, recording.time_s, recording.temperature_c, axes,
-                         corrected, twin)
+        _write_corrected(args.out_csv, args.outputs.file(args.out_csv), recording.time_s,
+                         recording.temperature_c, axes, corrected, twin)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     print(f'model {model.name} from {args.params}; truth: {report["truth"]}')
+    which = 'every row' if part.start == 0 else \
+        f'the last {args.test_fraction:.0%} of the rows, --test-fraction {args.test_fraction:g}'
     print(f'evaluated {len(recording) - part.start} samples from '
-          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
-          f'(last {args.test_fraction:g} of the rows); '
+          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s ({which}); '
           f'{report["temperature_clamped_samples"]} with temperature clamped')
     print(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
     for a in axes:

@@ -35,8 +35,10 @@ accelerometer cubic leaves. docs/flight-logs.md gives the sources.
   script does. IMUs 1-3 are ``INS_TCALn_*``, IMUs 4 and 5 ``INSn_TCAL_*``.
 """
 
+import argparse
 from dataclasses import dataclass, field
 import math
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -225,6 +227,19 @@ def ardupilot_parm_text(gyro: FirmwareCubic, imu: int,
     return '\n'.join(lines) + '\n'
 
 
+def device_id(text: str) -> int:
+    """Parse a device id (argparse type): a 32-bit integer, decimal or 0x hexadecimal."""
+    try:
+        value = int(text, 16) if text.lower().startswith('0x') else int(text)
+    except ValueError:
+        value = None
+    # PX4 keeps the 32-bit id in an int32 parameter, so a value may be given either way.
+    if value is None or not -2 ** 31 <= value < 2 ** 32:
+        msg = f'expected a 32-bit device id, e.g. 2424842 or 0x250012, got {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
 def add_export_options(parser) -> None:
     """Add --px4-params, --ardupilot-parm, --px4-device-id and --px4-accel-device-id."""
     parser.add_argument('--px4-params', metavar='FILE',
@@ -233,19 +248,36 @@ def add_export_options(parser) -> None:
     parser.add_argument('--ardupilot-parm', metavar='FILE',
                         help="also write the cubics as ArduPilot's INS_TCALn_* parameters "
                              '(.parm, as Tools/scripts/tempcal_IMU.py writes it)')
-    parser.add_argument('--px4-device-id', type=int, metavar='ID',
+    parser.add_argument('--px4-device-id', type=device_id, metavar='ID',
                         help="TC_Gn_ID: the gyro's device id (CAL_GYROn_ID); default: the "
                              "instance's device_id in a .ulg log")
-    parser.add_argument('--px4-accel-device-id', type=int, metavar='ID',
+    parser.add_argument('--px4-accel-device-id', type=device_id, metavar='ID',
                         help="TC_An_ID: the accelerometer's device id (CAL_ACCn_ID); default: "
                              'its device_id in a .ulg log; without one, no TC_A* set')
 
 
 def check_export_outputs(args) -> None:
-    """Check the export paths and the IMU before any work (UserError if one cannot be used)."""
+    """
+    Check the export options, paths and IMU before any work (UserError if one cannot be used).
+
+    What the record alone can tell (its axes, its acceleration) is
+    `check_export_record`'s, right after it is read.
+    """
+    if args.px4_params is None:
+        options = ('px4_device_id', 'px4_accel_device_id')
+        given = [f'--{option.replace("_", "-")}' for option in options
+                 if getattr(args, option) is not None]
+        if given:
+            msg = f'{" and ".join(given)} {"apply" if len(given) > 1 else "applies"} with ' \
+                  '--px4-params'
+            raise UserError(msg)
     for option in ('px4_params', 'ardupilot_parm'):
-        if getattr(args, option, None) is not None:
-            check_output_file(getattr(args, option), '--' + option.replace('_', '-'))
+        path = getattr(args, option, None)
+        # diagnose writes one into its --out folder with the rest, that folder checked as --out
+        inside = hasattr(args, 'records') and path is not None and \
+            Path(path).resolve().parent == Path(args.out).resolve()
+        if path is not None and not inside:
+            check_output_file(path, '--' + option.replace('_', '-'))
     if getattr(args, 'px4_params', None) is None and getattr(args, 'ardupilot_parm', None) is None:
         return
     imu = _exported_imu(args)
@@ -253,11 +285,34 @@ def check_export_outputs(args) -> None:
         msg = (f'{args.input}: PX4 has thermal sets TC_G0..{PX4_SETS - 1}; instance '
                f'{imu.index} has none')
         raise UserError(msg)
+    if args.px4_params is not None and _gyro_device_id(args, imu) is None:
+        msg = ("--px4-params needs the gyro's device id, which PX4 matches TC_Gn_ID against: "
+               f'give --px4-device-id (CAL_GYRO{imu.index}_ID on the vehicle); a .ulg log '
+               'holds it')
+        raise UserError(msg)
     if args.ardupilot_parm is not None and imu.index >= ARDUPILOT_TCAL_IMUS:
         msg = (f'{args.input}: ArduPilot has thermal sets for IMUs 1-{ARDUPILOT_TCAL_IMUS} '
                f'(INS_TCAL1..3_*, INS4_TCAL_*, INS5_TCAL_*); instance {imu.index} '
                f'(IMU {imu.index + 1}) has none')
         raise UserError(msg)
+
+
+def check_export_record(args, recording) -> None:
+    """Check, once the record is read and before the fit, that it can give the exports."""
+    if args.px4_params is None and args.ardupilot_parm is None:
+        return
+    if recording.axes != AXIS_NAMES:
+        msg = (f'{args.input}: a flight controller corrects x, y and z; the recording has '
+               f'gyro {", ".join(recording.axes)}')
+        raise UserError(msg)
+    if args.px4_accel_device_id is not None and recording.acceleration_m_s2 is None:
+        msg = '--px4-accel-device-id: the record has no acceleration, so no TC_A* set'
+        raise UserError(msg)
+
+
+def _gyro_device_id(args, imu: ExportedImu):
+    """Give TC_Gn_ID: --px4-device-id, else the log's, else None."""
+    return args.px4_device_id if args.px4_device_id is not None else imu.gyro_device_id
 
 
 def _tcal_enabled(log, index: int) -> str:
@@ -388,15 +443,8 @@ def write_exports(args, recording, full_model_on, start=None, full_saw_held_out=
     first held-out row (default: the last `HELD_OUT_FRACTION` of the rows).
     """
     if args.px4_params is None and args.ardupilot_parm is None:
-        for option in ('px4_device_id', 'px4_accel_device_id'):
-            if getattr(args, option) is not None:
-                msg = f'--{option.replace("_", "-")} applies with --px4-params'
-                raise UserError(msg)
         return
-    if recording.axes != AXIS_NAMES:
-        msg = (f'{args.input}: a flight controller corrects x, y and z; the recording has '
-               f'gyro {", ".join(recording.axes)}')
-        raise UserError(msg)
+    check_export_record(args, recording)
     imu = _exported_imu(args)
     start = held_out_start(len(recording)) if start is None else start
     for line in _comparison(args, recording, full_model_on, start, full_saw_held_out):
@@ -417,11 +465,7 @@ def write_exports(args, recording, full_model_on, start=None, full_saw_held_out=
 
 def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
     index = imu.index
-    device_id = args.px4_device_id if args.px4_device_id is not None else imu.gyro_device_id
-    if device_id is None:
-        msg = ("--px4-params needs the gyro's device id, which PX4 matches TC_Gn_ID against: "
-               'give --px4-device-id (CAL_GYRO0_ID on the vehicle); a .ulg log holds it')
-        raise UserError(msg)
+    device_id = _gyro_device_id(args, imu)   # check_export_outputs made sure there is one
     accel, left_out = None, ''
     if cubics.accel is not None:
         accel_id = args.px4_accel_device_id if args.px4_accel_device_id is not None \
@@ -431,11 +475,9 @@ def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
                         f'accelerometer; give --px4-accel-device-id (CAL_ACC{index}_ID)')
         else:
             accel = (px4_cubic(cubics.accel, cubics.accel_median), accel_id)
-    elif args.px4_accel_device_id is not None:
-        msg = '--px4-accel-device-id: the record has no acceleration, so no TC_A* set'
-        raise UserError(msg)
     cubic = px4_cubic(cubics.gyro)
-    write_result(args.px4_params, px4_params_text(cubic, index, device_id, accel))
+    write_result(args.outputs.file(args.px4_params),
+                 px4_params_text(cubic, index, device_id, accel))
     sets, enables = f'TC_G{index}_* (ID {device_id})', 'TC_G_ENABLE 1'
     if accel is not None:
         sets, enables = f'TC_A{index}_* (ID {accel[1]}) and {sets}', 'TC_A_ENABLE and ' + enables
@@ -459,7 +501,7 @@ def _write_ardupilot(args, cubics: ExportedCubics, index: int) -> None:
     imu = index + 1
     gyro = ardupilot_cubic(cubics.gyro)
     accel = None if cubics.accel is None else ardupilot_cubic(cubics.accel)
-    write_result(args.ardupilot_parm, ardupilot_parm_text(gyro, imu, accel))
+    write_result(args.outputs.file(args.ardupilot_parm), ardupilot_parm_text(gyro, imu, accel))
     prefix = ardupilot_tcal_prefix(imu)
     rounding = f'gyro {_rounding(cubics.gyro, gyro):.1e} rad/s'
     if accel is not None:

@@ -19,7 +19,8 @@ from .common import (add_parameter_file_options, add_recording_options,
                      add_validation_options, check_output_file, finite_float, load,
                      non_negative_int, positive_float, UserError, validation_settings,
                      write_node_parameters)
-from .exports import add_export_options, check_export_outputs, node_model, write_exports
+from .exports import (add_export_options, check_export_outputs, check_export_record, node_model,
+                      write_exports)
 from .tracking import tracking_section
 from .uncertainty import block_lines
 from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
@@ -279,10 +280,10 @@ def add_parser(commands) -> None:
                              f'{DEFAULT_CHAIN_ORDER})')
     orders.add_argument('--max-order', type=non_negative_int, metavar='N',
                         help=f'highest order tried (default: {DEFAULT_MAX_ORDER})')
-    fit.add_argument('--blocks', type=int, metavar='N',
+    fit.add_argument('--blocks', type=non_negative_int, metavar='N',
                      help='polynomial, relative: contiguous blocks the record is cut into '
                           f'(default: {DEFAULT_BLOCKS})')
-    fit.add_argument('--folds', type=int, metavar='N',
+    fit.add_argument('--folds', type=non_negative_int, metavar='N',
                      help=f'polynomial, relative: round-robin folds (default: {DEFAULT_FOLDS})')
     add_validation_options(fit, 'polynomial, relative: ')
     fit.add_argument('--true-temperature', type=finite_float, metavar='C',
@@ -321,7 +322,16 @@ def fit_command(args: argparse.Namespace) -> int:
                'rate-dependent errors no firmware cubic holds')
         raise UserError(msg)
     check_export_outputs(args)
+    if args.model in ('polynomial', 'relative') and args.order is None:
+        validation = validation_settings(args)
+        try:   # the held-out blocks the order is chosen on, before the record is read
+            split(DEFAULT_BLOCKS if args.blocks is None else args.blocks,
+                  validation['validation'], DEFAULT_FOLDS if args.folds is None else args.folds,
+                  validation['min_past'])
+        except TempCompError as err:
+            raise UserError(str(err)) from None
     recording = load(args)
+    check_export_record(args, recording)
     try:
         parameters, header = fit(args, recording)
         tracking, lines = tracking_section([recording], parameters)

@@ -62,15 +62,15 @@ def inject_motion_command(args: argparse.Namespace) -> int:
         raise UserError(f'{args.input}: {err}') from None
     columns = _columns(recording, injected)
     try:
-        np.savetxt(out, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
-                   delimiter=',', header=','.join(columns), comments='')
-        write_json(schedule_path, {
+        np.savetxt(args.outputs.file(out), np.column_stack(list(columns.values())),
+                   fmt=_CSV_FORMAT, delimiter=',', header=','.join(columns), comments='')
+        write_json(args.outputs.file(schedule_path), {
             'input': args.input, 'schedule': args.schedule, 'seed': args.seed,
             'settings': dataclasses.asdict(settings),
             'time_zero_s': float(recording.time_s[0]),
             'still_share': schedule.still_share, 'segments': schedule.to_json()})
     except OSError as err:
-        msg = f'cannot write {err.filename}: {err.strerror}'
+        msg = f'cannot write to {out.parent}: {err.strerror}'
         raise UserError(msg) from None
     turns = {}
     for segment in schedule.segments:

@@ -73,8 +73,14 @@ def _feeds(problem: str, kept_time_s: np.ndarray, kept_temperature_c: np.ndarray
     if problem:
         return dict.fromkeys(('fit', 'diagnose', 'allan', 'evaluate', 'convert'), problem)
     span_c = float(np.ptp(kept_temperature_c)) if kept_temperature_c.size else 0.0
-    thermal = '' if span_c >= THERMAL_SPAN_C else \
-        f'temperature spans {span_c:.2f} C; a thermal calibration wants {THERMAL_SPAN_C:g} C'
+    # Only the still samples with a temperature are fitted: the span counts those alone.
+    if not kept_temperature_c.size:
+        thermal = 'no still sample with a temperature (moving samples are left out)'
+    elif span_c < THERMAL_SPAN_C:
+        thermal = (f'the {kept_temperature_c.size} still samples span {span_c:.2f} C (moving '
+                   f'ones are left out); a thermal calibration wants {THERMAL_SPAN_C:g} C')
+    else:
+        thermal = ''
     blocks = DiagnosisSettings().blocks
     diagnose = thermal or ('' if kept_time_s.size >= 2 * blocks else
                            f'{kept_time_s.size} samples; {blocks} blocks need {2 * blocks}')
@@ -176,8 +182,8 @@ def _text(report: dict) -> str:
                      f'{item["duration_s"]:.2f} s (stamps from {item["start_s"]:.3f} s)')
         if math.isfinite(item['temperature_min_c']):
             lines.append(f'  temperature {item["temperature_min_c"]:.2f} to '
-                         f'{item["temperature_max_c"]:.2f} C; rate of change mean '
-                         f'{item["temperature_rate_mean_c_min"]:+.3g} C/min, peak '
+                         f'{item["temperature_max_c"]:.2f} C over every sample; rate of change '
+                         f'mean {item["temperature_rate_mean_c_min"]:+.3g} C/min, peak '
                          f'{item["temperature_rate_peak_c_min"]:.3g} C/min'
                          + (f'; {item["temperature_nan_samples"]} samples NaN'
                             if item['temperature_nan_samples'] else ''))

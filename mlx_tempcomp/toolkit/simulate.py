@@ -249,7 +249,7 @@ def _turntable_recording(args, out: Path) -> tuple:
     return recording, None, None, truth
 
 
-def _write_csv(path: Path, recording: Recording) -> None:
+def _write_csv(path: Path, recording: Recording, target: Path) -> None:
     columns = {'time': recording.time_s, 'temperature': recording.temperature_c}
     columns.update((f'gyro_{a}', recording.gyro_rad_s[:, i]) for i, a in enumerate(recording.axes))
     if recording.reference_rad_s is not None:
@@ -266,7 +266,7 @@ def _write_csv(path: Path, recording: Recording) -> None:
         np.savetxt(path, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
                    delimiter=',', header=','.join(columns), comments='')
     except OSError as err:
-        msg = f'cannot write {path}: {err.strerror}'
+        msg = f'cannot write {target}: {err.strerror}'
         raise UserError(msg) from None
 
 
@@ -313,11 +313,11 @@ def _simulate_one(args, out: Path, fmt: str, truth_path: Path, progress_enabled,
         recording, axis_temperatures_c, images, truth = _device_recording(
             args, out, progress_enabled, zro_slope_shift_dps_per_c)
     if fmt == 'csv':
-        _write_csv(out, recording)
+        _write_csv(args.outputs.file(out), recording, out)
         what = 'CSV'
     else:
-        messages = write_raw_bag(out, fmt, recording, axis_temperatures_c, images,
-                                 progress_enabled)
+        messages = write_raw_bag(args.outputs.folder(out, create=False, replace=False), fmt,
+                                 recording, axis_temperatures_c, images, progress_enabled, out)
         what = f'{fmt} bag, {messages} messages on /imu/data_raw, /imu/temperature_raw'
         if recording.temperature_2_c is not None:
             what += ', /imu/temperature_2_raw'
@@ -332,7 +332,7 @@ def _simulate_one(args, out: Path, fmt: str, truth_path: Path, progress_enabled,
                           'rate_hz': args.rate_hz,
                           'skipped': dict(recording.skipped)}
     try:
-        write_json(truth_path, truth)
+        write_json(args.outputs.file(truth_path), truth)
     except OSError as err:
         msg = f'cannot write {truth_path}: {err.strerror}'
         raise UserError(msg) from None
@@ -383,7 +383,7 @@ def _simulate_fleet(args: argparse.Namespace) -> int:
     folder = Path(args.out)
     check_output_folder(folder, '--out', new=True)
     fmt = args.format or 'csv'
-    folder.mkdir()
+    args.outputs.folder(folder, replace=False)   # the units go in with it, when all are done
     units = _fleet_units(args)
     rows = ['unit,path']
     with Progress(len(units), f'simulating {len(units)} units', args.progress or None) as bar:
@@ -399,8 +399,8 @@ def _simulate_fleet(args: argparse.Namespace) -> int:
             rows.append(f'{unit["unit"]},{name}')
             bar.update(done + 1)
     try:
-        write_result(folder / 'units.csv', '\n'.join(rows) + '\n')
-        write_json(folder / 'fleet_truth.json', {
+        write_result(args.outputs.file(folder / 'units.csv'), '\n'.join(rows) + '\n')
+        write_json(args.outputs.file(folder / 'fleet_truth.json'), {
             'units': units, 'base_seed': args.seed,
             'notes': 'each unit is mlx-tempcomp simulate with its seed (chip coefficients '
                      'drawn by GyroTruth.random) and its effect sizes; an outlier unit has '

@@ -5,6 +5,7 @@ import math
 from typing import Callable, Optional
 
 from .folds import INSIDE_ROWS, SCORING
+from ..baseline import PX4_ORDER
 from ..effects import DEFAULT_RATE_WINDOW_S, LIVE_EFFECTS
 from ..errors import CalibrationError
 from ..recalibration import RecalibrationLimits
@@ -55,7 +56,9 @@ class DiagnosisSettings:
              f'blocks ({self.blocks}) must be at least the folds ({self.folds})'),
             (math.isfinite(self.average_s) and self.average_s >= 0.0,
              f'average_s must be a non-negative number, got {self.average_s}'),
-            (self.max_order >= 0, f'max_order must be non-negative, got {self.max_order}'),
+            # The PX4-style cubic is fitted beside every model: its order is the least.
+            (self.max_order >= PX4_ORDER,
+             f'max_order must be at least {PX4_ORDER} (the cubic), got {self.max_order}'),
             (math.isfinite(self.min_gain) and 0.0 <= self.min_gain < 1.0,
              f'min_gain must be in [0, 1), got {self.min_gain}'),
             (math.isfinite(self.significance) and self.significance >= 0.0,
