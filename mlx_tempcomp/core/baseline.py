@@ -103,8 +103,11 @@ def fit_cubic(temperature_c, values, record: Optional[np.ndarray] = None,
         raise CalibrationError(msg)
     relative = temperature - 0.5 * (low + high)
     if records == 1:
+        # full=True: the same solution, without the RankWarning a fold whose rows hold few
+        # temperatures raises (the cubic there is what PX4's script would fit, as poor).
         coefficients = tuple(
-            tuple(float(c) for c in np.polyfit(relative, data[:, axis], PX4_ORDER)[::-1])
+            tuple(float(c) for c in np.polyfit(relative, data[:, axis], PX4_ORDER,
+                                               full=True)[0][::-1])
             for axis in range(data.shape[1]))
         return (ClampedCubic(low, high, coefficients),)
     return _with_offsets(relative, data, np.asarray(record), records, low, high)
