@@ -18,6 +18,11 @@ Several records of one unit fit one cubic with a bias offset per record after
 the first (a power cycle or a re-mount shifts the bias): the same least
 squares with an indicator column per such record; `fit_cubic` gives the cubic
 of each record.
+
+Held-out folds fit the cubic on many unions of contiguous blocks: `cubic_sums`
+sums each block's normal equations once (in Legendre polynomials of a common
+x, well conditioned) and `solve_cubic` solves the same least squares for any
+union of them, without a pass over the rows.
 """
 
 from dataclasses import dataclass, replace
@@ -78,6 +83,90 @@ class ClampedCubic:
         return replace(self, coefficients=tuple(
             (axis[0] + float(offset),) + axis[1:]
             for axis, offset in zip(self.coefficients, offsets_rad_s)))
+
+
+@dataclass(frozen=True)
+class CubicSums:
+    """
+    The normal equations of the cubic per block: Legendre P0..P3 of x = (T - centre) / scale.
+
+    ``gram`` (blocks, 4, 4) and ``moment`` (blocks, 4, axes) sum each block's
+    rows; ``low_c`` and ``high_c`` are each block's temperature range,
+    ``record`` its record.
+    """
+
+    centre_c: float
+    scale_c: float
+    gram: np.ndarray
+    moment: np.ndarray
+    low_c: np.ndarray
+    high_c: np.ndarray
+    record: np.ndarray
+
+
+def cubic_sums(temperature_c, values, bounds, centre_c: float, scale_c: float,
+               record_of_block=None) -> CubicSums:
+    """Sum the normal equations of each block of rows (``bounds``: block starts and the end)."""
+    temperature = np.asarray(temperature_c, dtype=np.float64)
+    data = np.asarray(values, dtype=np.float64)
+    data = data.reshape(len(data), -1)
+    grams, moments = [], []
+    for first, last in zip(bounds[:-1], bounds[1:]):
+        basis = np.polynomial.legendre.legvander((temperature[first:last] - centre_c) / scale_c,
+                                                 PX4_ORDER)
+        grams.append(basis.T @ basis)
+        moments.append(basis.T @ data[first:last])
+    starts = np.asarray(bounds[:-1])
+    blocks = len(starts)
+    return CubicSums(centre_c, scale_c, np.array(grams), np.array(moments),
+                     np.minimum.reduceat(temperature, starts),
+                     np.maximum.reduceat(temperature, starts),
+                     np.zeros(blocks, dtype=np.int64) if record_of_block is None
+                     else np.asarray(record_of_block))
+
+
+def solve_cubic(sums: CubicSums, blocks: np.ndarray, records: int = 1) -> tuple:
+    """
+    Fit the cubic on the given blocks (a mask) from their sums; one `ClampedCubic` per record.
+
+    The least squares `fit_cubic` solves on those rows, with an offset column
+    per record after the first; its range is the blocks'. A record with no
+    block among them gets offset 0.
+    """
+    used = np.asarray(blocks, dtype=bool)
+    size = PX4_ORDER + 1
+    gram = np.zeros((size + records - 1,) * 2)
+    moment = np.zeros((size + records - 1, sums.moment.shape[2]))
+    for block in np.flatnonzero(used):
+        g, m, record = sums.gram[block], sums.moment[block], int(sums.record[block])
+        gram[:size, :size] += g
+        moment[:size] += m
+        if record:
+            column = size + record - 1
+            # The record's indicator is 1 = P0 on its rows: its sums are P0's.
+            gram[column, :size] += g[0]
+            gram[:size, column] += g[0]
+            gram[column, column] += g[0, 0]
+            moment[column] += m[0]
+    diagonal = np.sqrt(np.diag(gram))
+    diagonal[diagonal == 0.0] = 1.0
+    solution = np.linalg.lstsq(gram / np.outer(diagonal, diagonal), moment / diagonal[:, None],
+                               rcond=1e-13)[0] / diagonal[:, None]
+    low, high = float(np.min(sums.low_c[used])), float(np.max(sums.high_c[used]))
+    cubic = ClampedCubic(low, high, tuple(
+        _about_reference(solution[:size, axis], sums.centre_c, sums.scale_c, 0.5 * (low + high))
+        for axis in range(solution.shape[1])))
+    offsets = np.vstack([np.zeros(solution.shape[1]), solution[size:]])
+    return tuple(cubic.shifted(offset) for offset in offsets)
+
+
+def _about_reference(legendre: np.ndarray, centre_c: float, scale_c: float,
+                     reference_c: float) -> tuple:
+    """Give Legendre coefficients in x = (T - centre) / scale as powers of (T - reference)."""
+    powers = np.polynomial.Polynomial(np.polynomial.legendre.leg2poly(legendre))
+    shifted = powers(np.polynomial.Polynomial(((reference_c - centre_c) / scale_c,
+                                               1.0 / scale_c))).coef
+    return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))
 
 
 def fit_cubic(temperature_c, values, record: Optional[np.ndarray] = None,

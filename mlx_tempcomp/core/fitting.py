@@ -21,7 +21,7 @@ import operator
 
 import numpy as np
 
-from .baseline import cubic_scale_c, fit_cubic, PX4_ORDER
+from .baseline import cubic_scale_c, CubicSums, fit_cubic, PX4_ORDER, solve_cubic
 from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
 from .models import AXIS_NAMES
@@ -273,7 +273,7 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
                     solutions[order] = solution
         if not solutions:
             continue
-        cubic = _fold_cubic(temperature, rate, bounds, folds.training[fold]) \
+        cubic = _fold_cubic(parts, scaling, folds.training[fold]) \
             if PX4_ORDER in solutions else None
         squares = {order: np.zeros(rate.shape[1]) for order in solutions}
         for block in held_out:
@@ -292,11 +292,14 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     return rms
 
 
-def _fold_cubic(temperature, rate, bounds, training):
-    """PX4's cubic fitted on a fold's training blocks (`baseline.fit_cubic`)."""
-    rows = np.concatenate([np.arange(bounds[block], bounds[block + 1])
-                           for block in np.flatnonzero(training)])
-    return fit_cubic(temperature[rows], rate[rows])[0]
+def _fold_cubic(parts: list, scaling: tuple, training: np.ndarray):
+    """PX4's cubic fitted on a fold's training blocks (`baseline.solve_cubic`, their sums)."""
+    size = PX4_ORDER + 1
+    sums = CubicSums(scaling[0], scaling[1], np.array([part.gram[:size, :size] for part in parts]),
+                     np.array([part.moment[:size] for part in parts]),
+                     np.array([part.low_c for part in parts]),
+                     np.array([part.high_c for part in parts]), np.zeros(len(parts), dtype=int))
+    return solve_cubic(sums, training)[0]
 
 
 def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),

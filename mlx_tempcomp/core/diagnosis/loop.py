@@ -303,8 +303,8 @@ def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written
     cubic = cubic_errors(problem, problem.folds)
     other_cubic = cubic_errors(problem, other)
     other_errors = problem.held_out(found, 'the other validation', other).errors
-    choices = tuple(_choice(problem, axis, spec, run.errors[axis], other_errors[axis],
-                            other_cubic[axis]) for axis, spec in enumerate(found))
+    choices = tuple(_choice(problem, axis, spec, run, other_errors[axis], other_cubic[axis])
+                    for axis, spec in enumerate(found))
     cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
     specs = found
     if cubic_axes:
@@ -313,22 +313,25 @@ def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written
     return _Written(found, specs, choices, run, other, other_errors, cubic, other_cubic)
 
 
-def _choice(problem: DiagnosisProblem, axis: int, spec: AxisSpec, found: HeldOutError,
+def _choice(problem: DiagnosisProblem, axis: int, spec: AxisSpec, run: HeldOutRun,
             other_found: HeldOutError, other_cubic: HeldOutError):
     """
     Judge an axis's model found against the cubic, fold by fold, on the found model's folds.
 
-    The found model's folds run as the node runs them (`held_out`); ``found``
-    is its error on the deciding folds the rounds reported.
+    The found model's folds run as the node runs them (`held_out`): the
+    rounds' run where its folds are the deciding scheme's own, else (purged,
+    a buffer of its memory) run again on its folds.
     """
     if spec.baseline:
-        return ModelChoice('px4_cubic', found, found, problem.settings.baseline_margin,
+        error = run.errors[axis]
+        return ModelChoice('px4_cubic', error, error, problem.settings.baseline_margin,
                            other_found, other_cubic,
                            'the model found is the PX4-style cubic: no other order or effect '
                            'beats it fold by fold')
     folds = problem.folds_for(spec)
-    specs = tuple(spec if a == axis else CUBIC for a in range(len(problem.axes)))
-    run = problem.held_out(specs, 'the guard', folds, axes=(axis,))
+    if folds is not problem.folds:
+        specs = tuple(spec if a == axis else CUBIC for a in range(len(problem.axes)))
+        run = problem.held_out(specs, 'the guard', folds, axes=(axis,))
     error = run.errors[axis]
     own = Score(np.array(error.fold_rms_rad_s), error.rms_rad_s, True, run.residual[:, axis])
     cubic = problem.score_spec(axis, CUBIC, folds)

@@ -20,7 +20,7 @@ from .fits import AxisSpec, FITS, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_
 from .folds import cut_bins, Folds
 from .results import HeldOutError
 from .settings import DiagnosisSettings, Progress
-from ..baseline import cubic_scale_c, fit_cubic, PX4_ORDER
+from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, PX4_ORDER, solve_cubic
 from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
 from ..errors import CalibrationError
 from ..fitting import MIN_SPAN_C
@@ -410,9 +410,10 @@ class DiagnosisProblem:
 
     def baseline_run(self, folds: Optional[Folds] = None) -> BaselineRun:
         """
-        Fit the PX4-style cubic on each fold's training rows, run it clamped on its held bins.
+        Fit the PX4-style cubic on each fold's training blocks, run it clamped on its held bins.
 
-        Rows of each record keep that record's offset (`baseline.fit_cubic`);
+        Rows of each record keep that record's offset (`baseline.solve_cubic`,
+        the least squares of `baseline.fit_cubic` from the blocks' sums);
         cached per folds.
         """
         folds = folds or self.folds
@@ -421,21 +422,33 @@ class DiagnosisProblem:
             axes = len(self.axes)
             residual = np.full((len(self.starts), axes), math.nan)
             fold_rms = np.full((folds.split.folds, axes), math.nan)
-            for fold, (held, counted) in enumerate(zip(folds.held, folds.counted)):
-                rows = self.rows_of(folds.train[fold])
-                cubics = self.cubics(rows)
-                corrected = np.empty((self.rows, axes))
-                for record, span in enumerate(self.records.segments(self.rows)):
-                    corrected[span] = cubics[record].corrected(self.rate[span],
-                                                               self.temperature[span])
-                binned = self.mean(corrected if self.reference is None else
-                                   corrected - self.reference)
-                residual[held] = binned[held]
-                fold_rms[fold] = [weighted_rms(binned[counted, a], self.counts[counted])
+            for fold, (held, counted) in enumerate(zip(folds.split.held, folds.counted)):
+                cubics = self.fold_cubics(folds.split.training[fold])
+                for block in np.flatnonzero(held):
+                    residual[self.bin_block == block] = self._cubic_block(cubics, block)
+                fold_rms[fold] = [weighted_rms(residual[counted, a], self.counts[counted])
                                   for a in range(axes)]
             return BaselineRun(residual, fold_rms, tuple(
                 self.error(residual[:, a], folds) for a in range(axes)))
         return self.cached(('baseline', folds.key), build)
+
+    def fold_cubics(self, blocks: np.ndarray) -> tuple:
+        """Give the PX4-style cubic of the given training blocks: a `ClampedCubic` per record."""
+        sums = self.cached('cubic sums', lambda: cubic_sums(
+            self.temperature, self.error_rows, self.block_edges, self.centre_c, self.scale_c,
+            np.searchsorted(self.records.starts, self.block_edges[:-1], side='right') - 1))
+        return solve_cubic(sums, blocks, self.fitted_records)
+
+    def _cubic_block(self, cubics: tuple, block: int) -> np.ndarray:
+        """Give the bin means of a block's residual under the cubics (its record's)."""
+        rows = slice(self.block_edges[block], self.block_edges[block + 1])
+        cubic = cubics[self.records.record_of(rows.start)]
+        corrected = cubic.corrected(self.rate[rows], self.temperature[rows])
+        if self.reference is not None:
+            corrected = corrected - self.reference[rows]
+        bins = self.bin_block == block
+        return np.add.reduceat(corrected, self.starts[bins] - rows.start, axis=0) / \
+            self.counts[bins][:, None]
 
     def rows_of(self, bins: Optional[np.ndarray]) -> np.ndarray:
         """Give the rows (a mask over the diagnosed rows) of the given bins, all when None."""
@@ -443,15 +456,12 @@ class DiagnosisProblem:
             return np.ones(self.rows, dtype=bool)
         return np.repeat(bins, self.counts.astype(np.int64))
 
-    def cubics(self, rows: Optional[np.ndarray] = None) -> tuple:
-        """Fit the PX4-style cubic on the rows (all when None): a `ClampedCubic` per record."""
+    def cubics(self) -> tuple:
+        """Fit the PX4-style cubic on every diagnosed row (`baseline.fit_cubic`): per record."""
         def build():
-            return self.cubics(self.rows_of(None))
-        if rows is None:
-            return self.cached('cubics', build)
-        record = np.searchsorted(self.records.starts, np.flatnonzero(rows), side='right') - 1
-        return fit_cubic(self.temperature[rows], self.error_rows[rows], record,
-                         self.fitted_records)
+            record = np.searchsorted(self.records.starts, np.arange(self.rows), side='right') - 1
+            return fit_cubic(self.temperature, self.error_rows, record, self.fitted_records)
+        return self.cached('cubics', build)
 
     def fit_terms(self, axis: int, spec: AxisSpec, bins=None) -> AxisTerms:
         """Fit one axis on the given bins (all when None); its terms with the written offset."""
@@ -468,7 +478,7 @@ class DiagnosisProblem:
         own formula to the bit (x's scale is a power of two).
         """
         if spec.baseline:
-            return self._cubic_fit(axis, bins)
+            return self._cubic_fit(axis, None if bins is None else self.blocks_of(bins))
         design = self.design(axis, spec)
         target = self.target[:, axis]
         if bins is not None:
@@ -481,11 +491,15 @@ class DiagnosisProblem:
         return AxisFit(self._terms(axis, spec, solution[:solution.size - offsets]),
                        (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
 
-    def _cubic_fit(self, axis: int, bins) -> AxisFit:
+    def _cubic_fit(self, axis: int, blocks: Optional[np.ndarray]) -> AxisFit:
         """Give the PX4-style cubic as an `AxisFit` in x: its terms are the last record's."""
-        biases = [_cubic_bias(cubic, axis, self.centre_c, self.scale_c)
-                  for cubic in self.cubics(self.rows_of(bins))]
+        cubics = self.cubics() if blocks is None else self.fold_cubics(blocks)
+        biases = [_cubic_bias(cubic, axis, self.centre_c, self.scale_c) for cubic in cubics]
         return AxisFit(AxisTerms(bias=biases[-1]), tuple(b[0] - biases[-1][0] for b in biases))
+
+    def blocks_of(self, bins: np.ndarray) -> np.ndarray:
+        """Give the blocks (a mask) the given bins lie in."""
+        return np.bincount(self.bin_block[bins], minlength=self.settings.blocks) > 0
 
     def _terms(self, axis: int, spec: AxisSpec, solution: np.ndarray) -> AxisTerms:
         values = iter(float(v) for v in solution)
