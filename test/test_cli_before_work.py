@@ -30,7 +30,8 @@ MISSING = 'no-such-record.csv'
     (['fit', MISSING, '--out', '{tmp}/fit.yaml', '--ardupilot-parm', '{tmp}/no/imu.parm'],
      ['--ardupilot-parm', 'does not exist']),
     # The held-out blocks and the diagnosis settings.
-    (['fit', MISSING, '--out', '{tmp}/fit.yaml', '--blocks', '1'], ['at least 2 blocks']),
+    (['fit', MISSING, '--out', '{tmp}/fit.yaml', '--blocks', '1'],
+     ['2 <= folds <= blocks, got 5 folds, 1 blocks']),
     (['fit', MISSING, '--out', '{tmp}/fit.yaml', '--validation', 'round-robin', '--folds',
       '30'], ['2 <= folds <= blocks']),
     (['diagnose', MISSING, '--out', '{tmp}/d', '--blocks', '3'], ['blocks (3)', 'folds (5)']),

@@ -67,9 +67,10 @@ def fitted(tmp_path, capsys):
 
 
 def test_fit_chooses_true_orders_and_reproduces_bias(fitted):
+    """The sweep's x is a true cubic, z a quadratic: with no margin asked for, z beats it."""
     out_path, out = fitted
-    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
-            'predicted from the blocks before it): x 3, z 2') in out
+    assert ('orders (chosen on held-out blocks, round-robin: 20 blocks dealt to 5 folds): '
+            'x 3, z 2') in out
     assert out.startswith(f'{out_path.parent / "sweep.csv"}: 4000 rows used; skipped: none\n')
     assert 'fitted temperature range: -40.00 to 85.00 C' in out
     text = out_path.read_text()
@@ -87,14 +88,16 @@ def test_fit_chooses_true_orders_and_reproduces_bias(fitted):
     assert np.max(np.abs(residual)) < NOISE_RAD_S / 4
 
 
-def test_fit_writes_the_cubic_unless_an_order_beats_it_by_the_margin(tmp_path, capsys):
-    """The sweep's z is a true quadratic, as good as the cubic that holds it: not 5 % better."""
-    assert main(['fit', sweep_csv(tmp_path), '--out', str(tmp_path / 'p.yaml')]) == 0
+def test_fit_writes_the_cubic_unless_an_order_beats_it_fold_by_fold(tmp_path, capsys):
+    """The sweep's z is a true quadratic, as good as the cubic that holds it: the cubic."""
+    assert main(['fit', sweep_csv(tmp_path), '--validation', 'forward', '--out',
+                 str(tmp_path / 'p.yaml')]) == 0
     out = capsys.readouterr().out
     assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
             'predicted from the blocks before it): x 3, z 3') in out
-    assert 'z: one-standard-error rule' in out and '; order 3 written instead of order 2: ' \
-        'the model found has forward held-out RMS' in out and 'not 5% better' in out
+    assert ('z: the PX4-style cubic unless another order beats it on held-out blocks, fold by '
+            'fold and by the margin (forward over 20 blocks: blocks 5 to 19 each predicted '
+            'from the blocks before it): no order does, so the cubic is written') in out
 
 
 def test_fit_with_fixed_order_and_node_name(tmp_path, capsys):
@@ -156,14 +159,14 @@ def test_measured_sweep_with_tofupilot_preset(tmp_path, capsys):
     assert main(['fit', str(MEASURED_CSV), '--preset', 'tofupilot', '--out',
                  str(out_path)]) == 0
     out = capsys.readouterr().out
-    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
-            'predicted from the blocks before it): x ') in out
+    assert ('orders (chosen on held-out blocks, round-robin: 20 blocks dealt to 5 folds): '
+            'x 3, y 3, z 3') in out
     assert 'skipped: dropped by preset 1' in out
-    # The blocks before the first forward block cool from 52 to -11 C; it is colder still,
-    # so its fold's polynomial runs wholly clamped.
+    # Round-robin, the coldest block (6) and the hottest (14) reach beyond every other
+    # fold's blocks, so their folds' polynomials run clamped there.
     assert 'held-out rows outside the temperature range of their training blocks (clamped): ' \
         in out
-    assert '  block 5: 100% of 420 rows outside -11.45 .. 52.11 C' in out
+    assert '  block 6: 70% of 420 rows outside -16.33 .. 73.97 C' in out
     axes, model = model_from_yaml(out_path)
     assert axes == ('x', 'y', 'z')
     assert model.temperature_min_c < model.temperature_max_c
@@ -246,8 +249,8 @@ def test_relative_true_temperature_defaults_to_the_mean(tmp_path, capsys):
     out = capsys.readouterr().out
     mean_c = np.mean(np.loadtxt(path, delimiter=',', skiprows=1)[:, 1])
     assert f'T_true = {mean_c:.2f} C (mean temperature of the data)' in out
-    assert ('orders (chosen on held-out blocks, forward over 20 blocks: blocks 5 to 19 each '
-            'predicted from the blocks before it): x 3, z 2') in out
+    assert ('orders (chosen on held-out blocks, round-robin: 20 blocks dealt to 5 folds): '
+            'x 3, z 2') in out
     model = build_model(node_values(out_path))
     np.testing.assert_allclose(model.correct([[0.1, -0.2]], [mean_c]).rate_rad_s,
                                [[0.1, -0.2]], rtol=0.0, atol=1e-15)

@@ -121,11 +121,11 @@ def test_a_lag_fitted_over_two_runs_is_the_truth():
 
 def test_each_run_starts_its_history_afresh():
     """
-    A thermal gradient over the two runs: found; the same rows as one record are not.
+    A thermal gradient over the two runs: found; the same rows as one record do worse.
 
     As one record, the lag of the gradient carries 70 C from the end of the
     first run into the second, which starts at -20 C: a bias of 1.8 deg/s that
-    no run had, hiding the effect.
+    no run had, hiding the effect (a play operator stands in for part of it).
     """
     effects = Effects(gradient_time_constants_s=(600.0,), gradient_dps_per_c=(0.02,))
     first, second = (run(legs, -20.0, 0.1, seed, effects)
@@ -137,12 +137,13 @@ def test_each_run_starts_its_history_afresh():
     temperature_c, rate_rad_s = (np.concatenate([a, b]) for a, b in zip(first[1:], second[1:]))
     as_one = diagnose(Recording('as one', time_s, temperature_c, ('z',),
                                 rate_rad_s[:, None])).per_axis[0]
-    print(f'forward RMS / the cubic: runs apart {separate.choice.ratio:.2f} '
+    print(f'held-out RMS / the cubic: runs apart {separate.choice.ratio:.2f} '
           f'({", ".join(separate.effects)}), as one record {as_one.choice.ratio:.2f} '
           f'({", ".join(as_one.effects)})')
     assert separate.effects[:2] == ('temperature_polynomial', 'thermal_gradient')
     assert separate.choice.written == 'diagnosed' and separate.choice.ratio < 0.2
-    assert as_one.choice.ratio > 0.9
+    assert 'thermal_gradient' not in as_one.effects
+    assert as_one.choice.ratio > 4.0 * separate.choice.ratio
 
 
 def write_runs(folder, names=tuple(RUNS), extra=None) -> list:

@@ -248,7 +248,7 @@ def test_the_report_has_a_row_per_unit_and_flags_the_outlier(records, fleet_run)
         [(u, '') for u in (*GOOD_UNITS, 'pair')]
     assert fleet['rows'][-1]['records'] == [str(records / name) for name in PAIR]
     for row in fleet['rows']:
-        assert row['held_out'] == 'forward'
+        assert row['held_out'] == 'round_robin'
         assert row['held_out_rms_rad_s']['z'] > 0.0 and row['gain_over_cubic']['z'] > 0.0
         assert isinstance(row['effects']['z'], list)
     slopes = fleet['coefficients']['z']['slope_rad_s_per_c']
@@ -309,12 +309,13 @@ def test_a_record_that_contradicts_the_fleet_keeps_its_params(fleet_run, tmp_pat
     out = tmp_path / 'out'
     shutil.copytree(fleet_run[0], out)
     # 10 degrees from 25 C of a chip whose curvature is 30 times the fleet's: the fleet's
-    # curve, which its record is too short to tell, is not this unit's.
+    # curve, which its record is too short to tell, is not this unit's. Noisier than the
+    # fleet, so the report flags it (held-out RMS) and the prior shrinks it unpooled.
     rng = np.random.default_rng(3)
     time_s = np.arange(100) * 3.0
     temperature_c = 25.0 + time_s / 30.0 + rng.normal(0.0, 0.02, time_s.size)
     rate = 0.01 + SLOPE_RAD_S_PER_C * (temperature_c - 25.0) + \
-        30 * 2e-6 * (temperature_c - 25.0) ** 2 + rng.normal(0.0, 5e-4, time_s.size)
+        30 * 2e-6 * (temperature_c - 25.0) ** 2 + rng.normal(0.0, 7e-4, time_s.size)
     path = tmp_path / 'bent.csv'
     np.savetxt(path, np.column_stack([time_s, temperature_c, rate]), delimiter=',',
                header='time,temperature,gyro_z', comments='', fmt='%.17g')
@@ -513,3 +514,29 @@ def test_the_local_clusters_workers_run_with_the_fleet_settings(monkeypatch):
         client.close()
         cluster.close()
     assert list(seen.values()) == [WORKER_SETTINGS]
+
+
+@pytest.mark.slow
+def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(tmp_path):
+    """
+    docs/fleet.md's simulated fleet, 20 units: the outliers are flagged on their slope, alone.
+
+    An effect may not stand in for the temperature polynomial (a play operator as wide as
+    the range once took an outlier's slope to 0), so the slope each unit writes is its own.
+    """
+    fleet = tmp_path / 'fleet'
+    code, _, _ = run_cli(['simulate', '--fleet', 20, '--fleet-outliers', 3, '--out', fleet,
+                          '--axes', 'z', '--cycle-c', 70, -20, '--ramp-c-per-min', 3,
+                          '--rate-hz', 0.5, '--thermal-lag-s', 60])
+    assert code == 0
+    truth = json.loads((fleet / 'fleet_truth.json').read_text())
+    planted = {unit['unit'] for unit in truth['units'] if unit['outlier']}
+    assert len(planted) == 3
+    out = tmp_path / 'out'
+    code, _, _ = run_cli(['fleet', 'diagnose', '--manifest', fleet / 'units.csv', '--out', out])
+    assert code == 0
+    report = json.loads((out / 'fleet.json').read_text())
+    flagged = {(o['unit'], o['metric']) for o in report['outliers']}
+    print(sorted(flagged))
+    assert {unit for unit, metric in flagged if metric == 'slope_rad_s_per_c'} == planted
+    assert {unit for unit, _ in flagged} == planted

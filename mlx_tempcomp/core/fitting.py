@@ -2,10 +2,13 @@
 Least-squares bias models of temperature, the polynomial order chosen by held-out blocks.
 
 PX4 and ArduPilot fit a fixed cubic with ``np.polyfit`` on the temperature as
-measured. Here the order is chosen from the data, and the fit runs in float64
-on x = (T - centre) / half_span of the data's temperature range, so x lies in
-[-1, 1] and orders well above 5 keep every term (the MPU-6000 note loses the
-terms above order 5 to single precision on raw temperature).
+measured. Here the cubic is the incumbent and another order is taken only
+when it beats the cubic fold by fold on held-out blocks; the fit runs in
+float64 on x = (T - centre) / scale, scale the power of two at or above the
+half span of the data's temperature range, so x lies in [-1, 1] and orders
+well above 5 keep every term (the MPU-6000 note loses the terms above order 5
+to single precision on raw temperature). Order 3 is PX4's cubic itself
+(`baseline.fit_cubic`), to the bit.
 
 Besides the plain polynomial: `relative_polynomial`, the MPU-6000 note's
 correction rate - (p(T) - p(T_true)), and `fit_linear_btc`, the ADIS16130
@@ -18,14 +21,18 @@ import operator
 
 import numpy as np
 
+from .baseline import cubic_scale_c, CubicSums, fit_cubic, PX4_ORDER, solve_cubic
 from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
 from .models import AXIS_NAMES
-from .validation import (BASELINE_MARGIN, best_score, block_bounds, cubic_instead,
-                         DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST, FORWARD, ONE_SE_RULE,
-                         one_standard_error, order_score, PX4_ORDER, split)
+from .validation import (BASELINE_MARGIN, block_bounds, cubic_instead, DEFAULT_BLOCKS,
+                         DEFAULT_FOLDS, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
+                         DEFAULT_VALIDATION, FORWARD,
+                         one_standard_error, order_score, paired, split)
 
 MIN_SPAN_C = 1.0
+BASELINE_RULE = ('the PX4-style cubic unless another order beats it on held-out blocks, fold '
+                 'by fold and by the margin')
 DISTINCT_DECIMALS = 2
 # Rows per chunk of the normal equations: 2^18 rows of an order-8 basis are 19 MB.
 CHUNK_ROWS = 1 << 18
@@ -108,8 +115,8 @@ class _Moments:
 
 
 def _scaling(low_c: float, high_c: float) -> tuple:
-    """Return (centre, half span) of a temperature range; half span 1 for a single value."""
-    return 0.5 * (low_c + high_c), (0.5 * (high_c - low_c)) or 1.0
+    """Return (centre, scale) of a temperature range: the scale a power of two (1 for a point)."""
+    return 0.5 * (low_c + high_c), cubic_scale_c(low_c, high_c)
 
 
 def _chunks(start: int, stop: int):
@@ -192,12 +199,14 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> EffectModel:
 
     temperature_c has shape (samples,), rate_rad_s (samples,) or (samples, axes),
     orders is one int for every axis or one per axis. The model works in
-    x = (T - centre) / half_span of the data's temperature range and clamps to
+    x = (T - centre) / scale over the data's temperature range and clamps to
     that range. Raise CalibrationError when the data cannot support an order.
 
     The fit never holds a design matrix: it accumulates the normal equations
     of Legendre polynomials in x CHUNK_ROWS rows at a time (well conditioned
-    on [-1, 1]), solves them and converts the solution to powers of x.
+    on [-1, 1]), solves them and converts the solution to powers of x. An
+    axis of order 3 is PX4's cubic (`baseline.fit_cubic`): the node runs it
+    as the firmware's formula, to the bit.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     axis_orders = _axis_orders(orders, rate.shape[1])
@@ -210,16 +219,21 @@ def fit_polynomial(temperature_c, rate_rad_s, orders) -> EffectModel:
     if problem:
         raise CalibrationError(problem)
     coefficients = []
+    cubic = None
     for axis, order in enumerate(axis_orders):
+        if order == PX4_ORDER:
+            cubic = cubic or fit_cubic(temperature, rate)[0].effect_model()
+            coefficients.append(cubic.terms[axis].bias)
+            continue
         solution, rank = _legendre_solution(moments, order)
         if rank < order + 1:
             msg = (f'axis {AXIS_NAMES[axis]}: the temperatures cannot determine an order '
                    f'{order} polynomial (design matrix rank {rank})')
             raise CalibrationError(msg)
         coefficients.append(_power_coefficients(solution[:, axis]))
-    centre_c, half_span_c = scaling
+    centre_c, scale_c = scaling
     return polynomial_model(tuple(coefficients), reference_temperature_c=centre_c,
-                            temperature_scale_c=half_span_c, temperature_min_c=low_c,
+                            temperature_scale_c=scale_c, temperature_min_c=low_c,
                             temperature_max_c=high_c)
 
 
@@ -240,7 +254,8 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     (the sum of their normal equations), clamped to their temperature range;
     it is evaluated, clamped so, in the Legendre basis it was solved in (the
     same polynomial as the fitted model would evaluate in powers of
-    the training x).
+    the training x). Order 3 is PX4's cubic, fitted on the training rows and
+    run clamped (`baseline.fit_cubic`).
     """
     highest = orders[-1]
     scaling = _scaling(float(np.min(temperature)), float(np.max(temperature)))
@@ -258,6 +273,8 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
                     solutions[order] = solution
         if not solutions:
             continue
+        cubic = _fold_cubic(parts, scaling, folds.training[fold]) \
+            if PX4_ORDER in solutions else None
         squares = {order: np.zeros(rate.shape[1]) for order in solutions}
         for block in held_out:
             for first, last in _chunks(bounds[block], bounds[block + 1]):
@@ -265,7 +282,9 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
                 basis = np.polynomial.legendre.legvander(
                     (clamped_c - scaling[0]) / scaling[1], max(solutions))
                 for order, solution in solutions.items():
-                    residual = rate[first:last] - basis[:, :order + 1] @ solution
+                    residual = rate[first:last] - basis[:, :order + 1] @ solution \
+                        if order != PX4_ORDER else \
+                        cubic.corrected(rate[first:last], temperature[first:last])
                     squares[order] += np.einsum('ij,ij->j', residual, residual)
         rows = sum(parts[block].rows for block in held_out)
         for order, total in squares.items():
@@ -273,26 +292,38 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     return rms
 
 
+def _fold_cubic(parts: list, scaling: tuple, training: np.ndarray):
+    """PX4's cubic fitted on a fold's training blocks (`baseline.solve_cubic`, their sums)."""
+    size = PX4_ORDER + 1
+    sums = CubicSums(scaling[0], scaling[1], np.array([part.gram[:size, :size] for part in parts]),
+                     np.array([part.moment[:size] for part in parts]),
+                     np.array([part.low_c for part in parts]),
+                     np.array([part.high_c for part in parts]), np.zeros(len(parts), dtype=int))
+    return solve_cubic(sums, training)[0]
+
+
 def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0, 9),
                   blocks: int = DEFAULT_BLOCKS, folds: int = DEFAULT_FOLDS,
-                  validation: str = FORWARD, min_past: float = DEFAULT_MIN_PAST,
-                  baseline_margin: float = BASELINE_MARGIN) -> tuple:
+                  validation: str = DEFAULT_VALIDATION, min_past: float = DEFAULT_MIN_PAST,
+                  baseline_margin: float = BASELINE_MARGIN,
+                  significance: float = DEFAULT_SIGNIFICANCE) -> tuple:
     """
     Choose the bias polynomial order per axis on held-out contiguous blocks.
 
     The record is cut into ``blocks`` contiguous blocks and dealt to folds by
-    ``validation`` (`validation.split`: forward in time by default, or
-    round-robin to ``folds`` folds). Each candidate order is fitted on a
-    fold's training blocks and scored by the RMS of the corrected rate on its
-    held-out blocks. Blocks are contiguous because neighbouring samples are
-    correlated. The chosen order is the lowest whose mean held-out RMS is
-    within one standard error of the best; orders the training data cannot
-    support score inf and are never chosen. The cubic (PX4's model) is the
-    baseline: another order is chosen only when its mean held-out RMS is at
-    least ``baseline_margin`` below the cubic's (`validation.cubic_instead`),
-    else the cubic, the rule saying why. Each block is summarised once
-    (normal equations up to the highest order), so the cost hardly grows with
-    the number of orders and folds.
+    ``validation`` (`validation.split`: forward in time by default,
+    round-robin to ``folds`` folds, or purged). Each candidate order is
+    fitted on a fold's training blocks and scored by the RMS of the corrected
+    rate on its held-out blocks. Blocks are contiguous because neighbouring
+    samples are correlated. The cubic (PX4's model, order 3) is the
+    incumbent: another order is chosen only when it beats the cubic fold by
+    fold (`validation.paired`: its mean per-fold gain at least
+    ``significance`` standard errors and a win on most folds) and its mean
+    held-out RMS is ``baseline_margin`` below the cubic's; of those, the one
+    with the largest mean gain. Orders the training data cannot support
+    score inf and are never chosen. Each block is summarised once (normal
+    equations up to the highest order), so the cost hardly grows with the
+    number of orders and folds.
     """
     temperature, rate = _fit_inputs(temperature_c, rate_rad_s)
     names = AXIS_NAMES[:rate.shape[1]] if axes is None else tuple(axes)
@@ -303,33 +334,51 @@ def select_orders(temperature_c, rate_rad_s, axes=None, candidate_orders=range(0
     if not candidates:
         msg = 'no candidate orders given'
         raise CalibrationError(msg)
-    orders = sorted(set(_axis_orders(candidates, len(candidates))))
+    orders = sorted(set(_axis_orders(candidates, len(candidates))) | {PX4_ORDER})
     dealt = split(blocks, validation, folds, min_past)
     bounds = block_bounds(temperature.size, blocks)
     fold_rms = _held_out_rms_rad_s(temperature, rate, bounds, orders, dealt)
     selections = []
     for axis, name in enumerate(names):
         scores = tuple(order_score(order, fold_rms[order][:, axis]) for order in orders)
-        try:
-            chosen = one_standard_error(scores)
-        except CalibrationError:
-            msg = (f'axis {name}: the data cannot support any of the orders {orders} '
-                   f'({dealt.describe()})')
-            raise CalibrationError(msg) from None
-        best = best_score(scores)
-        rule = f'{ONE_SE_RULE} rule ({dealt.describe()}): ' + (
-            f'order {chosen} has the lowest mean held-out RMS' if chosen == best.order else
-            f'order {chosen} is the lowest order whose mean held-out RMS is within one '
-            f'standard error of the lowest, which order {best.order} has')
-        cubic = next((s for s in scores if s.order == PX4_ORDER), None)
-        reason = '' if cubic is None or chosen == PX4_ORDER else cubic_instead(
-            scores[orders.index(chosen)].mean_rms_rad_s, cubic.mean_rms_rad_s,
-            baseline_margin, dealt.scheme.replace('_', '-'))
-        if reason:
-            rule += f'; order {PX4_ORDER} written instead of order {chosen}: {reason}'
-            chosen = PX4_ORDER
-        selections.append(OrderSelection(axis=name, order=chosen, scores=scores, rule=rule))
+        selections.append(_against_cubic(name, scores, dealt, baseline_margin, significance))
     return tuple(selections)
+
+
+def _against_cubic(name: str, scores: tuple, dealt, margin: float,
+                   significance: float) -> OrderSelection:
+    """
+    Take the cubic unless orders beat it fold by fold and by the margin.
+
+    Of those that do, the lowest order whose mean held-out RMS is within one
+    standard error of the best's.
+    """
+    cubic = next(s for s in scores if s.order == PX4_ORDER)
+    if not math.isfinite(cubic.mean_rms_rad_s):
+        return _without_cubic(name, scores, dealt)
+    scheme = dealt.scheme.replace('_', '-')
+    winners = [score for score in scores
+               if score is not cubic and math.isfinite(score.mean_rms_rad_s)
+               and paired(cubic.block_rms_rad_s, score.block_rms_rad_s).beats(significance)
+               and not cubic_instead(score.mean_rms_rad_s, cubic.mean_rms_rad_s, margin, scheme)]
+    chosen = one_standard_error(winners) if winners else PX4_ORDER
+    rule = (f'{BASELINE_RULE} ({dealt.describe()}): '
+            + (f'order {chosen} does (of those that do, the lowest within one standard error '
+               'of the best)' if winners else 'no order does, so the cubic is written'))
+    return OrderSelection(axis=name, order=chosen, scores=scores, rule=rule)
+
+
+def _without_cubic(name: str, scores: tuple, dealt) -> OrderSelection:
+    """Where the folds cannot support a cubic: the lowest order within one SE of the best."""
+    try:
+        chosen = one_standard_error(scores)
+    except CalibrationError:
+        msg = (f'axis {name}: the data cannot support any of the orders '
+               f'{[s.order for s in scores]} ({dealt.describe()})')
+        raise CalibrationError(msg) from None
+    rule = (f'the training folds cannot support the PX4-style cubic ({dealt.describe()}): the '
+            f'lowest order within one standard error of the best, order {chosen}')
+    return OrderSelection(axis=name, order=chosen, scores=scores, rule=rule)
 
 
 def format_order_table(selections) -> str:

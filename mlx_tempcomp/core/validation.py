@@ -1,7 +1,7 @@
 """
 How `fit` and `diagnose` judge a model on data it was not fitted to: one code path for both.
 
-The record is cut into contiguous blocks. Two schemes deal them to folds:
+The record is cut into contiguous blocks. Three schemes deal them to folds:
 
 - ``forward`` (the default), the way a node uses a model: fold j fits on
   every block before block j and predicts block j, rolling forward over the
@@ -10,7 +10,15 @@ The record is cut into contiguous blocks. Two schemes deal them to folds:
 - ``round_robin``: fold k holds out blocks k, k + folds, k + 2 folds, ...
   and fits on the rest, so training data surrounds every held-out block.
   A model can interpolate between its neighbours in time there, which a
-  node never does; the figure is reported beside the forward one.
+  node never does.
+- ``purged`` (blocked cross-validation with a buffer, hv-block; the "purged
+  k-fold" of time-series learning): each block is held out alone, the
+  ``buffer`` blocks on either side of it are dropped, and the rest trains. The
+  buffer is at least as long as the memory of the model judged (3 x its
+  longest time constant, at least one block), so no history state carries
+  the held-out block's neighbours into its fit. Training data lie before and
+  after the block in time, at temperatures it passes through: the model is
+  judged inside its calibrated range, later (and earlier) in time.
 
 Several records of one unit (`records.Records`) are cut into blocks each
 (`record_block_bounds`), so no block spans two records. Each record may
@@ -20,14 +28,15 @@ block of every record only trains (a fold never predicts a record from its
 own future, nor from nothing of it).
 
 Each fold's held-out RMS is one score; an order (or effect) is summarised
-by the mean over the folds and its standard error, and the order is chosen
-by the one-standard-error rule. The PX4-style cubic is the baseline, a
-candidate like any other (`cubic_instead`): a model other than it is written
-only when its held-out RMS is at least ``BASELINE_MARGIN`` below the
-cubic's, so neither `fit` nor `diagnose` writes a model the validation does
-not find clearly better than what a PX4 user already has. Least squares on the folds adds up the
-normal equations of the training blocks (`training_sums`), so every fold
-costs one small solve.
+by the mean over the folds and its standard error. The PX4-style cubic
+(`baseline`) is the incumbent: a model other than it, a higher order or an added effect is
+taken only when it beats the incumbent fold by fold (`paired`: the mean of
+the per-fold differences at least ``significance`` standard errors, and a
+win on a majority of the folds), and its held-out RMS is at least
+``BASELINE_MARGIN`` below the cubic's (`cubic_instead`): a margin on the
+pooled RMS alone can be one lucky fold. Least squares on the folds adds up
+the normal equations of the training blocks (`training_sums`), so every
+fold costs one small solve.
 
 Two views of the held-out rows tell what the figures mean:
 `held_out_outside_range` says how much of each held-out block lies outside
@@ -46,15 +55,19 @@ from .errors import CalibrationError
 
 FORWARD = 'forward'
 ROUND_ROBIN = 'round_robin'
-SCHEMES = (FORWARD, ROUND_ROBIN)
-ONE_SE_RULE = 'one-standard-error'
+PURGED = 'purged'
+SCHEMES = (FORWARD, ROUND_ROBIN, PURGED)
+# The scheme that decides unless told otherwise: chosen on every record we have
+# (docs/diagnose.md, "Choosing the validation").
+DEFAULT_VALIDATION = ROUND_ROBIN
 DEFAULT_BLOCKS = 20
 DEFAULT_FOLDS = 5
 DEFAULT_MIN_PAST = 0.25
-# The baseline: PX4's thermal calibration fits a cubic in temperature, and a model other
-# than it is written only when its held-out RMS is this fraction below the cubic's.
-PX4_ORDER = 3
+# A model other than the baseline (PX4's cubic) is written only when its held-out RMS is
+# this fraction below the cubic's, besides beating it fold by fold.
 BASELINE_MARGIN = 0.05
+# The paired comparison's default: the mean per-fold gain in standard errors.
+DEFAULT_SIGNIFICANCE = 2.0
 
 
 @dataclass(frozen=True)
@@ -72,13 +85,15 @@ class Split:
     """
     Which blocks train (training) and which are predicted (held) in each fold.
 
-    ``record_starts`` holds the first block of each record.
+    ``record_starts`` holds the first block of each record; ``buffer`` the
+    blocks dropped on either side of a held-out block (purged).
     """
 
     scheme: str
     training: np.ndarray
     held: np.ndarray
     record_starts: tuple = (0,)
+    buffer: int = 0
 
     @property
     def folds(self) -> int:
@@ -104,6 +119,10 @@ class Split:
                 text += (f' (in {records} records, whose first blocks only train: blocks '
                          + ', '.join(str(b) for b in self.record_starts) + ')')
             return text
+        if self.scheme == PURGED:
+            text = (f'purged: each of {self.folds} blocks predicted from the others but '
+                    f'{self.buffer} on either side')
+            return text + (f' (in {records} records)' if records > 1 else '')
         return f'round-robin: {self.blocks} blocks dealt to {self.folds} folds' + (
             f' (in {records} records)' if records > 1 else '')
 
@@ -157,11 +176,13 @@ def first_forward_block(blocks: int, min_past: float) -> int:
 
 
 def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
-          min_past: float = DEFAULT_MIN_PAST, record_starts: tuple = (0,)) -> Split:
+          min_past: float = DEFAULT_MIN_PAST, record_starts: tuple = (0,),
+          buffer: int = 1) -> Split:
     """
     Deal ``blocks`` contiguous blocks to folds by ``scheme``; see the module docstring.
 
-    ``record_starts`` gives the first block of each record (`record_block_bounds`).
+    ``record_starts`` gives the first block of each record (`record_block_bounds`),
+    ``buffer`` the blocks a purged fold drops on either side of its held-out block.
     """
     if scheme not in SCHEMES:
         msg = f'validation must be one of {", ".join(SCHEMES)}, got {scheme!r}'
@@ -181,14 +202,45 @@ def split(blocks: int, scheme: str = FORWARD, folds: int = DEFAULT_FOLDS,
             raise CalibrationError(msg)
         held = predicted[:, None] == index[None, :]
         training = index[None, :] < predicted[:, None]
-    else:
-        if not 2 <= folds <= blocks:
-            msg = (f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, '
-                   f'{blocks} blocks')
-            raise CalibrationError(msg)
-        held = index[None, :] % folds == np.arange(folds)[:, None]
-        training = ~held
-    return Split(scheme, training, held, tuple(record_starts))
+        return Split(scheme, training, held, tuple(record_starts))
+    if scheme == PURGED:
+        return _purged(blocks, record_starts, buffer)
+    if not 2 <= folds <= blocks:
+        msg = (f'cross-validation needs 2 <= folds <= blocks, got {folds} folds, '
+               f'{blocks} blocks')
+        raise CalibrationError(msg)
+    held = index[None, :] % folds == np.arange(folds)[:, None]
+    return Split(scheme, ~held, held, tuple(record_starts))
+
+
+def _purged(blocks: int, record_starts: tuple, buffer: int) -> Split:
+    """
+    Hold out each block alone, drop ``buffer`` blocks on either side in its record.
+
+    A block is predicted only when its record keeps training blocks (its
+    bias offset is learnt from them); blocks of other records always train.
+    """
+    if buffer < 1:
+        msg = f'a purged split needs a buffer of at least 1 block, got {buffer}'
+        raise CalibrationError(msg)
+    index = np.arange(blocks)
+    record = np.searchsorted(np.asarray(record_starts), index, side='right') - 1
+    same = record[:, None] == record[None, :]
+    training = ~(same & (np.abs(index[:, None] - index[None, :]) <= buffer))
+    predicted = np.flatnonzero(np.any(training & same, axis=1))
+    if predicted.size < 2:
+        msg = (f'purged validation needs at least 2 blocks to predict: with {blocks} blocks '
+               f'and a buffer of {buffer} on either side, no record keeps blocks to train on')
+        raise CalibrationError(msg)
+    held = predicted[:, None] == index[None, :]
+    return Split(PURGED, training[predicted], held, tuple(record_starts), buffer)
+
+
+def buffer_blocks(memory_s: float, block_s: float) -> int:
+    """Give the purged buffer: blocks covering 3 x ``memory_s``, at least one."""
+    if memory_s <= 0.0 or block_s <= 0.0:
+        return 1
+    return max(1, math.ceil(3.0 * memory_s / block_s - 1e-9))
 
 
 def training_sums(split_: Split, per_block: np.ndarray) -> np.ndarray:
@@ -197,13 +249,19 @@ def training_sums(split_: Split, per_block: np.ndarray) -> np.ndarray:
 
 
 def order_score(order: int, fold_rms_rad_s) -> OrderScore:
-    """Summarise an order's held-out RMS per fold; inf when a fold could not fit it."""
+    """
+    Summarise an order's held-out RMS per fold; inf when a fold could not fit it.
+
+    A fold with no held-out rows to count (NaN: every one beyond its training
+    range, scoring 'inside') is left out of the mean and its standard error.
+    """
     values = np.asarray(fold_rms_rad_s, dtype=np.float64)
     folds = tuple(float(v) for v in values)
-    if not np.all(np.isfinite(values)):
+    counted = values[~np.isnan(values)]
+    if counted.size < 2 or not np.all(np.isfinite(counted)):
         return OrderScore(order, folds, math.inf, math.inf)
-    error = float(np.std(values, ddof=1) / math.sqrt(values.size))
-    return OrderScore(order, folds, float(np.mean(values)), error)
+    error = float(np.std(counted, ddof=1) / math.sqrt(counted.size))
+    return OrderScore(order, folds, float(np.mean(counted)), error)
 
 
 def best_score(scores) -> OrderScore:
@@ -240,6 +298,51 @@ def cubic_instead(found_rms_rad_s: float, cubic_rms_rad_s: float, margin: float,
     return (f'the model found has {scheme} held-out RMS {found_rms_rad_s:.3e} rad/s, '
             f"{ratio:.2f}x the PX4-style cubic's {cubic_rms_rad_s:.3e} rad/s: not "
             f'{margin:.0%} better')
+
+
+@dataclass(frozen=True)
+class Paired:
+    """
+    A challenger against the incumbent, fold by fold: its per-fold RMS gains.
+
+    ``mean_rad_s`` and ``standard_error_rad_s`` summarise the per-fold
+    differences (incumbent minus challenger, folds both can score), ``wins``
+    counts the folds the challenger is better on, of ``folds``.
+    """
+
+    mean_rad_s: float
+    standard_error_rad_s: float
+    wins: int
+    folds: int
+
+    def beats(self, significance: float) -> bool:
+        """Tell whether the gain is ``significance`` standard errors and a majority's."""
+        return (self.folds >= 2 and self.mean_rad_s > 0.0
+                and self.mean_rad_s >= significance * self.standard_error_rad_s
+                and 2 * self.wins > self.folds)
+
+    def why_not(self, significance: float) -> str:
+        """Say why the challenger does not beat the incumbent ('' when it does)."""
+        if self.beats(significance):
+            return ''
+        if not (self.mean_rad_s > 0.0
+                and self.mean_rad_s >= significance * self.standard_error_rad_s):
+            return (f'mean fold improvement {self.mean_rad_s:.3g} rad/s not '
+                    f'{significance:g} standard errors ({self.standard_error_rad_s:.3g} rad/s)')
+        return f'better on {self.wins} of {self.folds} folds, not a majority'
+
+
+def paired(incumbent_fold_rms, challenger_fold_rms) -> Paired:
+    """Compare two models' RMS per fold (the same folds); NaN folds are left out."""
+    incumbent = np.asarray(incumbent_fold_rms, dtype=np.float64)
+    challenger = np.asarray(challenger_fold_rms, dtype=np.float64)
+    difference = (incumbent - challenger)[np.isfinite(incumbent) & np.isfinite(challenger)]
+    if difference.size < 2:
+        return Paired(math.nan, math.nan, int(np.count_nonzero(difference > 0.0)),
+                      int(difference.size))
+    return Paired(float(np.mean(difference)),
+                  float(np.std(difference, ddof=1) / math.sqrt(difference.size)),
+                  int(np.count_nonzero(difference > 0.0)), int(difference.size))
 
 
 @dataclass(frozen=True)

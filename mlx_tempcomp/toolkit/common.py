@@ -25,7 +25,8 @@ import sys
 import numpy as np
 
 from .outputs import Outputs
-from ..core.validation import BASELINE_MARGIN, DEFAULT_MIN_PAST, FORWARD, SCHEMES
+from ..core.validation import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
+                               DEFAULT_VALIDATION, SCHEMES)
 from ..errors import MlxTempCompError
 from ..model_params import parameter_file, write_parameter_file
 from ..sources.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
@@ -84,12 +85,14 @@ VALIDATION_OPTIONS = {scheme.replace('_', '-'): scheme for scheme in SCHEMES}
 
 
 def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> None:
-    """Add --validation, --min-past, --baseline-margin (core.validation); None if not given."""
-    default = FORWARD.replace('_', '-')
+    """Add --validation, --min-past, --baseline-margin, --significance; None if not given."""
+    default = DEFAULT_VALIDATION.replace('_', '-')
     parser.add_argument('--validation', choices=tuple(VALIDATION_OPTIONS),
                         help=f'{when}which held-out scheme decides: forward predicts each '
                              'block from a fit on the blocks before it (as a node runs a model '
-                             'fitted on the past), round-robin deals blocks to --folds folds '
+                             'fitted on the past), round-robin deals blocks to --folds folds, '
+                             'purged predicts each block from the others but a buffer of '
+                             "neighbours as long as the model's memory "
                              f'(default: {default})')
     parser.add_argument('--min-past', type=fraction, metavar='F',
                         help=f'{when}forward: the first predicted block starts after this '
@@ -98,14 +101,22 @@ def add_validation_options(parser: argparse.ArgumentParser, when: str = '') -> N
                         help=f'{when}write a model other than the PX4-style cubic only when '
                              "its held-out RMS is at least F below the cubic's, else write the "
                              f'cubic (default: {BASELINE_MARGIN})')
+    parser.add_argument('--significance', type=non_negative_float, metavar='K',
+                        help=f'{when}a model other than the cubic, a higher order or an added '
+                             'effect must beat the one before it fold by fold: its mean '
+                             'per-fold gain at least K standard errors, and better on most '
+                             f'folds (default: {DEFAULT_SIGNIFICANCE:g})')
 
 
 def validation_settings(args: argparse.Namespace) -> dict:
-    """Return the validation, min_past and baseline_margin asked for, defaults where not given."""
-    return {'validation': VALIDATION_OPTIONS[args.validation or FORWARD.replace('_', '-')],
+    """Return the validation settings asked for, defaults where not given."""
+    return {'validation': VALIDATION_OPTIONS[args.validation or
+                                             DEFAULT_VALIDATION.replace('_', '-')],
             'min_past': DEFAULT_MIN_PAST if args.min_past is None else args.min_past,
             'baseline_margin': (BASELINE_MARGIN if args.baseline_margin is None
-                                else args.baseline_margin)}
+                                else args.baseline_margin),
+            'significance': (DEFAULT_SIGNIFICANCE if args.significance is None
+                             else args.significance)}
 
 
 def instance_option(text: str):

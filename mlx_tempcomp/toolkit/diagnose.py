@@ -35,7 +35,7 @@ from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
                           outside_lines, outside_range_json, params_model_error,
                           plot_error_by_temperature)
 from ..core.diagnosis import (DEFAULT_REZERO_S, default_rezero_s, diagnose as run_diagnosis,
-                              DiagnosisSettings, METHODS, rezero_window_rows)
+                              DiagnosisSettings, METHODS, rezero_window_rows, SCORING)
 from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..core.records import join_records
@@ -109,6 +109,10 @@ def add_parser(commands) -> None:
     parser.add_argument('--min-gain', type=fraction, default=defaults.min_gain, metavar='F',
                         help='smallest relative held-out RMS reduction that adds an effect '
                              '(default: %(default)s)')
+    parser.add_argument('--scoring', choices=SCORING, default=defaults.scoring,
+                        help="which held-out rows a fold's score counts: all, or only those "
+                             "inside the temperature range of the fold's training blocks (the "
+                             'rest, extrapolation, reported apart) (default: %(default)s)')
     parser.add_argument('--block-tolerance', type=non_negative_float,
                         default=defaults.block_tolerance, metavar='F',
                         help='refuse an effect when a held-out block gets worse by more than F '
@@ -249,7 +253,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
             max_order=args.max_order, min_gain=args.min_gain,
-            block_tolerance=args.block_tolerance,
+            block_tolerance=args.block_tolerance, scoring=args.scoring,
             error_bins=args.error_bins,
             test_cycle=test == 'cycle', test_record=test in (TEST_RECORD, TEST_EACH),
             test_fraction=test if isinstance(test, float) else 0.0,

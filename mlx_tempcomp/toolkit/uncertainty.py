@@ -34,18 +34,34 @@ def _part(part, axes) -> dict:
             'furthest_c': dict(zip(axes, part.furthest_c))}
 
 
-def outside_range_json(outside, axes, scheme: str) -> dict:
-    """Return report.json's ``outside_fitted_range``: the test part and each forward block."""
-    blocks = [{'block': k, **_part(part, axes)} for k, part in enumerate(outside.blocks)
-              if part is not None]
-    rows = sum(block['rows'] for block in blocks)
-    overall = {axis: sum(b['rows'] * b['fraction'][axis] for b in blocks) / rows if rows else 0.0
+def _held_blocks(blocks, axes) -> dict:
+    """Give the held-out blocks' parts and their share outside, over all of them."""
+    parts = [{'block': k, **_part(part, axes)} for k, part in enumerate(blocks)
+             if part is not None]
+    rows = sum(part['rows'] for part in parts)
+    overall = {axis: sum(b['rows'] * b['fraction'][axis] for b in parts) / rows if rows else 0.0
                for axis in axes}
-    return {'meaning': OUTSIDE_MEANING, 'per_axis': outside.per_axis,
-            'test': None if outside.test is None else _part(outside.test, axes),
-            'forward_scheme': scheme,
-            'forward_blocks': blocks,
-            'forward_all': {'rows': rows, 'fraction': overall}}
+    return {'blocks': parts, 'all': {'rows': rows, 'fraction': overall}}
+
+
+def outside_range_json(outside, axes, scheme: str) -> dict:
+    """
+    Return report.json's ``outside_fitted_range``: the test part and each held-out block.
+
+    The forward blocks always (their past's range), and the deciding scheme's
+    when it is another (its folds' training range).
+    """
+    forward = _held_blocks(outside.blocks, axes)
+    section = {'meaning': OUTSIDE_MEANING, 'per_axis': outside.per_axis,
+               'test': None if outside.test is None else _part(outside.test, axes),
+               'forward_scheme': scheme,
+               'forward_blocks': forward['blocks'],
+               'forward_all': forward['all']}
+    if outside.deciding_blocks is not None:
+        deciding = _held_blocks(outside.deciding_blocks, axes)
+        section.update({'deciding_scheme': outside.deciding,
+                        'deciding_blocks': deciding['blocks'], 'deciding_all': deciding['all']})
+    return section
 
 
 def _bins(errors, axes) -> list:
@@ -110,7 +126,7 @@ def _furthest(part: dict) -> float:
 
 
 def outside_lines(section: dict) -> list:
-    """report.md lines of ``outside_fitted_range``."""
+    """Give report.md's lines of ``outside_fitted_range``."""
     per_axis = section['per_axis']
     lines = ['## Outside the fitted temperature range', '',
              'Beyond the temperatures a model was fitted on, the compensation node clamps the '
@@ -125,14 +141,24 @@ def outside_lines(section: dict) -> list:
                   + (f', at most {_furthest(test):.2f} C beyond' if _furthest(test) else '')]
     overall = section['forward_all']
     lines += [f'- forward held-out blocks: {fraction_text(overall["fraction"], per_axis)} of '
-              f'{overall["rows"]} rows outside the range of the blocks before them', '']
-    rows = [(b['block'], f'{b["range_c"][0]:.2f} .. {b["range_c"][1]:.2f}', b['rows'],
-             fraction_text(b['fraction'], per_axis), f'{_furthest(b):.2f}')
-            for b in section['forward_blocks']]
-    lines += ['| block | range of the blocks before (C) | rows | outside | furthest beyond (C) |',
-              '|---|---|---|---|---|']
-    lines += ['| ' + ' | '.join(str(cell) for cell in row) + ' |' for row in rows]
-    return lines + ['']
+              f'{overall["rows"]} rows outside the range of the blocks before them']
+    deciding = section.get('deciding_scheme', '').replace('_', '-')
+    if deciding:
+        part = section['deciding_all']
+        lines += [f'- {deciding} held-out blocks: {fraction_text(part["fraction"], per_axis)} '
+                  f'of {part["rows"]} rows outside the range of their fold\'s training blocks']
+    lines.append('')
+    tables = [('forward_blocks', 'the blocks before')]
+    if deciding:
+        tables.append(('deciding_blocks', f"the {deciding} fold's training blocks"))
+    for key, against in tables:
+        rows = [(b['block'], f'{b["range_c"][0]:.2f} .. {b["range_c"][1]:.2f}', b['rows'],
+                 fraction_text(b['fraction'], per_axis), f'{_furthest(b):.2f}')
+                for b in section[key]]
+        lines += [f'| block | range of {against} (C) | rows | outside | furthest beyond (C) |',
+                  '|---|---|---|---|---|']
+        lines += ['| ' + ' | '.join(str(cell) for cell in row) + ' |' for row in rows] + ['']
+    return lines
 
 
 def _e(value) -> str:
@@ -175,6 +201,10 @@ def console_lines(report: dict) -> list:
     text = (f'outside the fitted temperature range (clamped): forward held-out blocks '
             f'{fraction_text(overall["fraction"], per_axis)} of {overall["rows"]} rows'
             + (f' (blocks {", ".join(str(b) for b in outside)})' if outside else ''))
+    if 'deciding_scheme' in section:
+        deciding = section['deciding_all']
+        text += (f'; {section["deciding_scheme"].replace("_", "-")} held-out blocks '
+                 f'{fraction_text(deciding["fraction"], per_axis)} of {deciding["rows"]} rows')
     test = section['test']
     if test is not None:
         text += f'; test set {fraction_text(test["fraction"], per_axis)} of {test["rows"]} rows'

@@ -81,6 +81,7 @@ the PX4-style cubic), `held_out_part` (the test part, the re-zero, the
 error by temperature and the clamped rows), `loop` (`diagnose`).
 """
 
+from .folds import ALL_ROWS, INSIDE_ROWS, SCORING
 from .held_out_part import default_rezero_s, rezero_window_rows
 from .loop import diagnose
 from .results import (AxisDiagnosis, BinnedResidual, Candidate, Diagnosis, ErrorByTemperature,
@@ -88,8 +89,8 @@ from .results import (AxisDiagnosis, BinnedResidual, Candidate, Diagnosis, Error
 from .settings import (BASE_EFFECT, DEFAULT_ERROR_BINS, DEFAULT_REZERO_S, DiagnosisSettings,
                        Progress, RECORD_SEARCH, REZERO_MIN_SAMPLES, SEARCH_EFFECTS)
 
-__all__ = ['AxisDiagnosis', 'BASE_EFFECT', 'BinnedResidual', 'Candidate', 'DEFAULT_ERROR_BINS',
-           'DEFAULT_REZERO_S', 'default_rezero_s', 'diagnose', 'Diagnosis', 'DiagnosisSettings',
-           'ErrorByTemperature', 'HeldOutError', 'METHODS', 'ModelChoice', 'OutsideFittedRange',
-           'Progress', 'RECORD_SEARCH', 'RecordFit', 'REZERO_MIN_SAMPLES', 'rezero_window_rows',
-           'SEARCH_EFFECTS', 'Step']
+__all__ = ['ALL_ROWS', 'AxisDiagnosis', 'BASE_EFFECT', 'BinnedResidual', 'Candidate',
+           'DEFAULT_ERROR_BINS', 'DEFAULT_REZERO_S', 'default_rezero_s', 'diagnose', 'Diagnosis',
+           'DiagnosisSettings', 'ErrorByTemperature', 'HeldOutError', 'INSIDE_ROWS', 'METHODS',
+           'ModelChoice', 'OutsideFittedRange', 'Progress', 'RECORD_SEARCH', 'RecordFit',
+           'REZERO_MIN_SAMPLES', 'rezero_window_rows', 'SCORING', 'SEARCH_EFFECTS', 'Step']

@@ -49,18 +49,22 @@ class AxisSpec:
     ``choices`` pairs an effect with what the search chose for it (a time
     constant, a width, an order, True), in EFFECT_NAMES order: the order of
     the design columns. ``thermal_gradient`` holds one or two time constants,
-    the second being ``thermal_gradient_2``.
+    the second being ``thermal_gradient_2``. ``baseline`` marks the PX4-style
+    cubic itself (`core.baseline`: np.polyfit on the rows, clamped), order 3
+    and no effects; adding an effect gives a polynomial fitted beside it.
     """
 
     order: int
     choices: tuple = ()
+    baseline: bool = False
 
     def get(self, effect: str, default=None):
         return dict(self.choices).get(effect, default)
 
     def with_choice(self, effect: str, choice) -> AxisSpec:
         choices = dict(self.choices, **{effect: choice})
-        return replace(self, choices=tuple((e, choices[e]) for e in EFFECT_NAMES if e in choices))
+        return replace(self, baseline=False,
+                       choices=tuple((e, choices[e]) for e in EFFECT_NAMES if e in choices))
 
     @property
     def thermal_lag_s(self) -> float:
@@ -148,7 +152,10 @@ class _Search:
         self.problem, self.axis, self.best = problem, axis, None
 
     def __call__(self, spec: AxisSpec) -> float:
-        score = self.problem.score_spec(self.axis, spec)
+        folds = self.problem.folds_for(spec)
+        if folds is None:   # no fold can judge a memory this long
+            return math.inf
+        score = self.problem.score_spec(self.axis, spec, folds)
         if self.best is None or score.rms < self.best.score.rms:
             self.best = Trial(spec, score)
         return score.rms
@@ -402,5 +409,5 @@ def fitted_parameters(effect: str, terms: AxisTerms, problem: DiagnosisProblem) 
     if effect == BASE_EFFECT:
         return {'order': len(terms.bias) - 1, 'bias_rad_s': list(terms.bias),
                 'reference_temperature_c': problem.centre_c,
-                'temperature_scale_c': problem.half_span_c}
+                'temperature_scale_c': problem.scale_c}
     return FITS[effect].report(terms, problem)

@@ -20,7 +20,7 @@ from ..effects import EffectModel, temperature_rate_c_s
 from ..errors import CalibrationError, ConfigError
 from ..metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
 from ..validation import (error_by_temperature, FORWARD, held_out_outside_range, outside_range,
-                          PX4_ORDER, temperature_bin_edges)
+                          temperature_bin_edges)
 
 
 def diagnosed_rows(recording, settings: DiagnosisSettings) -> int:
@@ -68,30 +68,6 @@ def _errors(binned: np.ndarray, counts: np.ndarray) -> tuple:
                  for a in range(binned.shape[1]))
 
 
-def _cubic_trend(problem: DiagnosisProblem, error: np.ndarray, temperature_c: np.ndarray
-                 ) -> np.ndarray:
-    """
-    Return the PX4-style cubic fitted to ``error`` on the diagnosed rows, at ``temperature_c``.
-
-    np.polyfit(T, rate, 3), as the PX4 script does; over several records
-    with each record's offset beside it, the last one's written (the same
-    treatment as the diagnosed model).
-    """
-    if problem.fitted_records == 1:
-        return np.polyval(np.polyfit(problem.temperature, error[:problem.rows], PX4_ORDER),
-                          temperature_c)
-
-    def powers(values):
-        return np.polynomial.polynomial.polyvander(
-            (values - problem.centre_c) / problem.half_span_c, PX4_ORDER)
-
-    record = np.searchsorted(problem.records.starts, np.arange(problem.rows), side='right') - 1
-    offsets = (record[:, None] == np.arange(1, problem.fitted_records)[None, :])
-    solution = np.linalg.lstsq(np.column_stack([powers(problem.temperature), offsets]),
-                               error[:problem.rows], rcond=None)[0]
-    return powers(temperature_c) @ solution[:PX4_ORDER + 1] + solution[-1]
-
-
 def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: EffectModel) -> tuple:
     """
     Return (errors per method on the test part, binned residual before/after, re-zero).
@@ -107,12 +83,14 @@ def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: Effe
     starts = bin_starts(full.time_s[test], problem.settings.average_s)
     shape = (rows, len(problem.axes))
     residuals = {method: np.empty(shape) for method in METHODS}
+    truth = 0.0 if full.reference_rad_s is None else full.reference_rad_s[test]
+    # The cubic as PX4 runs it: fitted on the diagnosed rows, the written (last) record's
+    # offset, clamped at its fitted range (`baseline`).
+    cubic = problem.cubics()[-1]
+    residuals['px4_cubic'] = cubic.corrected(full.gyro_rad_s[test], full.temperature_c[test]) \
+        - truth
+    residuals['none'] = full.gyro_rad_s[test] - truth
     for axis in range(len(problem.axes)):
-        truth = 0.0 if full.reference_rad_s is None else full.reference_rad_s[:, axis]
-        error = full.gyro_rad_s[:, axis] - truth
-        residuals['none'][:, axis] = error[test]
-        residuals['px4_cubic'][:, axis] = error[test] - _cubic_trend(
-            problem, error, full.temperature_c[test])
         residuals['temperature_polynomial'][:, axis] = problem.test_residual(base_model, axis)
         residuals['diagnosed'][:, axis] = problem.test_residual(model, axis)
     binned, scopes = {}, {'test': {}}
@@ -187,11 +165,12 @@ def rezero_window_rows(records, record: int, window_s: float) -> int:
 def outside_fitted_range(problem: DiagnosisProblem, specs: tuple,
                          model: EffectModel) -> OutsideFittedRange:
     """
-    Measure which rows the written model and the forward folds' models run clamped.
+    Measure which rows the written model and the folds' models run clamped.
 
     Each axis's effective temperature over the whole record (history states
     from its start, as the node runs them), against the range of the blocks
-    before each forward block and against the written model's range.
+    before each forward block, of each deciding fold's training blocks, and
+    against the written model's range.
     """
     full = problem.full
     slope = problem.each(functools.partial(temperature_rate_c_s,
@@ -205,16 +184,27 @@ def outside_fitted_range(problem: DiagnosisProblem, specs: tuple,
                                     problem.folds_of(FORWARD).split)
     test = outside_range(effective[problem.rows:], model.temperature_min_c,
                          model.temperature_max_c) if problem.test_rows else None
-    return OutsideFittedRange(len(set(lags)) > 1, blocks, test)
+    deciding = problem.settings.validation
+    deciding_blocks = None if deciding == FORWARD else held_out_outside_range(
+        effective[:problem.rows], problem.block_edges, problem.folds.split)
+    return OutsideFittedRange(len(set(lags)) > 1, blocks, test, deciding, deciding_blocks)
 
 
 def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResidual,
                                  test: Optional[BinnedResidual]) -> ErrorByTemperature:
-    """Bin the written model's held-out (and test) residuals by temperature."""
+    """
+    Bin the written model's held-out (and test) residuals by temperature.
+
+    The held-out bins are those the deciding folds count (inside their
+    training range with scoring 'inside'): the bins' mean squares add up to
+    the held-out RMS.
+    """
     temperature = problem.temperature
     edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
                                   problem.settings.error_bins)
-    held_table, test_table = (None if part is None else error_by_temperature(
-        part.temperature_c, part.after_rad_s, part.rows, edges) for part in (held_out, test))
+    counted = np.where(problem.folds.scored[:, None], held_out.after_rad_s, np.nan)
+    held_table = error_by_temperature(held_out.temperature_c, counted, held_out.rows, edges)
+    test_table = None if test is None else error_by_temperature(
+        test.temperature_c, test.after_rad_s, test.rows, edges)
     return ErrorByTemperature(problem.settings.validation, held_table,
                               float(np.mean(problem.counts)), test_table)

@@ -13,18 +13,22 @@ from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
                             written_error_by_temperature)
 from .problem import DiagnosisProblem, HeldOutRun, Score
-from .results import AxisDiagnosis, BinnedResidual, Diagnosis, RecordFit, Step
+from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
+                      RecordFit, Step)
 from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
+from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
-from ..errors import CalibrationError
 from ..model_interface import INPUTS
 from ..records import join_records
-from ..validation import one_standard_error, order_score, PX4_ORDER
+from ..validation import one_standard_error, order_score, paired
 
 # The record shows motion when the specific force turns by this much, or its
 # magnitude moves by MOTION_M_S2 (1 s means, 1st to 99th percentile).
 MOTION_DEG = 5.0
 MOTION_M_S2 = 1.0
+
+
+CUBIC = AxisSpec(PX4_ORDER, baseline=True)
 
 
 def _order_scores(problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> tuple:
@@ -37,27 +41,47 @@ def _order_scores(problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> tuple
     return tuple(scores)
 
 
-def _choose_order(axis_name: str, scores: tuple) -> int:
-    try:
-        return one_standard_error(scores)
-    except CalibrationError as err:
-        msg = f'axis {axis_name}: {err}'
-        raise CalibrationError(msg) from None
+def _paired_best(problem: DiagnosisProblem, axis: int, incumbent: AxisSpec,
+                 challengers) -> AxisSpec:
+    """
+    Give the polynomial order that beats the incumbent fold by fold, else the incumbent.
+
+    Each challenger is scored on the incumbent's folds beside it; one the
+    training folds cannot support (rank loss) never wins. Of those that win,
+    the lowest order whose mean fold RMS is within one standard error of the
+    best's (`validation.one_standard_error`).
+    """
+    base = problem.score_spec(axis, incumbent)
+    folds = problem.folds_for(incumbent)
+    winners = []
+    for challenger in challengers:
+        score = problem.score_spec(axis, challenger, folds)
+        if score.rank_ok and paired(base.fold_rms, score.fold_rms).beats(
+                problem.settings.significance):
+            winners.append((challenger, order_score(challenger.order, score.fold_rms)))
+    if not winners:
+        return incumbent
+    order = one_standard_error([score for _, score in winners])
+    return next(spec for spec, _ in winners if spec.order == order)
+
+
+def _step_zero_order(problem: DiagnosisProblem, axis: int) -> AxisSpec:
+    """Give the PX4-style cubic, unless another order beats it fold by fold."""
+    orders = [AxisSpec(order) for order in range(problem.settings.max_order + 1)
+              if order != PX4_ORDER]
+    return _paired_best(problem, axis, CUBIC, orders)
 
 
 def _rechosen_order(problem: DiagnosisProblem, axis: int, trial: AxisSpec) -> AxisSpec:
     """
-    Choose the polynomial order again beside an accepted effect.
+    Raise the polynomial order beside an accepted effect if a higher one beats it fold by fold.
 
-    The new term may take over what a higher order did, or free one up; the
-    order the effect was judged with stays when the rule's choice has a
-    higher held-out RMS (the rule allows one standard error of the mean fold
-    RMS, which forward folds make wide).
+    Never lower: the polynomial keeps the temperature shape, and an effect
+    does not stand in for it.
     """
-    chosen = replace(trial, order=_choose_order(problem.axes[axis],
-                                                _order_scores(problem, axis, trial)))
-    better = problem.score_spec(axis, chosen).rms <= problem.score_spec(axis, trial).rms
-    return chosen if better else trial
+    higher = [replace(trial, order=order)
+              for order in range(trial.order + 1, problem.settings.max_order + 1)]
+    return _paired_best(problem, axis, trial, higher)
 
 
 def _skipped(problem: DiagnosisProblem) -> dict:
@@ -172,10 +196,10 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
 
 
 def _step_zero(problem: DiagnosisProblem) -> _StepZero:
-    """Fit each axis's temperature polynomial, its order chosen on the folds."""
+    """Fit each axis's temperature polynomial: the PX4-style cubic unless an order beats it."""
     axes = range(len(problem.axes))
     scores = tuple(_order_scores(problem, axis, AxisSpec(0)) for axis in axes)
-    specs = tuple(AxisSpec(_choose_order(name, s)) for name, s in zip(problem.axes, scores))
+    specs = tuple(_step_zero_order(problem, axis) for axis in axes)
     none_errors = tuple(problem.error(problem.target[:, a]) for a in axes)
     run = problem.held_out(specs, 'held-out check of step 0')
     return _StepZero(scores, specs, none_errors, run, problem.model(specs))
@@ -206,7 +230,6 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
     accepted = {}
     for axis in sorted(active):
         spec = rounds.specs[axis]
-        current = problem.score_spec(axis, spec)
         tried = []
         for effect in searched:
             if not spec.can_add(effect):
@@ -215,7 +238,7 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
             done += 1
             problem.report(done, work, f'round {rounds.number}: candidate effects')
             if trial is not None:
-                tried.append(_attempt(problem, effect, trial, current))
+                tried.append(_attempt(problem, axis, effect, trial, spec))
         tried.sort(key=lambda attempt: (bool(attempt.judgement.reason),
                                         -attempt.judgement.gain))
         if not problem.settings.record_effects:
@@ -227,8 +250,10 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
     return accepted
 
 
-def _attempt(problem: DiagnosisProblem, effect: str, trial: Trial, current: Score) -> Attempt:
-    """Judge an effect's best trial; a time constant at the search bound is refused."""
+def _attempt(problem: DiagnosisProblem, axis: int, effect: str, trial: Trial,
+             spec: AxisSpec) -> Attempt:
+    """Judge an effect's best trial against the axis's terms on its folds; a bound refuses."""
+    current = problem.score_spec(axis, spec, problem.folds_for(trial.spec))
     judgement = judge(problem, current, trial.score)
     bound = unbounded(problem, effect, trial.spec)
     if bound and not judgement.reason:
@@ -278,8 +303,8 @@ def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written
     cubic = cubic_errors(problem, problem.folds)
     other_cubic = cubic_errors(problem, other)
     other_errors = problem.held_out(found, 'the other validation', other).errors
-    choices = tuple(choose_model(settings, run.errors[a], cubic[a], other_errors[a],
-                                 other_cubic[a]) for a in range(len(found)))
+    choices = tuple(_choice(problem, axis, spec, run, other_errors[axis], other_cubic[axis])
+                    for axis, spec in enumerate(found))
     cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
     specs = found
     if cubic_axes:
@@ -288,11 +313,36 @@ def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written
     return _Written(found, specs, choices, run, other, other_errors, cubic, other_cubic)
 
 
+def _choice(problem: DiagnosisProblem, axis: int, spec: AxisSpec, run: HeldOutRun,
+            other_found: HeldOutError, other_cubic: HeldOutError):
+    """
+    Judge an axis's model found against the cubic, fold by fold, on the found model's folds.
+
+    The found model's folds run as the node runs them (`held_out`): the
+    rounds' run where its folds are the deciding scheme's own, else (purged,
+    a buffer of its memory) run again on its folds.
+    """
+    if spec.baseline:
+        error = run.errors[axis]
+        return ModelChoice('px4_cubic', error, error, problem.settings.baseline_margin,
+                           other_found, other_cubic,
+                           'the model found is the PX4-style cubic: no other order or effect '
+                           'beats it fold by fold')
+    folds = problem.folds_for(spec)
+    if folds is not problem.folds:
+        specs = tuple(spec if a == axis else CUBIC for a in range(len(problem.axes)))
+        run = problem.held_out(specs, 'the guard', folds, axes=(axis,))
+    error = run.errors[axis]
+    own = Score(np.array(error.fold_rms_rad_s), error.rms_rad_s, True, run.residual[:, axis])
+    cubic = problem.score_spec(axis, CUBIC, folds)
+    return choose_model(problem.settings, own, cubic, other_found, other_cubic,
+                        (error, problem.baseline_run(folds).errors[axis]))
+
+
 def _write_cubic(problem: DiagnosisProblem, found: tuple, cubic_axes: tuple, run: HeldOutRun,
                  other_errors: tuple, other: Folds) -> tuple:
     """Give (the specs with the cubic on ``cubic_axes``, their run, their errors beside)."""
-    specs = tuple(AxisSpec(PX4_ORDER) if a in cubic_axes else spec
-                  for a, spec in enumerate(found))
+    specs = tuple(CUBIC if a in cubic_axes else spec for a, spec in enumerate(found))
     # The models clamp at the range of every axis's T_eff: with the same lags, the axes
     # that keep their model keep their figures.
     same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}

@@ -4,7 +4,9 @@ One diagnosis's data: `DiagnosisProblem` holds its rows, bins, folds and cached 
 It scores an `AxisSpec` on the held-out bins of each fold (least squares on
 bin means, the polynomial clamped as each fold's model runs it), fits the
 models the folds and the written file hold, and runs them over the record
-as the node does.
+as the node does. The PX4-style cubic (`core.baseline`) is fitted on each
+fold's training rows as PX4 fits it and run clamped (`baseline_run`): the
+incumbent every other model is compared with, fold by fold.
 """
 
 from dataclasses import dataclass, field, replace
@@ -18,14 +20,20 @@ from .fits import AxisSpec, FITS, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_
 from .folds import cut_bins, Folds
 from .results import HeldOutError
 from .settings import DiagnosisSettings, Progress
+from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, PX4_ORDER, solve_cubic
 from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
 from ..errors import CalibrationError
 from ..fitting import MIN_SPAN_C
+from ..metrics import temperature_branches
 from ..model_interface import INPUTS, ModelInputs
-from ..validation import split, training_sums
+from ..validation import buffer_blocks, PURGED, split, training_sums
 
 # The thermal lag's shortest time constant, in median sample intervals.
 MIN_LAG_SAMPLES = 2.0
+# A play operator's full width (twice its half width) spans at most this share of the
+# temperature range: a wider one follows the temperature over the record, as the
+# polynomial does, and would stand in for it.
+HYSTERESIS_SPAN_SHARE = 0.25
 # Singular values of the scaled normal matrix below this (relative) count as rank loss.
 RANK_RCOND = 1e-12
 
@@ -45,6 +53,20 @@ class HeldOutRun:
     """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
 
     residual: np.ndarray
+    errors: tuple
+
+
+@dataclass(frozen=True)
+class BaselineRun:
+    """
+    The PX4-style cubic of each fold, fitted on its training rows and run clamped.
+
+    ``residual`` (bins, axes) holds the held-out bins, NaN elsewhere;
+    ``fold_rms`` (folds, axes) each fold's RMS over the bins it counts.
+    """
+
+    residual: np.ndarray
+    fold_rms: np.ndarray
     errors: tuple
 
 
@@ -133,6 +155,9 @@ class DiagnosisProblem:
             raise CalibrationError(msg)
         self.centre_c = 0.5 * (low + high)
         self.half_span_c = 0.5 * (high - low)
+        # x = (T - centre) / scale: a power of two, so that the PX4-style cubic the guard
+        # writes is its own formula to the bit (`baseline.cubic_scale_c`).
+        self.scale_c = cubic_scale_c(low, high)
         self.time_reference_s = float(self.time[0])
         # The longest record: a time constant must fit into one (histories restart).
         self.duration_s = max(max(float(self.time[rows.stop - 1] - self.time[rows.start])
@@ -140,14 +165,14 @@ class DiagnosisProblem:
         self.slope = self.each(functools.partial(temperature_rate_c_s,
                                                  window_s=settings.rate_window_s),
                                self.time, self.temperature)
-        self._split()
         self.truth_is_reference = self.reference is not None
-        error = self.rate if self.reference is None else self.rate - self.reference
-        self.target = self.mean(error)
+        self.error_rows = self.rate if self.reference is None else self.rate - self.reference
+        self._cache = {}
+        self._split()
+        self.target = self.mean(self.error_rows)
         self.secondary = _centring(self.inputs.temperature_2_c)
         self.supply_reference = _centring(self.inputs.supply_voltage_v)
         self.bounds = self._bounds()
-        self._cache = {}
 
     def _check_size(self) -> None:
         needed = 2 * self.settings.blocks
@@ -157,12 +182,36 @@ class DiagnosisProblem:
             raise CalibrationError(msg)
 
     def _bounds(self) -> dict:
-        """Give the search ranges of the nonlinear parameters (record length and span)."""
+        """
+        Give the search ranges of the nonlinear parameters (record length, cycle and span).
+
+        A time constant fits TIME_CONSTANTS_PER_RECORD times into the longest
+        record and no longer than its thermal cycle; a play operator is at
+        most HYSTERESIS_SPAN_SHARE of the span wide. Beyond, their shape
+        over the record is a function of temperature: the polynomial's.
+        """
         interval = float(np.median(np.diff(self.time)))
-        longest = self.duration_s / TIME_CONSTANTS_PER_RECORD
+        longest = min(self.duration_s / TIME_CONSTANTS_PER_RECORD, self.thermal_cycle_s())
+        widest = HYSTERESIS_SPAN_SHARE * self.half_span_c
         return {'thermal_lag_s': (max(MIN_LAG_SAMPLES * interval, TIME_GRID_S[0]), longest),
                 'gradient_time_constant_s': (self.settings.rate_window_s, longest),
-                'hysteresis_half_width_c': (WIDTH_GRID_C[0], self.half_span_c)}
+                'hysteresis_half_width_c': (WIDTH_GRID_C[0], widest)}
+
+    def thermal_cycle_s(self) -> float:
+        """
+        Give the record's thermal cycle: twice its median heating or cooling branch.
+
+        Branches are `metrics.temperature_branches` of each record; a record
+        of one branch (a single ramp) has no cycle shorter than itself.
+        """
+        durations = []
+        for rows in self.records.segments(self.rows):
+            time_s = self.time[rows]
+            starts = temperature_branches(self.temperature[rows])
+            durations += np.diff(np.append(time_s[starts], time_s[-1])).tolist()
+        if len(durations) < 2:
+            return self.duration_s
+        return 2.0 * float(np.median(durations))
 
     def each(self, operator, *columns) -> np.ndarray:
         """Run a history operator over each record's rows of ``columns`` (`Records.each`)."""
@@ -175,13 +224,48 @@ class DiagnosisProblem:
         bins = cut_bins(self.time, rows, settings.blocks, settings.average_s)
         self.block_edges, self.first_blocks = bins.block_edges, bins.first_blocks
         self.starts, self.counts, self.bin_block = bins.starts, bins.counts, bins.bin_block
+        self.record_of_bin = np.searchsorted(self.records.starts, self.starts, side='right') - 1
+        self.bin_range = (np.minimum.reduceat(self.temperature, self.starts),
+                          np.maximum.reduceat(self.temperature, self.starts))
+        edges = self.block_edges[:-1]
+        self.block_range = (np.minimum.reduceat(self.temperature, edges),
+                            np.maximum.reduceat(self.temperature, edges))
+        self.block_s = float(np.median(np.diff(self.time[self.block_edges[:-1]]))) \
+            if settings.blocks > 1 else self.duration_s
         self.folds = self.folds_of(settings.validation)
 
-    def folds_of(self, scheme: str) -> Folds:
-        """Return the folds of a validation scheme over this problem's bins."""
+    def folds_of(self, scheme: str, buffer: int = 1) -> Folds:
+        """Return the folds of a validation scheme over this problem's bins (cached)."""
         settings = self.settings
-        return Folds(split(settings.blocks, scheme, settings.folds, settings.min_past,
-                           self.first_blocks), self.bin_block, self.block_edges)
+
+        def build():
+            dealt = split(settings.blocks, scheme, settings.folds, settings.min_past,
+                          self.first_blocks, buffer)
+            return Folds(dealt, self.bin_block, self.block_edges, self.bin_range,
+                         self.block_range, settings.scoring)
+        return self.cached(('folds', scheme, buffer), build)
+
+    def memory_s(self, spec: AxisSpec) -> float:
+        """Give how far back the spec's history states reach: its longest time constant."""
+        memory = [abs(spec.thermal_lag_s), *spec.gradient_s]
+        if spec.thermal_lag_s > 0.0 or spec.get('temperature_rate'):
+            memory.append(self.settings.rate_window_s)
+        return max(memory)
+
+    def folds_for(self, spec: AxisSpec, scheme: Optional[str] = None) -> Optional[Folds]:
+        """
+        Give the folds a spec is judged on: purged, a buffer of 3 x its memory.
+
+        None when the buffer leaves no fold to judge it on: the record is too
+        short for a model that remembers that long.
+        """
+        scheme = scheme or self.settings.validation
+        if scheme != PURGED:
+            return self.folds_of(scheme)
+        try:
+            return self.folds_of(scheme, buffer_blocks(self.memory_s(spec), self.block_s))
+        except CalibrationError:
+            return None
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         """Return the bin means of row values (rows,) or (rows, k), or of their first rows."""
@@ -201,7 +285,7 @@ class DiagnosisProblem:
         return effective_temperature(self.records, self.time, self.temperature, self.slope, lag_s)
 
     def x(self, lag_s: float) -> np.ndarray:
-        return (self.effective(lag_s) - self.centre_c) / self.half_span_c
+        return (self.effective(lag_s) - self.centre_c) / self.scale_c
 
     def powers(self, values: np.ndarray, first: int, last: int) -> np.ndarray:
         columns = []
@@ -215,7 +299,7 @@ class DiagnosisProblem:
         """Give the polynomial's bin-mean columns and T_eff's range per block of a lag."""
         def build():
             effective = self.effective(lag_s)
-            x = (effective - self.centre_c) / self.half_span_c
+            x = (effective - self.centre_c) / self.scale_c
             starts = self.block_edges[:-1]
             return _LagFeatures(self.powers(x, 0, self.settings.max_order),
                                 np.minimum.reduceat(effective, starts),
@@ -245,12 +329,12 @@ class DiagnosisProblem:
                     effective, predicted = self.effective(lag_s), powers.copy()
                 rows = slice(self.block_edges[block], self.block_edges[block + 1])
                 bins = self.bin_block == block
-                x = (np.clip(effective[rows], low, high) - self.centre_c) / self.half_span_c
+                x = (np.clip(effective[rows], low, high) - self.centre_c) / self.scale_c
                 starts = self.starts[bins] - rows.start
                 predicted[bins] = (np.add.reduceat(np.polynomial.polynomial.polyvander(
                     x, self.settings.max_order), starts, axis=0) / self.counts[bins][:, None])
             return predicted
-        return self.cached(('predicted', lag_s, folds.split.scheme), build)
+        return self.cached(('predicted', lag_s, folds.key), build)
 
     def acceleration_means(self) -> np.ndarray:
         return self.cached('acceleration', lambda: self.mean(self.inputs.acceleration_m_s2))
@@ -280,8 +364,17 @@ class DiagnosisProblem:
         return self.cached('offsets', build)
 
     def score_spec(self, axis: int, spec: AxisSpec, folds: Optional[Folds] = None) -> Score:
-        """Score the terms of ``spec`` on an axis, the polynomial clamped as the folds run it."""
-        folds = folds or self.folds
+        """
+        Score the terms of ``spec`` on an axis, the polynomial clamped as the folds run it.
+
+        The folds default to the spec's own (`folds_for`); the PX4-style cubic
+        scores as PX4 fits and runs it (`baseline_run`).
+        """
+        folds = folds or self.folds_for(spec)
+        if spec.baseline:
+            run = self.baseline_run(folds)
+            return Score(run.fold_rms[:, axis], run.errors[axis].rms_rad_s, True,
+                         run.residual[:, axis])
         design = self.design(axis, spec)
         predict = design.copy()
         # The polynomial's columns come first (`design`).
@@ -306,14 +399,69 @@ class DiagnosisProblem:
         residual = np.full_like(target, math.nan)
         fold_rms = np.empty(folds.split.folds)
         rank_ok = True
-        for fold, held in enumerate(folds.held):
+        for fold, (held, counted) in enumerate(zip(folds.held, folds.counted)):
             solution, full_rank = _solve_normal(grams[fold], moments[fold])
             rank_ok = rank_ok and full_rank
             residual[held] = target[held] - predict[held] @ solution
-            fold_rms[fold] = weighted_rms(residual[held], self.counts[held])
+            fold_rms[fold] = weighted_rms(residual[counted], self.counts[counted])
         scored = folds.scored
         return Score(fold_rms, weighted_rms(residual[scored], self.counts[scored]), rank_ok,
                      residual)
+
+    def baseline_run(self, folds: Optional[Folds] = None) -> BaselineRun:
+        """
+        Fit the PX4-style cubic on each fold's training blocks, run it clamped on its held bins.
+
+        Rows of each record keep that record's offset (`baseline.solve_cubic`,
+        the least squares of `baseline.fit_cubic` from the blocks' sums);
+        cached per folds.
+        """
+        folds = folds or self.folds
+
+        def build():
+            axes = len(self.axes)
+            residual = np.full((len(self.starts), axes), math.nan)
+            fold_rms = np.full((folds.split.folds, axes), math.nan)
+            for fold, (held, counted) in enumerate(zip(folds.split.held, folds.counted)):
+                cubics = self.fold_cubics(folds.split.training[fold])
+                for block in np.flatnonzero(held):
+                    residual[self.bin_block == block] = self._cubic_block(cubics, block)
+                fold_rms[fold] = [weighted_rms(residual[counted, a], self.counts[counted])
+                                  for a in range(axes)]
+            return BaselineRun(residual, fold_rms, tuple(
+                self.error(residual[:, a], folds) for a in range(axes)))
+        return self.cached(('baseline', folds.key), build)
+
+    def fold_cubics(self, blocks: np.ndarray) -> tuple:
+        """Give the PX4-style cubic of the given training blocks: a `ClampedCubic` per record."""
+        sums = self.cached('cubic sums', lambda: cubic_sums(
+            self.temperature, self.error_rows, self.block_edges, self.centre_c, self.scale_c,
+            np.searchsorted(self.records.starts, self.block_edges[:-1], side='right') - 1))
+        return solve_cubic(sums, blocks, self.fitted_records)
+
+    def _cubic_block(self, cubics: tuple, block: int) -> np.ndarray:
+        """Give the bin means of a block's residual under the cubics (its record's)."""
+        rows = slice(self.block_edges[block], self.block_edges[block + 1])
+        cubic = cubics[self.records.record_of(rows.start)]
+        corrected = cubic.corrected(self.rate[rows], self.temperature[rows])
+        if self.reference is not None:
+            corrected = corrected - self.reference[rows]
+        bins = self.bin_block == block
+        return np.add.reduceat(corrected, self.starts[bins] - rows.start, axis=0) / \
+            self.counts[bins][:, None]
+
+    def rows_of(self, bins: Optional[np.ndarray]) -> np.ndarray:
+        """Give the rows (a mask over the diagnosed rows) of the given bins, all when None."""
+        if bins is None:
+            return np.ones(self.rows, dtype=bool)
+        return np.repeat(bins, self.counts.astype(np.int64))
+
+    def cubics(self) -> tuple:
+        """Fit the PX4-style cubic on every diagnosed row (`baseline.fit_cubic`): per record."""
+        def build():
+            record = np.searchsorted(self.records.starts, np.arange(self.rows), side='right') - 1
+            return fit_cubic(self.temperature, self.error_rows, record, self.fitted_records)
+        return self.cached('cubics', build)
 
     def fit_terms(self, axis: int, spec: AxisSpec, bins=None) -> AxisTerms:
         """Fit one axis on the given bins (all when None); its terms with the written offset."""
@@ -321,7 +469,16 @@ class DiagnosisProblem:
         return _shifted(fit.terms, fit.offsets_rad_s[-1])
 
     def fit_offsets(self, axis: int, spec: AxisSpec, bins=None) -> AxisFit:
-        """Fit one axis on the given bins (all when None): the first record's offset is 0."""
+        """
+        Fit one axis on the given bins (all when None): its terms, and each record's offset.
+
+        The offsets add to the terms' constant: the first record's is 0. The
+        PX4-style cubic is fitted on the bins' rows (`baseline.fit_cubic`) and
+        its terms are the last record's, whose offset is 0: written, it is its
+        own formula to the bit (x's scale is a power of two).
+        """
+        if spec.baseline:
+            return self._cubic_fit(axis, None if bins is None else self.blocks_of(bins))
         design = self.design(axis, spec)
         target = self.target[:, axis]
         if bins is not None:
@@ -333,6 +490,16 @@ class DiagnosisProblem:
         offsets = self.fitted_records - 1
         return AxisFit(self._terms(axis, spec, solution[:solution.size - offsets]),
                        (0.0,) + tuple(float(v) for v in solution[solution.size - offsets:]))
+
+    def _cubic_fit(self, axis: int, blocks: Optional[np.ndarray]) -> AxisFit:
+        """Give the PX4-style cubic as an `AxisFit` in x: its terms are the last record's."""
+        cubics = self.cubics() if blocks is None else self.fold_cubics(blocks)
+        biases = [_cubic_bias(cubic, axis, self.centre_c, self.scale_c) for cubic in cubics]
+        return AxisFit(AxisTerms(bias=biases[-1]), tuple(b[0] - biases[-1][0] for b in biases))
+
+    def blocks_of(self, bins: np.ndarray) -> np.ndarray:
+        """Give the blocks (a mask) the given bins lie in."""
+        return np.bincount(self.bin_block[bins], minlength=self.settings.blocks) > 0
 
     def _terms(self, axis: int, spec: AxisSpec, solution: np.ndarray) -> AxisTerms:
         values = iter(float(v) for v in solution)
@@ -367,7 +534,7 @@ class DiagnosisProblem:
         fits = [self.fit_offsets(axis, spec, bins) for axis, spec in enumerate(specs)]
         model = EffectModel(
             terms=tuple(fit.terms for fit in fits),
-            reference_temperature_c=self.centre_c, temperature_scale_c=self.half_span_c,
+            reference_temperature_c=self.centre_c, temperature_scale_c=self.scale_c,
             temperature_min_c=low, temperature_max_c=high,
             temperature_rate_window_s=self.settings.rate_window_s,
             time_reference_s=self.time_reference_s, secondary_reference_c=secondary.centre,
@@ -435,16 +602,23 @@ class DiagnosisProblem:
         Run each fold's models on the bins it predicts; give the `HeldOutRun`.
 
         Only ``axes`` (default: all) are run; the others' columns stay NaN,
-        their errors None.
+        their errors None. An axis that is the PX4-style cubic takes the
+        cubic's own fold runs (`baseline_run`).
         """
         folds = folds or self.folds
         axes = range(len(self.axes)) if axes is None else axes
         residual = np.full((len(self.starts), len(self.axes)), math.nan)
+        cubic = [axis for axis in axes if specs[axis].baseline]
+        if cubic:
+            residual[:, cubic] = self.baseline_run(folds).residual[:, cubic]
+        run = [axis for axis in axes if not specs[axis].baseline]
         count = folds.split.folds
         for fold, held in enumerate(folds.held):
+            if not run:
+                break
             self.report(fold, count, label)
             model = self.record_models(specs, fold, folds)
-            for axis in axes:
+            for axis in run:
                 binned = self.mean(self.residual(model, axis, folds.stop[fold]))
                 residual[:binned.size, axis][held[:binned.size]] = binned[held[:binned.size]]
         self.report(count, count, label)
@@ -463,13 +637,23 @@ class DiagnosisProblem:
                                  where=counts > 0))
 
     def error(self, residual: np.ndarray, folds: Optional[Folds] = None) -> HeldOutError:
-        """Return the `HeldOutError` of binned residuals on the bins the folds predict."""
+        """
+        Return the `HeldOutError` of binned residuals on the bins the folds count.
+
+        The held-out bins beyond their fold's training temperatures are
+        measured apart: their RMS and their share of the held-out rows.
+        """
         folds = folds or self.folds
         scored = folds.scored
-        per_fold = tuple(weighted_rms(residual[held], self.counts[held]) for held in folds.held)
+        per_fold = tuple(weighted_rms(residual[counted], self.counts[counted])
+                         for counted in folds.counted)
+        held = np.any(folds.held, axis=0)
+        outside = folds.extrapolated
         return HeldOutError(weighted_rms(residual[scored], self.counts[scored]),
-                            float(np.max(np.abs(residual[scored]))), per_fold,
-                            tuple(float(v) for v in self.block_rms(residual)))
+                            float(np.max(np.abs(residual[scored]), initial=0.0)), per_fold,
+                            tuple(float(v) for v in self.block_rms(residual)),
+                            weighted_rms(residual[outside], self.counts[outside]),
+                            float(np.sum(self.counts[outside]) / np.sum(self.counts[held])))
 
     def motion(self) -> tuple:
         """Return (turn of the specific force in deg, change of its magnitude in m/s^2)."""
@@ -495,6 +679,21 @@ def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
     if not offset_rad_s:
         return terms
     return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
+
+
+def _cubic_bias(cubic, axis: int, centre_c: float, scale_c: float) -> tuple:
+    """
+    Give a cubic's coefficients in x = (T - centre) / scale, lowest first.
+
+    Exact where the centre is the cubic's TREF (scale a power of two): the
+    written cubic; a fold's, fitted on part of the range, is re-expanded.
+    """
+    coefficients = cubic.coefficients[axis]
+    if cubic.reference_c == centre_c:
+        return tuple(c * scale_c ** k for k, c in enumerate(coefficients))
+    polynomial = np.polynomial.Polynomial
+    shifted = polynomial(coefficients)(polynomial((centre_c - cubic.reference_c, scale_c))).coef
+    return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))
 
 
 def effective_temperature(records, time_s: np.ndarray, temperature_c: np.ndarray,

@@ -19,12 +19,17 @@ class HeldOutError:
     Error of binned residuals in rad/s: RMS, peak |.|, and RMS per fold and per block.
 
     Blocks no fold predicts (forward validation's first blocks) have NaN there.
+    ``extrapolated_rms_rad_s`` is the RMS over the held-out bins that lie beyond
+    their fold's training temperatures (NaN when none do), ``extrapolated_share``
+    their share of the held-out rows.
     """
 
     rms_rad_s: float
     peak_rad_s: float
     fold_rms_rad_s: tuple = ()
     block_rms_rad_s: tuple = ()
+    extrapolated_rms_rad_s: float = math.nan
+    extrapolated_share: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -136,12 +141,16 @@ class OutsideFittedRange:
     T_eff with a thermal lag), one column per axis; ``per_axis`` says whether
     they differ. ``blocks`` holds per block of the forward scheme the
     `OutsideRange` of its rows against the blocks before it (None: not
-    predicted), ``test`` the test part's against the written model's range.
+    predicted), ``deciding_blocks`` the same against its fold's training
+    blocks under the deciding scheme (``deciding``; None when it is forward),
+    ``test`` the test part's against the written model's range.
     """
 
     per_axis: bool
     blocks: tuple
     test: Optional[OutsideRange] = None
+    deciding: str = ''
+    deciding_blocks: Optional[tuple] = None
 
 
 @dataclass(frozen=True)

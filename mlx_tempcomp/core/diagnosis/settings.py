@@ -4,11 +4,13 @@ from dataclasses import dataclass
 import math
 from typing import Callable, Optional
 
+from .folds import INSIDE_ROWS, SCORING
+from ..baseline import PX4_ORDER
 from ..effects import DEFAULT_RATE_WINDOW_S, LIVE_EFFECTS
 from ..errors import CalibrationError
 from ..recalibration import RecalibrationLimits
 from ..validation import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
-                          FORWARD, PX4_ORDER, ROUND_ROBIN, split)
+                          DEFAULT_SIGNIFICANCE, DEFAULT_VALIDATION, FORWARD, PURGED, split)
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
@@ -33,7 +35,7 @@ class DiagnosisSettings:
     average_s: float = 1.0
     max_order: int = 8
     min_gain: float = 0.1
-    significance: float = 2.0
+    significance: float = DEFAULT_SIGNIFICANCE
     block_tolerance: float = 1.0
     test_fraction: float = 0.0
     test_cycle: bool = False
@@ -41,10 +43,11 @@ class DiagnosisSettings:
     rezero_s: float = DEFAULT_REZERO_S
     rate_window_s: float = DEFAULT_RATE_WINDOW_S
     record_effects: bool = False
-    validation: str = FORWARD
+    validation: str = DEFAULT_VALIDATION
     min_past: float = DEFAULT_MIN_PAST
     baseline_margin: float = BASELINE_MARGIN
     error_bins: int = DEFAULT_ERROR_BINS
+    scoring: str = INSIDE_ROWS
 
     def __post_init__(self) -> None:
         checks = (
@@ -73,6 +76,8 @@ class DiagnosisSettings:
             (math.isfinite(self.baseline_margin) and 0.0 <= self.baseline_margin < 1.0,
              f'baseline_margin must be in [0, 1), got {self.baseline_margin}'),
             (self.error_bins >= 1, f'error_bins must be at least 1, got {self.error_bins}'),
+            (self.scoring in SCORING,
+             f'scoring must be one of {", ".join(SCORING)}, got {self.scoring!r}'),
         )
         for ok, msg in checks:
             if not ok:
@@ -85,8 +90,8 @@ class DiagnosisSettings:
 
     @property
     def other_validation(self) -> str:
-        """Give the scheme reported beside the deciding one."""
-        return ROUND_ROBIN if self.validation == FORWARD else FORWARD
+        """Give the scheme reported beside the deciding one: forward, or purged beside it."""
+        return PURGED if self.validation == FORWARD else FORWARD
 
     @property
     def effects(self) -> tuple:
