@@ -318,7 +318,7 @@ def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
 
 
 def test_a_written_cubic_is_the_baseline_in_every_scope_of_several_records():
-    """Three clean runs, the last held out: the cubic is written, and its figures are the cubic's."""
+    """Three clean runs, the last held out: the cubic is written, its figures the cubic's."""
     diagnosis = diagnose(unit_runs(), DiagnosisSettings(test_record=True, rezero_s=REZERO_S))
     (axis,) = diagnosis.per_axis
     assert axis.choice.written == 'px4_cubic'
