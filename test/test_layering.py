@@ -35,17 +35,13 @@ ALLOWED = {
     'simulation': {'core', 'hardware'},
     'sources': {'core', 'hardware', 'simulation'},
     'state_file': set(),
-    'model_params': {'core', 'state_file'},
-    'node_parameters': {'core', 'simulation'},
+    'parameters': {'core', 'simulation', 'state_file'},
     'sweep': {'core', 'hardware', 'simulation'},
-    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-                'node_parameters'},
-    'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters'},
-    'fleet': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-              'node_parameters', 'toolkit'},
-    'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters', 'toolkit', 'fleet'},
+    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'parameters'},
+    'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'parameters'},
+    'fleet': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'parameters', 'toolkit'},
+    'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'parameters', 'toolkit',
+            'fleet'},
 }
 # The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
 EVERYWHERE = {'errors'}

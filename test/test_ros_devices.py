@@ -12,7 +12,7 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
-from mlx_tempcomp.node_parameters import DEVICES
+from mlx_tempcomp.parameters.driver import DEVICES
 from mlx_tempcomp.ros.driver_node import STREAMS
 from mlx_tempcomp.ros.mpu6000_stream import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS

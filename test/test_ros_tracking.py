@@ -21,7 +21,8 @@ import signal
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
 from mlx_tempcomp.sources.bag import RawBagReader, RawTopics

@@ -26,7 +26,9 @@ from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_off
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
-from ..node_parameters import axes_of, build_model, node_values, ParameterError
+from ..parameters.files import node_values
+from ..parameters.models import build_model
+from ..parameters.specs import axes_of, ParameterError
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000

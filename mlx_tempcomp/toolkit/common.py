@@ -28,7 +28,7 @@ from .outputs import Outputs
 from ..core.validation import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                                DEFAULT_VALIDATION, SCHEMES)
 from ..errors import MlxTempCompError
-from ..model_params import parameter_file, write_parameter_file
+from ..parameters.files import parameter_file, write_parameter_file
 from ..sources.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
                                  read_flight_log)
 from ..sources.recording import load_flight_log, load_recording, Recording, RecordingError

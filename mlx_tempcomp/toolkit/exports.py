@@ -49,7 +49,9 @@ from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES
-from ..node_parameters import build_model, COMPENSATION_SPECS, flat_parameters
+from ..parameters.compensation import COMPENSATION_SPECS
+from ..parameters.files import flat_parameters
+from ..parameters.models import build_model
 from ..sources.dataflash import board_rotation
 from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
 
