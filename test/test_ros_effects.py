@@ -15,11 +15,12 @@ from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.parameters.files import (chain_parameters, effect_parameters, parameter_file,
                                            write_parameter_file)
+from mlx_tempcomp.recordings.bag import ImuRecord, TemperatureRecord
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
 from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProtocol,
                                                TurntableTruth)
-from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,

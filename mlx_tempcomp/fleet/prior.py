@@ -41,7 +41,7 @@ from ..core.pooling import (CONFLICT_LEVEL, MIN_POOLED_UNITS, moments_of, pool_f
 from ..parameters.files import effect_parameters, node_values, parameter_file, write_parameter_file
 from ..parameters.models import build_model
 from ..parameters.specs import ParameterError
-from ..sources.recording import AXES
+from ..recordings.recording import AXES
 from ..toolkit.common import write_json
 
 FLEET_PARAMS = 'fleet_params.yaml'

@@ -46,7 +46,7 @@ from ..core.tracking_parameters import tracking_settings
 from ..parameters.compensation import COMPENSATION_SPECS, model_error_of, state_file_of
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
-from ..sources.bag import BagError, eeprom_images_from_multiarray
+from ..recordings.bag import BagError, eeprom_images_from_multiarray
 
 _MODEL_ERROR_PREFIX = 'model_error.'
 # Parameters the bias tracking's settings depend on.

@@ -56,7 +56,7 @@ NO_DATA = -1.0
 
 
 def stamp_seconds(stamps_ns: np.ndarray) -> np.ndarray:
-    """Give int64 stamps in seconds as `sources.recording.load_bag` does: seconds + ns x 1e-9."""
+    """Give int64 stamps in seconds as `recordings.load.load_bag` does: seconds + ns x 1e-9."""
     return (stamps_ns // NS_PER_S).astype(np.float64) + (stamps_ns % NS_PER_S) * 1e-9
 
 

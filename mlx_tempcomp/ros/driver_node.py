@@ -37,8 +37,9 @@ from .runner import run
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
 from ..parameters.driver import DRIVER_SPECS
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
-from ..sources.bag import (absolute_topic, ImuRecord, RawBagReader, RawTopics,
-                           SupplyVoltageRecord, TemperatureRecord)
+from ..recordings.bag import (absolute_topic, ImuRecord, RawTopics, SupplyVoltageRecord,
+                              TemperatureRecord)
+from ..recordings.bag_reader import RawBagReader
 
 # The stream of each ``device``: a new sensor adds its row.
 STREAMS = {'mlx90609': Mlx90609Stream, 'adis16130': AdisStream, 'mpu6000': MpuStream}

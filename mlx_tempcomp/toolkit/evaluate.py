@@ -35,7 +35,8 @@ from ..core.table import sensor_tables
 from ..parameters.files import node_values
 from ..parameters.models import build_model
 from ..parameters.specs import axes_of, ParameterError, transfer_of
-from ..sources.bag import BagError, RawBagReader, RawTopics
+from ..recordings.bag import BagError, RawTopics
+from ..recordings.bag_reader import RawBagReader
 
 
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')

@@ -52,8 +52,8 @@ from ..core.models import AXIS_NAMES
 from ..parameters.compensation import COMPENSATION_SPECS
 from ..parameters.files import flat_parameters
 from ..parameters.models import build_model
-from ..sources.dataflash import board_rotation
-from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
+from ..recordings.dataflash import board_rotation
+from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log
 
 EXPORT_ORDER = 3
 # The last fifth of the rows is held out for the comparison with the full model.

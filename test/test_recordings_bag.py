@@ -2,9 +2,11 @@
 
 import array
 
-from mlx_tempcomp.sources.bag import (
-    BagError, eeprom_images_from_multiarray, eeprom_multiarray_from_images, EepromRecord,
-    ImuRecord, RawBagReader, RawBagWriter, RawTopics, SupplyVoltageRecord, TemperatureRecord)
+from mlx_tempcomp.recordings.bag import (BagError, eeprom_images_from_multiarray,
+                                         eeprom_multiarray_from_images, EepromRecord, ImuRecord,
+                                         RawTopics, SupplyVoltageRecord, TemperatureRecord)
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Writer
