@@ -27,13 +27,14 @@ from dataclasses import dataclass
 import functools
 import operator
 from pathlib import Path
-from typing import Sequence, Tuple, Union
+from typing import Union
 
 import numpy as np
 from rosbags.typesys import get_typestore, Stores
 
 from .errors import RecordFileError
-from ..core.eeprom import EEPROM_SIZE
+from ..core.eeprom_multiarray import checked_images
+from ..core.errors import EepromError
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMPERATURE_TYPE = 'sensor_msgs/msg/Temperature'
@@ -161,17 +162,6 @@ class SupplyVoltageRecord:
         object.__setattr__(self, 'voltage_v', float(self.voltage_v))
 
 
-def _image_bytes(image, index: int) -> bytes:
-    if not isinstance(image, (bytes, bytearray, memoryview)):
-        msg = f'EEPROM image {index}: expected bytes, got {type(image).__name__}'
-        raise BagError(msg)
-    image = bytes(image)
-    if len(image) != EEPROM_SIZE:
-        msg = f'EEPROM image {index}: expected {EEPROM_SIZE} bytes, got {len(image)}'
-        raise BagError(msg)
-    return image
-
-
 @dataclass(frozen=True)
 class EepromRecord:
     """The EEPROM images of every axis, 128 bytes each, in axis order."""
@@ -179,101 +169,11 @@ class EepromRecord:
     images: tuple
 
     def __post_init__(self):
-        if isinstance(self.images, (bytes, bytearray, memoryview, str)):
-            msg = 'EepromRecord.images: expected a sequence of images, got one bytes object'
-            raise BagError(msg)
-        images = tuple(_image_bytes(image, i) for i, image in enumerate(self.images))
-        if not images:
-            msg = 'EepromRecord.images: no image'
-            raise BagError(msg)
+        try:
+            images = checked_images(self.images)
+        except EepromError as err:
+            raise BagError(f'EepromRecord.images: {err}') from None
         object.__setattr__(self, 'images', images)
-
-
-LayoutDim = Tuple[str, int, int]
-
-
-def _data_bytes(data) -> bytes:
-    if isinstance(data, (bytes, bytearray, memoryview)):
-        return bytes(data)
-    array = np.asarray(data)
-    if array.ndim != 1 or (array.size and array.dtype.kind not in 'iu'):
-        msg = f'EEPROM data must be a flat sequence of bytes, got {type(data).__name__}'
-        raise BagError(msg)
-    if array.size and (array.min() < 0 or array.max() > 255):
-        msg = 'EEPROM data holds values outside 0..255'
-        raise BagError(msg)
-    return array.astype(np.uint8).tobytes()
-
-
-def eeprom_images_from_multiarray(layout_dims: Sequence[LayoutDim], data,
-                                  data_offset: int = 0) -> Tuple[bytes, ...]:
-    """
-    Check a UInt8MultiArray EEPROM layout and split its data into images.
-
-    Plain values only, so the ROS node and the bag reader share this check.
-
-    Parameters
-    ----------
-    layout_dims
-        ``(label, size, stride)`` of each ``layout.dim`` entry; expected
-        ``[('axis', A, 128 A), ('byte', 128, 128)]`` with A >= 1.
-    data
-        The concatenated images: bytes, bytearray, memoryview, array.array
-        or a sequence of ints in 0..255.
-    data_offset
-        ``layout.data_offset``; the images start there.
-
-    Returns
-    -------
-    tuple of bytes
-        One 128-byte image per axis.
-
-    Raises
-    ------
-    BagError
-        Naming the first thing that does not fit.
-
-    """
-    dims = [tuple(dim) for dim in layout_dims]
-    if len(dims) != 2 or any(len(dim) != 3 for dim in dims):
-        msg = (f'EEPROM layout must have 2 dims (label, size, stride): axis and byte; '
-               f'got {dims}')
-        raise BagError(msg)
-    (axis_label, axes, axis_stride), (byte_label, byte_size, byte_stride) = dims
-    if (axis_label, byte_label) != ('axis', 'byte'):
-        msg = f"EEPROM layout labels must be 'axis' and 'byte', got {axis_label!r} and " \
-              f'{byte_label!r}'
-        raise BagError(msg)
-    if byte_size != EEPROM_SIZE or byte_stride != EEPROM_SIZE:
-        msg = (f'EEPROM byte dim must have size and stride {EEPROM_SIZE}, got size '
-               f'{byte_size} and stride {byte_stride}')
-        raise BagError(msg)
-    if axes < 1:
-        msg = f'EEPROM axis dim must have size >= 1, got {axes}'
-        raise BagError(msg)
-    if axis_stride != axes * EEPROM_SIZE:
-        msg = (f'EEPROM axis dim stride must be {axes} x {EEPROM_SIZE} = '
-               f'{axes * EEPROM_SIZE}, got {axis_stride}')
-        raise BagError(msg)
-    if data_offset < 0:
-        msg = f'EEPROM data_offset must be >= 0, got {data_offset}'
-        raise BagError(msg)
-    raw = _data_bytes(data)
-    expected = data_offset + axes * EEPROM_SIZE
-    if len(raw) != expected:
-        msg = (f'EEPROM data has {len(raw)} bytes; the layout ({axes} axes x {EEPROM_SIZE} '
-               f'bytes + offset {data_offset}) needs {expected}')
-        raise BagError(msg)
-    return tuple(raw[data_offset + i * EEPROM_SIZE:data_offset + (i + 1) * EEPROM_SIZE]
-                 for i in range(axes))
-
-
-def eeprom_multiarray_from_images(images: Sequence[bytes]) -> Tuple[list, bytes]:
-    """Give the ``(layout_dims, data)`` of a UInt8MultiArray carrying the images."""
-    images = EepromRecord(tuple(images)).images
-    axes = len(images)
-    dims = [('axis', axes, axes * EEPROM_SIZE), ('byte', EEPROM_SIZE, EEPROM_SIZE)]
-    return dims, b''.join(images)
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,12 @@ import numpy as np
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.serde import SerdeError
 
-from .bag import (absolute_topic, BagError, EEPROM, eeprom_images_from_multiarray, EEPROM_TYPE,
-                  EepromRecord, IMU, IMU_TYPE, ImuRecord, jazzy_typestore, PathLike, RawTopics,
-                  SUPPLY, SUPPLY_VOLTAGE_TYPE, SupplyVoltageRecord, TEMPERATURE,
-                  TEMPERATURE_TYPE, TemperatureRecord, wanted_topics)
+from .bag import (absolute_topic, BagError, EEPROM, EEPROM_TYPE, EepromRecord, IMU, IMU_TYPE,
+                  ImuRecord, jazzy_typestore, PathLike, RawTopics, SUPPLY, SUPPLY_VOLTAGE_TYPE,
+                  SupplyVoltageRecord, TEMPERATURE, TEMPERATURE_TYPE, TemperatureRecord,
+                  wanted_topics)
+from ..core.eeprom_multiarray import eeprom_images_from_multiarray
+from ..core.errors import EepromError
 
 try:  # the sqlite3 back end of rosbags >= 0.10; its errors can surface mid-iteration
     from apsw import Error as SqliteError
@@ -64,7 +66,11 @@ def _decode_temperature(msg) -> TemperatureRecord:
 
 def _decode_eeprom(msg) -> EepromRecord:
     dims = [(dim.label, dim.size, dim.stride) for dim in msg.layout.dim]
-    return EepromRecord(eeprom_images_from_multiarray(dims, msg.data, msg.layout.data_offset))
+    try:
+        images = eeprom_images_from_multiarray(dims, msg.data, msg.layout.data_offset)
+    except EepromError as err:
+        raise BagError(str(err)) from None
+    return EepromRecord(images)
 
 
 def _decode_supply_voltage(msg) -> SupplyVoltageRecord:

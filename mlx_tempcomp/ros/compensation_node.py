@@ -40,13 +40,13 @@ from .runner import run
 from .service_window import await_window
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
+from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
 from ..core.tracking_parameters import tracking_settings
 from ..parameters.compensation import COMPENSATION_SPECS, model_error_of, state_file_of
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
-from ..recordings.bag import BagError, eeprom_images_from_multiarray
 
 _MODEL_ERROR_PREFIX = 'model_error.'
 # Parameters the bias tracking's settings depend on.
@@ -199,7 +199,7 @@ class CompensationNode(Node):
                 raise ParameterError(reason)
             if self.values['model'] == 'eeprom':
                 self._use(self._with_saved_offset(self._build(self.values)))
-        except (BagError, TempCompError, ParameterError) as err:
+        except (TempCompError, ParameterError) as err:
             self.eeprom_error = str(err)
             self.get_logger().error(f'unusable EEPROM message: {err}')
             return
