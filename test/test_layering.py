@@ -35,16 +35,12 @@ ALLOWED = {
     'simulation': {'core', 'hardware'},
     'sources': {'core', 'hardware', 'simulation'},
     'recordings': {'core'},
-    'state_file': set(),
-    'parameters': {'core', 'simulation', 'state_file'},
-    'sweep': {'core', 'hardware', 'simulation'},
-    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'state_file',
-                'parameters'},
-    'ros': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'state_file', 'parameters'},
-    'fleet': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'state_file',
-              'parameters', 'toolkit'},
-    'cli': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'state_file', 'parameters',
-            'toolkit', 'fleet'},
+    'parameters': {'core', 'simulation'},
+    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters'},
+    'ros': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters'},
+    'fleet': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters', 'toolkit'},
+    'cli': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters', 'toolkit',
+            'fleet'},
 }
 # The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
 EVERYWHERE = {'errors'}

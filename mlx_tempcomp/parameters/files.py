@@ -21,11 +21,11 @@ import yaml
 
 from .compensation import COMPENSATION_SPECS
 from .specs import check_choices, check_value, ParameterError, widen_integers
+from .state_file import atomic_write
 from ..core.chain import ChainModel
 from ..core.effects import EffectModel, LinearBtc
 from ..core.model_error import ModelErrorTable
 from ..core.models import AXIS_NAMES
-from ..state_file import atomic_write
 
 _WILDCARDS = ('/**', '**')
 

@@ -39,7 +39,7 @@ from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
 from ..core.models import AXIS_NAMES
 from ..core.tracking_parameters import tracking_settings
-from ..state_file import check_state, Field, move_aside, reject_state, StateFileError
+from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
 
 NS_PER_S = 1_000_000_000
 # The estimate: the latest kept for late joiners, as the EEPROM images are.

@@ -10,7 +10,7 @@ from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
 from ..core.eeprom_multiarray import eeprom_multiarray_from_images
 from ..core.models import AXIS_NAMES
-from ..state_file import StateFileError, write_state
+from ..parameters.state_file import StateFileError, write_state
 
 NAN = float('nan')
 

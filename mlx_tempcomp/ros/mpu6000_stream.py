@@ -29,10 +29,10 @@ from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
 from ..parameters.files import node_values
 from ..parameters.models import build_model
 from ..parameters.specs import axes_of, ParameterError
+from ..parameters.state_file import Field, load_state
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000
-from ..state_file import Field, load_state
 
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 _INT16 = {'low': INT16_MIN, 'high': INT16_MAX}

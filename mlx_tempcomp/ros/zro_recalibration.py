@@ -27,7 +27,7 @@ from ..core.models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..parameters.compensation import limits_of
 from ..parameters.specs import ParameterError
-from ..state_file import Field, load_state, reject_state, StateFileError, write_state
+from ..parameters.state_file import Field, load_state, reject_state, StateFileError, write_state
 
 # How the log names the state.
 ZRO_STATE = 'saved ZRO offset'
