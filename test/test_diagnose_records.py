@@ -21,9 +21,9 @@ from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.records import join_records
 from mlx_tempcomp.core.validation import record_block_bounds, split
 from mlx_tempcomp.fleet.unit import parse_command
-from mlx_tempcomp.node_parameters import flat_parameters
+from mlx_tempcomp.parameters.files import flat_parameters
+from mlx_tempcomp.recordings.recording import Recording
 from mlx_tempcomp.simulation.physics import Effects, Scenario
-from mlx_tempcomp.sources.recording import Recording
 from mlx_tempcomp.toolkit.common import run_handler
 import numpy as np
 import pytest

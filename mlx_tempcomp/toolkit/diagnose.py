@@ -40,7 +40,7 @@ from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..core.records import join_records
 from ..core.validation import FORWARD
-from ..model_params import effect_parameters, parameter_file, write_parameter_file
+from ..parameters.files import effect_parameters, parameter_file, write_parameter_file
 
 PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.png',
          'error_by_temperature.png')

@@ -178,7 +178,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
 
     ``recording`` has time_s, temperature_c, axes, gyro_rad_s and optional
     reference_rad_s, acceleration_m_s2, temperature_2_c and supply_voltage_v
-    (a `mlx_tempcomp.sources.recording.Recording`). ``progress(done, total,
+    (a `mlx_tempcomp.recordings.recording.Recording`). ``progress(done, total,
     label)`` is called as work advances. Raise `CalibrationError` when the
     data cannot support the diagnosis.
     """
