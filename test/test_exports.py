@@ -121,6 +121,17 @@ def test_px4_file_matches_the_qgc_format_field_for_field(exported):
                                                  + values[prefix + 'TMAX'])
 
 
+def test_px4_gyro_set_is_px4s_own_polyfit(exported):
+    """TC_G0_X*: np.polyfit(T - TREF, rate, 3) per axis, as process_sensor_caldata.py fits it."""
+    values, _, _ = _read_qgc_params(exported['folder'] / 'gyro.params')
+    train = load_recording(exported['train'], preset='tofupilot')
+    for axis in range(3):
+        expected = np.polyfit(train.temperature_c - values['TC_G0_TREF'],
+                              train.gyro_rad_s[:, axis], 3)[::-1]
+        written = [values[f'TC_G0_X{k}_{axis}'] for k in range(4)]
+        assert written == [float(c) for c in expected]
+
+
 @pytest.mark.parametrize('sensor', ['G', 'A'])
 def test_px4_formula_on_the_file_gives_our_cubic_on_held_out_data(exported, sensor):
     values, _, _ = _read_qgc_params(exported['folder'] / 'gyro.params')

@@ -253,8 +253,9 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
 def _attempt(problem: DiagnosisProblem, axis: int, effect: str, trial: Trial,
              spec: AxisSpec) -> Attempt:
     """Judge an effect's best trial against the axis's terms on its folds; a bound refuses."""
-    current = problem.score_spec(axis, spec, problem.folds_for(trial.spec))
-    judgement = judge(problem, current, trial.score)
+    folds = problem.folds_for(trial.spec)
+    current = problem.score_spec(axis, spec, folds)
+    judgement = judge(problem, current, trial.score, folds)
     bound = unbounded(problem, effect, trial.spec)
     if bound and not judgement.reason:
         judgement = replace(judgement, reason=bound)
