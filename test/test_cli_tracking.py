@@ -10,7 +10,6 @@ the node runs it.
 
 import json
 import math
-from pathlib import Path
 
 from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
@@ -23,26 +22,8 @@ from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.motion import motion_schedule, ScheduleSettings
 import numpy as np
 import pytest
+from rest_records import NOISE, rest_record
 import yaml
-
-NOISE = 1e-3
-
-
-def rest_record(path: Path, duration_s=1500.0, rate_hz=10.0, seed=0) -> str:
-    """Write a record at rest: a cubic in T, a wandering offset, noise, gravity on -z."""
-    rng = np.random.default_rng(seed)
-    time_s = 100.0 + np.arange(0.0, duration_s, 1.0 / rate_hz)
-    temperature = 30.0 + 10.0 * np.sin(2.0 * np.pi * (time_s - 100.0) / duration_s)
-    x = (temperature - 30.0) / 10.0
-    wander = np.cumsum(rng.normal(0.0, 5e-5 / math.sqrt(rate_hz), (time_s.size, 3)), axis=0)
-    gyro = 0.01 * x[:, None] ** np.arange(1, 4) + wander + rng.normal(0, NOISE, wander.shape)
-    acceleration = np.array([0.1, -0.05, -9.8]) + rng.normal(0.0, 0.005, (time_s.size, 3))
-    columns = {'time': time_s, 'temperature': temperature,
-               **{f'gyro_{a}': gyro[:, i] for i, a in enumerate('xyz')},
-               **{f'acc_{a}': acceleration[:, i] for i, a in enumerate('xyz')}}
-    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
-               header=','.join(columns), comments='', fmt='%.17g')
-    return str(path)
 
 
 def run(*args) -> None:

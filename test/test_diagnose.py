@@ -28,8 +28,8 @@ from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
 from mlx_tempcomp.parameters.compensation import model_error_of
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.recordings.recording import Recording
-from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
-                                             ThermalProfile)
+from mlx_tempcomp.simulation.chamber import chamber_profile, CHAMBER_ZRO_DPS, device_offsets
+from mlx_tempcomp.simulation.physics import Effects, GyroTruth, Noise, Scenario
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np
@@ -60,38 +60,17 @@ EFFECTS = {
 }
 STEP_STRUCTURE = {'effect', 'live', 'parameters', 'rms_before', 'rms_after', 'peak_before',
                   'peak_after', 'block_rms_before', 'block_rms_after'}
-
-
-def chamber(legs, start_c=25.0, hold_s=600.0) -> ThermalProfile:
-    """Ramp to each (temperature, C/min) of ``legs`` and hold it."""
-    times, temperatures = [0.0], [start_c]
-    for target_c, rate_c_per_min in legs:
-        times.append(times[-1] + abs(target_c - temperatures[-1]) / rate_c_per_min * 60.0)
-        temperatures.append(target_c)
-        times.append(times[-1] + hold_s)
-        temperatures.append(target_c)
-    return ThermalProfile(times_s=tuple(times), temperatures_c=tuple(temperatures))
-
-
-PROFILE = chamber(((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0), (-20.0, 2.0), (70.0, 1.0),
-                   (-20.0, 3.0)))
+PROFILE = chamber_profile(((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0), (-20.0, 2.0), (70.0, 1.0),
+                           (-20.0, 3.0)))
 SUPPLY_TIMES_S = tuple(float(t) for t in np.arange(0.0, PROFILE.duration_s + 400.0, 400.0))
 SUPPLY_V = tuple(float(v) for v in 5.0 + 0.25 * np.sin(2.1 * np.arange(len(SUPPLY_TIMES_S))))
 
 
 def device_run(effects: Effects, noise: Noise, scenario: Scenario, seed: int) -> tuple:
     """Return (time s, sensor temperature C, ZRO deg/s) of the device at 1 Hz, noiseless."""
-    truth = GyroTruth(zro_dps_coefficients=(0.5, 0.02, 2e-4, -2e-6), effects=effects,
-                      noise=noise)
-    physics = GyroPhysics(truth, scenario, seed=seed)
+    truth = GyroTruth(zro_dps_coefficients=CHAMBER_ZRO_DPS, effects=effects, noise=noise)
     time_s = np.arange(1.0, float(int(scenario.thermal.duration_s)) + 1.0)
-    temperature_c = np.empty(time_s.size)
-    zro_dps = np.empty(time_s.size)
-    for i, t in enumerate(time_s):
-        physics.advance(float(t))
-        temperature_c[i] = physics.state.sensor_c
-        zro_dps[i] = physics.zro_offset_dps()
-    return time_s, temperature_c, zro_dps
+    return (time_s, *device_offsets(truth, scenario, seed, time_s))
 
 
 @functools.lru_cache(maxsize=None)

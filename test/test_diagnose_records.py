@@ -23,11 +23,12 @@ from mlx_tempcomp.core.validation import record_block_bounds, split
 from mlx_tempcomp.fleet.unit import parse_command
 from mlx_tempcomp.parameters.files import flat_parameters
 from mlx_tempcomp.recordings.recording import Recording
+from mlx_tempcomp.simulation.chamber import chamber_profile
 from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.toolkit.common import run_handler
 import numpy as np
 import pytest
-from test_diagnose import (chamber, device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
+from test_diagnose import (device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
                            TEMPERATURE_NOISE_C)
 
 LAG_S = 200.0
@@ -47,7 +48,7 @@ def run(legs: tuple, start_c: float, offset_dps: float, seed: int,
         effects: Effects = Effects()) -> tuple:
     """Return (time s, temperature C, rate rad/s) of one run of the unit."""
     time_s, temperature_c, zro_dps = device_run(
-        effects, QUIET, Scenario(thermal=chamber(legs, start_c=start_c)), seed)
+        effects, QUIET, Scenario(thermal=chamber_profile(legs, start_c=start_c)), seed)
     rng = np.random.default_rng(seed + 100)
     return (time_s, temperature_c + rng.normal(0.0, TEMPERATURE_NOISE_C, time_s.size),
             np.radians(zro_dps + offset_dps + rng.normal(0.0, NOISE_DPS, time_s.size)))

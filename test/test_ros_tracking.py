@@ -15,7 +15,6 @@ is refused without losing the ZRO offset beside it.
 from contextlib import redirect_stdout
 import io
 import json
-import math
 import signal
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -32,6 +31,7 @@ from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rest_records import rest_record
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
                          first_line_with, Probe, simulated_driver_params,
                          start_model_replay, status_values, write_params)
@@ -41,30 +41,12 @@ import yaml
 pytestmark = pytest.mark.ros
 
 TIMEOUT_S = 60.0
-NOISE = 1e-3
 RAW_TOPICS = ('--imu-topic', '/imu/data_raw', '--temperature-topic', '/imu/temperature_raw')
 TRACKED = {'bias_tracking.enabled': True}
 # Every estimate the node sends, kept for late joiners as the node keeps it.
 BIAS_RECORD_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def rest_record(path, duration_s: float, rate_hz: float = 10.0, seed: int = 0) -> str:
-    """Write a record at rest: a cubic in T, a wandering offset, noise, gravity on -z."""
-    rng = np.random.default_rng(seed)
-    time_s = 100.0 + np.arange(0.0, duration_s, 1.0 / rate_hz)
-    temperature = 30.0 + 10.0 * np.sin(2.0 * np.pi * (time_s - 100.0) / duration_s)
-    x = (temperature - 30.0) / 10.0
-    wander = np.cumsum(rng.normal(0.0, 5e-5 / math.sqrt(rate_hz), (time_s.size, 3)), axis=0)
-    gyro = 0.01 * x[:, None] ** np.arange(1, 4) + wander + rng.normal(0, NOISE, wander.shape)
-    acceleration = np.array([0.1, -0.05, -9.8]) + rng.normal(0.0, 0.005, (time_s.size, 3))
-    columns = {'time': time_s, 'temperature': temperature,
-               **{f'gyro_{a}': gyro[:, i] for i, a in enumerate('xyz')},
-               **{f'acc_{a}': acceleration[:, i] for i, a in enumerate('xyz')}}
-    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
-               header=','.join(columns), comments='', fmt='%.17g')
-    return str(path)
 
 
 def cli(*argv) -> str:

@@ -1,0 +1,31 @@
+"""
+A record at rest for the bias-tracking tests: a cubic in T, a wandering offset, noise, gravity.
+
+Shared by the toolkit's tests (test_cli_tracking.py) and the node's (test_ros_tracking.py),
+which inject the same motion into it.
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+NOISE = 1e-3
+
+
+def rest_record(path: Path, duration_s: float = 1500.0, rate_hz: float = 10.0,
+                seed: int = 0) -> str:
+    """Write a record at rest: a cubic in T, a wandering offset, noise, gravity on -z."""
+    rng = np.random.default_rng(seed)
+    time_s = 100.0 + np.arange(0.0, duration_s, 1.0 / rate_hz)
+    temperature = 30.0 + 10.0 * np.sin(2.0 * np.pi * (time_s - 100.0) / duration_s)
+    x = (temperature - 30.0) / 10.0
+    wander = np.cumsum(rng.normal(0.0, 5e-5 / math.sqrt(rate_hz), (time_s.size, 3)), axis=0)
+    gyro = 0.01 * x[:, None] ** np.arange(1, 4) + wander + rng.normal(0, NOISE, wander.shape)
+    acceleration = np.array([0.1, -0.05, -9.8]) + rng.normal(0.0, 0.005, (time_s.size, 3))
+    columns = {'time': time_s, 'temperature': temperature,
+               **{f'gyro_{a}': gyro[:, i] for i, a in enumerate('xyz')},
+               **{f'acc_{a}': acceleration[:, i] for i, a in enumerate('xyz')}}
+    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
+               header=','.join(columns), comments='', fmt='%.17g')
+    return str(path)
