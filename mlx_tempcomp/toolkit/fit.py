@@ -23,7 +23,8 @@ from .exports import (add_export_options, check_export_outputs, check_export_rec
                       write_exports)
 from .tracking import tracking_section
 from .uncertainty import block_lines
-from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
+from ..core.chain import ChainModel
+from ..core.chain_fit import ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
