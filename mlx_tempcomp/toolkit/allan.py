@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (add_recording_options, check_output_file, check_output_folder, load,
-                     UserError, write_json, write_result)
+                     read_options, UserError, write_json, write_result)
 from ..core.errors import TempCompError
 from ..core.noise import allan_deviation, NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S
 from ..sources.recording import AXES
@@ -165,7 +165,7 @@ def allan_command(args: argparse.Namespace) -> int:
         check_output_folder(args.out, '--out')
     if args.kalibr_yaml is not None:
         check_output_file(args.kalibr_yaml, '--kalibr-yaml')
-    recording = load(args)
+    recording = load(args.input, read_options(args))
     gyro, accel = _figures(args, recording)
     print(f'{args.input}: {len(recording)} samples over {recording.duration_s:.1f} s')
     print(f'{"axis":<6}{"ARW":>12}{"ARW":>14}{"bias inst.":>12}{"bias inst.":>12}'

@@ -17,8 +17,8 @@ import numpy as np
 
 from .common import (add_parameter_file_options, add_recording_options,
                      add_validation_options, check_output_file, finite_float, load,
-                     non_negative_int, positive_float, UserError, validation_settings,
-                     write_node_parameters)
+                     non_negative_int, positive_float, read_options, UserError,
+                     validation_settings, write_node_parameters)
 from .exports import (add_export_options, check_export_outputs, check_export_record, node_model,
                       write_exports)
 from .tracking import tracking_section
@@ -331,7 +331,7 @@ def fit_command(args: argparse.Namespace) -> int:
                   validation['min_past'])
         except TempCompError as err:
             raise UserError(str(err)) from None
-    recording = load(args)
+    recording = load(args.input, read_options(args))
     check_export_record(args, recording)
     try:
         parameters, header = fit(args, recording)

@@ -11,7 +11,8 @@ from .runs import (Bars, check_records, diagnoses, error_text, held_out_rezero_s
 from .text import held_out_lines, markdown, summary, written_lines
 from ..common import (add_recording_options, add_validation_options, check_output_folder,
                       fraction, load_records, node_name, non_negative_float, non_negative_int,
-                      positive_float, UserError, validation_settings, write_json, write_result)
+                      positive_float, read_options, UserError, validation_settings, write_json,
+                      write_result)
 from ..exports import (add_export_options, check_export_outputs, check_export_record,
                        write_exports)
 from ..progress import add_progress_option
@@ -139,7 +140,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
             record_effects=args.record_effects, **validation_settings(args))
     except TempCompError as err:
         raise UserError(str(err)) from None
-    recordings = load_records(args)
+    recordings = load_records(args.records, read_options(args))
     check_export_record(args, recordings[0])
     diagnosis, held_out = _run(recordings, settings, test, args.rezero_s, args.records,
                                args.progress)
