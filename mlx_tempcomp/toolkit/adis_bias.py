@@ -266,7 +266,7 @@ def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> Non
     header = (f'ADIS16130 bias procedure (AN-1042) by mlx-tempcomp adis-bias, source '
               f'{args.source}: T1 {p1.temperature_c:.4f} C, T2 {p2.temperature_c:.4f} C, '
               f'T3 {result.t3_c:.4f} C')
-    write_node_parameters(args, parameters, header)
+    write_node_parameters(args.out, args.node_name, args.outputs, parameters, header)
     noise = '' if result.noise is None else \
         f', rate_noise_rad_s {parameters["rate_noise_rad_s"]:.4g}'
     print(f'wrote {args.out} (model linear_btc{noise})')

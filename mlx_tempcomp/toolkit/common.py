@@ -194,20 +194,21 @@ def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') 
                         help='node section of the parameter file (default: %(default)s)')
 
 
-def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
+def write_node_parameters(path: str, node_name: str, outputs, parameters: dict,
+                          header: str) -> None:
     """
-    Write ``parameters`` as the file `add_parameter_file_options` names, staged.
+    Write ``parameters`` as the compensation node's parameter file ``path``, staged.
 
+    ``node_name`` names its section (`add_parameter_file_options`);
     ``header`` becomes its comment lines, followed by the command that loads
     the file; a file that cannot be written is a UserError. The file is
-    written under its staging name (``args.outputs``, `run_handler`).
+    written under its staging name in ``outputs`` (`run_handler`).
     """
-    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
+    header += f'\nUse: compensation_node --ros-args --params-file {path}'
     try:
-        write_parameter_file(args.outputs.file(args.out),
-                             parameter_file(args.node_name, parameters), header)
+        write_parameter_file(outputs.file(path), parameter_file(node_name, parameters), header)
     except OSError as err:
-        msg = f'cannot write {args.out}: {err.strerror}'
+        msg = f'cannot write {path}: {err.strerror}'
         raise UserError(msg) from None
 
 

@@ -14,7 +14,7 @@ from ..common import (add_recording_options, add_validation_options, check_outpu
                       positive_float, read_options, UserError, validation_settings, write_json,
                       write_result)
 from ..exports import (add_export_options, check_export_outputs, check_export_record,
-                       write_exports)
+                       export_request, write_exports)
 from ..progress import add_progress_option
 from ..tracking import tracking_section
 from ..uncertainty import params_model_error
@@ -122,12 +122,13 @@ def _needs(args: argparse.Namespace) -> list:
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
-    exports = {Path(p).name for p in (args.px4_params, args.ardupilot_parm)
-               if p is not None and Path(p).resolve().parent == Path(args.out).resolve()}
-    check_output_folder(args.out, '--out', owns={*OWN_FILES, *PLOTS, *exports})
+    inside = {Path(p).name for p in (args.px4_params, args.ardupilot_parm)
+              if p is not None and Path(p).resolve().parent == Path(args.out).resolve()}
+    check_output_folder(args.out, '--out', owns={*OWN_FILES, *PLOTS, *inside})
     test = args.test if args.test is not None else args.test_fraction or 0.0
     check_records(args.records, test, exporting=bool(args.px4_params or args.ardupilot_parm))
-    check_export_outputs(args)
+    exports = export_request(args)
+    check_export_outputs(exports, folder=args.out)
     try:   # the settings are checked before the records are read
         settings = DiagnosisSettings(
             folds=args.folds, blocks=args.blocks, average_s=args.average_s,
@@ -141,7 +142,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     except TempCompError as err:
         raise UserError(str(err)) from None
     recordings = load_records(args.records, read_options(args))
-    check_export_record(args, recordings[0])
+    check_export_record(exports, recordings[0])
     diagnosis, held_out = _run(recordings, settings, test, args.rezero_s, args.records,
                                args.progress)
     out = Path(args.out)
@@ -162,7 +163,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     print('\n'.join(tracking_lines))
     if len(recordings) == 1:
         held = diagnosis.test_rows
-        write_exports(args, recordings[0], lambda part: diagnosis.model,
+        write_exports(exports, args.outputs, recordings[0], lambda part: diagnosis.model,
                       start=len(recordings[0]) - held if held else None,
                       full_saw_held_out=not held)
     print(f'wrote {out / "report.md"}, report.json, params.yaml and '
