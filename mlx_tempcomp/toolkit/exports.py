@@ -515,7 +515,7 @@ def _write_px4(request: ExportRequest, outputs, cubics: ExportedCubics,
                  px4_params_text(cubic, index, device_id, accel))
     sets, enables = f'TC_G{index}_* (ID {device_id})', 'TC_G_ENABLE 1'
     if accel is not None:
-        sets, enables = f'TC_A{index}_* (ID {accel[1]}) and {sets}', 'TC_A_ENABLE and ' + enables
+        sets, enables = f'TC_A{index}_* (ID {accel_id}) and {sets}', 'TC_A_ENABLE and ' + enables
     print(f'wrote {request.px4_params} (PX4 {sets}, TREF {cubic.reference_c:.2f} C, range '
           f'{cubic.temperature_min_c:.2f} to {cubic.temperature_max_c:.2f} C; {enables}; '
           'reboot to apply)')

@@ -64,13 +64,13 @@ def _time_value(text: str) -> tuple:
     """Parse ``TIME:VALUE`` (argparse type)."""
     when, colon, value = text.partition(':')
     try:
-        pair = (float(when), float(value))
+        time_s, number = float(when), float(value)
     except ValueError:
-        pair = (math.nan, math.nan)
-    if not colon or not all(math.isfinite(v) for v in pair) or pair[0] < 0.0:
+        time_s, number = math.nan, math.nan
+    if not colon or not (math.isfinite(time_s) and math.isfinite(number)) or time_s < 0.0:
         msg = f'expected TIME_S:VALUE with TIME_S >= 0, e.g. 1200:0.5; got {text!r}'
         raise argparse.ArgumentTypeError(msg)
-    return pair
+    return time_s, number
 
 
 def _supply(items) -> tuple:
