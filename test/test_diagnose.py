@@ -20,7 +20,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import (diagnose, DiagnosisSettings, HeldOutError,
                                          OutsideFittedRange)
 from mlx_tempcomp.core.diagnosis.acceptance import choose_model
-from mlx_tempcomp.core.diagnosis.problem import Score
+from mlx_tempcomp.core.diagnosis.results import Score
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.model_interface import ModelInputs

@@ -20,8 +20,8 @@ import numpy as np
 from .fits import (AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD,
                    TIME_GRID_S, WIDTH_GRID_C)
 from .folds import Folds
-from .problem import DiagnosisProblem, HYSTERESIS_SPAN_SHARE, Score
-from .results import Candidate, HeldOutError, ModelChoice
+from .problem import DiagnosisProblem, HYSTERESIS_SPAN_SHARE
+from .results import Candidate, HeldOutError, ModelChoice, Score
 from .settings import DiagnosisSettings, RECORD_SEARCH
 from ..validation import cubic_instead, FORWARD, paired
 

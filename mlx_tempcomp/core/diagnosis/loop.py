@@ -12,9 +12,9 @@ from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RE
 from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
                             written_error_by_temperature)
-from .problem import DiagnosisProblem, HeldOutRun, Score
-from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
-                      RecordFit, Step)
+from .problem import DiagnosisProblem
+from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, HeldOutRun,
+                      ModelChoice, RecordFit, Score, Step)
 from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
 from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS

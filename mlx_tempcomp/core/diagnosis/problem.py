@@ -9,7 +9,7 @@ fold's training rows as PX4 fits it and run clamped (`baseline_run`): the
 incumbent every other model is compared with, fold by fold.
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import functools
 import math
 from typing import Optional
@@ -18,7 +18,7 @@ import numpy as np
 
 from .fits import AxisSpec, FITS, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_GRID_C
 from .folds import cut_bins, Folds
-from .results import HeldOutError
+from .results import AxisFit, BaselineRun, HeldOutError, HeldOutRun, Score
 from .settings import DiagnosisSettings, Progress
 from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, PX4_ORDER, solve_cubic
 from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
@@ -36,46 +36,6 @@ MIN_LAG_SAMPLES = 2.0
 HYSTERESIS_SPAN_SHARE = 0.25
 # Singular values of the scaled normal matrix below this (relative) count as rank loss.
 RANK_RCOND = 1e-12
-
-
-@dataclass(frozen=True)
-class Score:
-    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
-
-    fold_rms: np.ndarray
-    rms: float
-    rank_ok: bool
-    residual: np.ndarray = field(repr=False)
-
-
-@dataclass(frozen=True)
-class HeldOutRun:
-    """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
-
-    residual: np.ndarray
-    errors: tuple
-
-
-@dataclass(frozen=True)
-class BaselineRun:
-    """
-    The PX4-style cubic of each fold, fitted on its training rows and run clamped.
-
-    ``residual`` (bins, axes) holds the held-out bins, NaN elsewhere;
-    ``fold_rms`` (folds, axes) each fold's RMS over the bins it counts.
-    """
-
-    residual: np.ndarray
-    fold_rms: np.ndarray
-    errors: tuple
-
-
-@dataclass(frozen=True)
-class AxisFit:
-    """One axis fitted: its terms, and each fitted record's offset to add to their constant."""
-
-    terms: AxisTerms
-    offsets_rad_s: tuple
 
 
 @dataclass(frozen=True)
