@@ -34,7 +34,7 @@ setup(
             'matplotlib',
             'allantools',
         ],
-        # The flight-controller log readers (sources/ulog.py, sources/dataflash.py): PX4 ULog
+        # The flight-controller log readers (recordings/ulog.py, recordings/dataflash.py): PX4 ULog
         # and ArduPilot DataFlash; imported only when such a log is read.
         'flightlogs': [
             'pyulog>=1.3',

@@ -145,7 +145,7 @@ def _fit(data: dict, max_order: int, blocks: int) -> tuple:
 
 def _diagnose(data: dict) -> tuple:
     from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
-    from mlx_tempcomp.sources.recording import Recording
+    from mlx_tempcomp.recordings.recording import Recording
     recording = Recording(source='bench', time_s=data['time_s'],
                           temperature_c=data['temperature_c'], axes=('x', 'y', 'z'),
                           gyro_rad_s=data['gyro_rad_s'])

@@ -22,7 +22,7 @@ import sys
 from mlx_tempcomp.core.fitting import fit_polynomial
 from mlx_tempcomp.core.metrics import bin_means, bin_starts, test_start_row
 from mlx_tempcomp.core.validation import block_bounds, split
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 
 RELATIVE = Path('data') / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv'

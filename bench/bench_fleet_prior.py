@@ -40,7 +40,7 @@ import time
 
 from mlx_tempcomp.cli import main as cli_main
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
-from mlx_tempcomp.model_params import effect_parameters, parameter_file, write_parameter_file
+from mlx_tempcomp.parameters.files import effect_parameters, parameter_file, write_parameter_file
 import numpy as np
 
 FRACTIONS = (0.05, 0.25, 1.0)

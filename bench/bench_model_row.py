@@ -3,7 +3,7 @@ Per-row cost of the compensation node's models (`stream.correct_one`) beside a p
 
 The node corrects one message at a time through ``stream.correct_one`` when no
 other message waits. Each model here is built from node parameters the way the
-node builds it (`node_parameters.build_model`), then fed the same rows: 3 axes,
+node builds it (`parameters.models.build_model`), then fed the same rows: 3 axes,
 temperature rising 20 to 40 C, every input the model needs given. The
 baseline is a plain Python Horner cubic of the polynomial model's coefficients,
 the floor any model pays in Python. Rounds alternate over the models and the
@@ -26,7 +26,8 @@ from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.table import factory_table
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
 import numpy as np
 import yaml
 

@@ -40,10 +40,12 @@ import sys
 import tempfile
 
 from mlx_tempcomp.cli import main as cli_main
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.recordings.columns import PRESETS
+from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.chamber import chamber_profile, chamber_run
 from mlx_tempcomp.simulation.physics import Effects, Noise, Scenario, ThermalProfile
-from mlx_tempcomp.sources.recording import load_recording, PRESETS
 import numpy as np
 
 # Where the tests find ../shared (MLX_TEMPCOMP_SHARED, beside this checkout, or beside the

@@ -21,7 +21,7 @@ import sys
 import tempfile
 import time
 
-from mlx_tempcomp.model_params import write_parameter_file
+from mlx_tempcomp.parameters.files import write_parameter_file
 
 BIN = Path(sys.executable).parent
 XYZ = ['x', 'y', 'z']

@@ -25,7 +25,8 @@ import time
 
 from mlx_tempcomp.core.bias_tracker import BiasTracking
 from mlx_tempcomp.core.tracking_parameters import tracking_settings
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
 import numpy as np
 import yaml
 

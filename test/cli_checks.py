@@ -1,6 +1,6 @@
 """Checks shared by the tests of the mlx-tempcomp commands."""
 
-from mlx_tempcomp.node_parameters import COMPENSATION_SPECS
+from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS
 import numpy as np
 import yaml
 

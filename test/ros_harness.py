@@ -18,7 +18,7 @@ import tempfile
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from mlx_tempcomp.model_params import nest_parameters, write_parameter_file
+from mlx_tempcomp.parameters.files import nest_parameters, write_parameter_file
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import EEPROM_QOS, SENSOR_INPUT_QOS
 import pytest

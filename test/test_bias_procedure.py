@@ -15,7 +15,7 @@ from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.fitting import format_btc_table
 from mlx_tempcomp.core.noise import allan_deviation, NoiseFigures
-from mlx_tempcomp.node_parameters import build_model
+from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.simulation.adis16130 import (ADIS16130_NOISE, Adis16130Truth,
                                                self_heating_profile)
 from mlx_tempcomp.sources.adis16130 import SimulatedSensor, SimulationConfig

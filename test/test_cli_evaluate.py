@@ -10,10 +10,11 @@ from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel, polynomial_model
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.model_params import (effect_parameters, parameter_file,
-                                       polynomial_parameters, write_parameter_file)
-from mlx_tempcomp.sources.bag import RawBagReader, RawBagWriter
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.parameters.files import (effect_parameters, parameter_file,
+                                           polynomial_parameters, write_parameter_file)
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
+from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 import pytest
 

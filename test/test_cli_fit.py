@@ -8,7 +8,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.chain import ChainModel, STAGE_NAMES
 from mlx_tempcomp.core.chain_fit import ChainSettings, fit_chain
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
-from mlx_tempcomp.node_parameters import build_model
+from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.simulation.turntable import simulate_turntable
 import numpy as np

@@ -11,7 +11,7 @@ import os
 
 from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 import pytest
 

@@ -6,8 +6,8 @@ import math
 from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.sources.bag import RawBagReader
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 import pytest
 

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.recordings.load import load_recording
 import pytest
 
 CYCLE = ['--cycle-c', '60', '-20', '25', '--ramp-c-per-min', '8', '--rate-hz', '1']

@@ -17,9 +17,10 @@ from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.bias_tracker import BiasTracking
 from mlx_tempcomp.core.tracking_parameters import tracking_settings
-from mlx_tempcomp.node_parameters import axes_of, build_model
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.specs import axes_of
+from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.motion import motion_schedule, ScheduleSettings
-from mlx_tempcomp.sources.recording import load_recording
 import numpy as np
 import pytest
 import yaml

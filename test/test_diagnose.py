@@ -20,15 +20,16 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import (diagnose, DiagnosisSettings, HeldOutError,
                                          OutsideFittedRange)
 from mlx_tempcomp.core.diagnosis.acceptance import choose_model
-from mlx_tempcomp.core.diagnosis.results import Score
+from mlx_tempcomp.core.diagnosis.problem import Score
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
-from mlx_tempcomp.node_parameters import flat_parameters, model_error_of, node_values
+from mlx_tempcomp.parameters.compensation import model_error_of
+from mlx_tempcomp.parameters.files import flat_parameters, node_values
+from mlx_tempcomp.recordings.recording import Recording
 from mlx_tempcomp.simulation.physics import (Effects, GyroPhysics, GyroTruth, Noise, Scenario,
                                              ThermalProfile)
-from mlx_tempcomp.sources.recording import Recording
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np

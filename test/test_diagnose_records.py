@@ -21,9 +21,9 @@ from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.records import join_records
 from mlx_tempcomp.core.validation import record_block_bounds, split
 from mlx_tempcomp.fleet.unit import parse_command
-from mlx_tempcomp.node_parameters import flat_parameters
+from mlx_tempcomp.parameters.files import flat_parameters
+from mlx_tempcomp.recordings.recording import Recording
 from mlx_tempcomp.simulation.physics import Effects, Scenario
-from mlx_tempcomp.sources.recording import Recording
 from mlx_tempcomp.toolkit.common import run_handler
 import numpy as np
 import pytest
@@ -315,3 +315,19 @@ def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
     report = json.loads((out / 'report.json').read_text())
     assert [r['record'] for r in report['records']] == runs_csv
     assert report['held_out_records'][0]['record'] == runs_csv[-1]
+
+
+def test_a_written_cubic_is_the_baseline_in_every_scope_of_several_records():
+    """Three clean runs, the last held out: the cubic is written, its figures the cubic's."""
+    diagnosis = diagnose(unit_runs(), DiagnosisSettings(test_record=True, rezero_s=REZERO_S))
+    (axis,) = diagnosis.per_axis
+    assert axis.choice.written == 'px4_cubic'
+    scopes = ('round_robin', 'forward', 'test', 'test_rezeroed')
+    assert set(scopes) <= set(diagnosis.comparison)
+    for scope in scopes:
+        found, cubic = (diagnosis.comparison[scope][method][0]
+                        for method in ('diagnosed', 'px4_cubic'))
+        for name in ('rms_rad_s', 'peak_rad_s', 'fold_rms_rad_s', 'block_rms_rad_s'):
+            np.testing.assert_array_equal(getattr(found, name), getattr(cubic, name),
+                                          err_msg=f'{scope} {name}')
+    assert diagnosis.rezero_rad_s['diagnosed'] == diagnosis.rezero_rad_s['px4_cubic']

@@ -26,8 +26,8 @@ def test_every_error_class_of_the_package_is_below_the_root():
     assert outside == []
     # The layers' classes the nodes and the CLI catch the root for.
     for name in ('core.errors.TempCompError', 'hardware.errors.HardwareError',
-                 'sources.errors.SourceError', 'sources.bag.BagError',
-                 'sources.recording.RecordingError', 'state_file.StateFileError',
+                 'recordings.errors.RecordFileError', 'recordings.bag.BagError',
+                 'recordings.recording.RecordingError', 'parameters.state_file.StateFileError',
                  'toolkit.common.UserError'):
         assert f'mlx_tempcomp.{name}' in errors
 

@@ -21,9 +21,9 @@ from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.fitting import fit_polynomial
-from mlx_tempcomp.sources.dataflash import board_rotation
-from mlx_tempcomp.sources.flightlog import FlightLogError, read_flight_log
-from mlx_tempcomp.sources.recording import load_recording
+from mlx_tempcomp.recordings.dataflash import board_rotation
+from mlx_tempcomp.recordings.flightlog import FlightLogError, read_flight_log
+from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.toolkit.exports import ardupilot_cubic
 import numpy as np
 import pytest
@@ -119,6 +119,17 @@ def test_px4_file_matches_the_qgc_format_field_for_field(exported):
         assert values[prefix + 'TMAX'] == train.temperature_c.max()
         assert values[prefix + 'TREF'] == 0.5 * (values[prefix + 'TMIN']
                                                  + values[prefix + 'TMAX'])
+
+
+def test_px4_gyro_set_is_px4s_own_polyfit(exported):
+    """TC_G0_X*: np.polyfit(T - TREF, rate, 3) per axis, as process_sensor_caldata.py fits it."""
+    values, _, _ = _read_qgc_params(exported['folder'] / 'gyro.params')
+    train = load_recording(exported['train'], preset='tofupilot')
+    for axis in range(3):
+        expected = np.polyfit(train.temperature_c - values['TC_G0_TREF'],
+                              train.gyro_rad_s[:, axis], 3)[::-1]
+        written = [values[f'TC_G0_X{k}_{axis}'] for k in range(4)]
+        assert written == [float(c) for c in expected]
 
 
 @pytest.mark.parametrize('sensor', ['G', 'A'])

@@ -27,7 +27,8 @@ from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
 from mlx_tempcomp.fleet.report import COUNT_METRICS, fleet_summary, OUTLIER_Z, robust_z
 from mlx_tempcomp.fleet.run import connect, finished, store_unit, WORKER_SETTINGS
 from mlx_tempcomp.fleet.unit import MOMENTS_FILE, run_unit, UnitJob
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
 import numpy as np
 import pytest
 

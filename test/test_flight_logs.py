@@ -13,8 +13,10 @@ import tracemalloc
 from cli_checks import assert_user_error
 from measured_data import FLIGHT_LOGS
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.sources.flightlog import read_flight_log, SKIP_MOVING
-from mlx_tempcomp.sources.recording import load_flight_log, load_recording, RecordingError
+from mlx_tempcomp.recordings.flightlog import (FlightLogError, is_flight_log, read_flight_log,
+                                               SKIP_MOVING)
+from mlx_tempcomp.recordings.load import load_flight_log, load_recording
+from mlx_tempcomp.recordings.recording import RecordingError
 import numpy as np
 import pytest
 
@@ -39,6 +41,17 @@ def _log(name):
     if not path.is_file():
         pytest.skip(f'flight log not present: {path} (set MLX_TEMPCOMP_SHARED)')
     return path
+
+
+def test_each_reader_registered_its_suffix_with_the_dispatcher(tmp_path):
+    """The ulog and dataflash readers register .ulg and .bin; any other name is no log."""
+    assert [is_flight_log(name) for name in ('a.ulg', 'b.BIN', 'c.bin', 'd.csv', 'e.db3')] == \
+        [True, True, True, False, False]
+    notes = tmp_path / 'notes.txt'
+    notes.write_text('x\n')
+    with pytest.raises(FlightLogError, match=r'notes.txt is not a flight-controller log: its '
+                                             r'name ends in none of \.(bin, \.ulg|ulg, \.bin)$'):
+        read_flight_log(notes)
 
 
 @pytest.mark.parametrize('name', LOGS)

@@ -1,7 +1,7 @@
 """
 Property-based tests of the parameter loaders: a parameter file gives a model or a user error.
 
-The files are what the toolkit writes (`model_params`: ``fit``, the ADIS16130 bias
+The files are what the toolkit writes (`parameters.files`: ``fit``, the ADIS16130 bias
 procedure) and reads back the way ``mlx-tempcomp evaluate``, the MPU offset refresh and
 the compensation node do: `node_values` (the node's defaults overridden by the file's
 section, types and ranges checked as rcl would), then `build_model`. Valid models
@@ -19,9 +19,10 @@ from hypothesis import (currently_in_test_context, event, example, given, settin
                         strategies as st)
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.model_params import (linear_btc_parameters, parameter_file,
-                                       polynomial_parameters, write_parameter_file)
-from mlx_tempcomp.node_parameters import build_model, node_values, ParameterError
+from mlx_tempcomp.parameters.files import (linear_btc_parameters, node_values, parameter_file,
+                                           polynomial_parameters, write_parameter_file)
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.specs import ParameterError
 import numpy as np
 import pytest
 import yaml

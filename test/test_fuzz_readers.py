@@ -21,11 +21,14 @@ from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import decode_eeprom, EEPROM_SIZE
 from mlx_tempcomp.core.errors import TempCompError
 from mlx_tempcomp.core.table import factory_table
+from mlx_tempcomp.recordings.bag import (BagError, ImuRecord, RawTopics, SupplyVoltageRecord,
+                                         TemperatureRecord)
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
+from mlx_tempcomp.recordings.load import load_recording
+from mlx_tempcomp.recordings.recording import Recording, RecordingError
 from mlx_tempcomp.simulation.mlx90609 import factory_eeprom, FactoryMeasurement
 from mlx_tempcomp.simulation.physics import GyroTruth
-from mlx_tempcomp.sources.bag import (BagError, ImuRecord, RawBagReader, RawBagWriter, RawTopics,
-                                      SupplyVoltageRecord, TemperatureRecord)
-from mlx_tempcomp.sources.recording import load_recording, Recording, RecordingError
 import numpy as np
 import pytest
 

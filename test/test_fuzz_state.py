@@ -29,12 +29,14 @@ from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.models import EepromModel
 from mlx_tempcomp.core.table import factory_table
-from mlx_tempcomp.node_parameters import axes_of, build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.specs import axes_of
+from mlx_tempcomp.parameters.state_file import load_state, StateFileError, write_state
 from mlx_tempcomp.ros.compensation_tracking import checked_section
 from mlx_tempcomp.ros.mpu6000_stream import MPU_OFFSETS_FIELDS
 from mlx_tempcomp.ros.zro_recalibration import (saved_offset_model, state_fields,
                                                 TRACKING_SECTION, zro_state_fields)
-from mlx_tempcomp.state_file import load_state, StateFileError, write_state
 import numpy as np
 import pytest
 import yaml

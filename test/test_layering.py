@@ -11,7 +11,7 @@ every module outside ``ros/`` imports, ``mlx-tempcomp --help`` and the help
 of every subcommand print, and ``evaluate`` runs a parameter file's model (the
 command that used to pull in rclpy); the optional heavy imports (matplotlib,
 allantools, scipy, Dask, fsspec, and the flight-log readers' pyulog and
-pymavlink, which only sources/ulog.py and sources/dataflash.py import, inside a
+pymavlink, which only recordings/ulog.py and recordings/dataflash.py import, inside a
 function) stay unloaded.
 """
 
@@ -34,18 +34,13 @@ ALLOWED = {
     'hardware': {'core'},
     'simulation': {'core', 'hardware'},
     'sources': {'core', 'hardware', 'simulation'},
-    'state_file': set(),
-    'model_params': {'core', 'state_file'},
-    'node_parameters': {'core', 'simulation'},
-    'sweep': {'core', 'hardware', 'simulation'},
-    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-                'node_parameters'},
-    'ros': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters'},
-    'fleet': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-              'node_parameters', 'toolkit'},
-    'cli': {'core', 'hardware', 'simulation', 'sources', 'state_file', 'model_params',
-            'node_parameters', 'toolkit', 'fleet'},
+    'recordings': {'core'},
+    'parameters': {'core', 'simulation'},
+    'toolkit': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters'},
+    'ros': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters'},
+    'fleet': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters', 'toolkit'},
+    'cli': {'core', 'hardware', 'simulation', 'sources', 'recordings', 'parameters', 'toolkit',
+            'fleet'},
 }
 # The root of the package's errors (main's mlx_tempcomp/errors.py): every layer may import it.
 EVERYWHERE = {'errors'}
@@ -55,8 +50,8 @@ CORE_THIRD_PARTY = {'numpy', 'allantools'}
 ROS_PACKAGE = re.compile(r'(rclpy|rcl_\w+|rmw\w*|rosidl\w*|rpyutils|ament_index_python'
                          r'|builtin_interfaces|\w+_msgs|\w+_srvs|\w+_interfaces)$')
 # The flight-log libraries and the one reader module each may be imported by.
-FLIGHT_LOG_READERS = {'pyulog': 'mlx_tempcomp.sources.ulog',
-                      'pymavlink': 'mlx_tempcomp.sources.dataflash'}
+FLIGHT_LOG_READERS = {'pyulog': 'mlx_tempcomp.recordings.ulog',
+                      'pymavlink': 'mlx_tempcomp.recordings.dataflash'}
 # Imported only where a command needs them, never by --help.
 OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', 'dask', 'distributed', 'fsspec',
                   *FLIGHT_LOG_READERS)

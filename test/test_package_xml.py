@@ -56,7 +56,7 @@ ROSDEP_KEYS = {
     'pymavlink': None,
     'dask': None,   # with its distributed scheduler (dask.distributed)
     'fsspec': None,
-    # rosbags' sqlite3 back end, installed with it (sources/bag.py falls back to sqlite3).
+    # rosbags' sqlite3 back end, installed with it (recordings/bag_*.py fall back to sqlite3).
     'apsw': None,
 }
 # The pip name of each package without a key, as setup.py's extras and docs/ros.md give it.

@@ -7,9 +7,10 @@ driver does at the end of a bag (`bag.on_end`: stop, hold, loop).
 """
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from mlx_tempcomp.recordings.bag import EEPROM_TYPE, IMU_TYPE, TEMPERATURE_TYPE
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
 from mlx_tempcomp.ros import messages
-from mlx_tempcomp.sources.bag import (EEPROM_TYPE, IMU_TYPE, RawBagReader, RawBagWriter,
-                                      TEMPERATURE_TYPE)
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message

@@ -12,14 +12,14 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
-from mlx_tempcomp.node_parameters import DEVICES
+from mlx_tempcomp.parameters.driver import DEVICES
+from mlx_tempcomp.parameters.state_file import write_state
 from mlx_tempcomp.ros.driver_node import STREAMS
 from mlx_tempcomp.ros.mpu6000_stream import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile
 from mlx_tempcomp.sources.mpu6000 import SimulatedMpuSource
-from mlx_tempcomp.state_file import write_state
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, first_line_with,

@@ -22,7 +22,8 @@ import math
 
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.sources.bag import RawBagReader, RawTopics
+from mlx_tempcomp.recordings.bag import RawTopics
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
 import numpy as np
 import pytest
 from ros_harness import finish_model_replay, start_model_replay

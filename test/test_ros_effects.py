@@ -4,7 +4,7 @@ Replay bags through driver_node and compensation_node running the effects and ch
 The node runs each sample through the model's stream (temperature slope history,
 hysteresis play state); what it publishes must equal the offline batch correction
 of the whole recording, to rounding. The parameter files are the ones `fit` and
-`diagnose` write (model_params).
+`diagnose` write (`parameters.files`).
 """
 
 import math
@@ -13,13 +13,14 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.chain import ChainModel
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.model_params import (chain_parameters, effect_parameters, parameter_file,
-                                       write_parameter_file)
+from mlx_tempcomp.parameters.files import (chain_parameters, effect_parameters, parameter_file,
+                                           write_parameter_file)
+from mlx_tempcomp.recordings.bag import ImuRecord, TemperatureRecord
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import SENSOR_INPUT_QOS
 from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProtocol,
                                                TurntableTruth)
-from mlx_tempcomp.sources.bag import ImuRecord, RawBagWriter, TemperatureRecord
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,

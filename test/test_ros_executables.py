@@ -13,7 +13,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.chain import CalibrationChain, ChainModel
-from mlx_tempcomp.model_params import chain_parameters
+from mlx_tempcomp.parameters.files import chain_parameters
 from mlx_tempcomp.ros.qos import STATUS_QOS
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable,

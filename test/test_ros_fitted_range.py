@@ -11,8 +11,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
 from mlx_tempcomp.core.model_error import ModelErrorTable
 from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.model_params import (effect_parameters, model_error_parameters,
-                                       parameter_file, write_parameter_file)
+from mlx_tempcomp.parameters.files import (effect_parameters, model_error_parameters,
+                                           parameter_file, write_parameter_file)
 from mlx_tempcomp.ros import messages
 import numpy as np
 import pytest

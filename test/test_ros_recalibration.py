@@ -16,7 +16,7 @@ import subprocess
 import sys
 import time
 
-from mlx_tempcomp.state_file import Field, load_state, read_state
+from mlx_tempcomp.parameters.state_file import Field, load_state, read_state
 import numpy as np
 import pytest
 from ros_harness import (COMPENSATION_DIAGNOSTIC, parse_list, simulated_driver_params,
@@ -166,7 +166,7 @@ def test_second_recalibration_while_one_runs_is_refused(launcher, probe, tmp_pat
 WRITER = r"""
 import sys
 import yaml
-from mlx_tempcomp.state_file import atomic_write
+from mlx_tempcomp.parameters.state_file import atomic_write
 path, hold = sys.argv[1], int(sys.argv[2])
 texts = [yaml.safe_dump({'name': name, 'zro_offset': [float(i) * scale for i in range(2000)]},
                         sort_keys=False) for name, scale in (('a', 1.0), ('b', -0.5))]

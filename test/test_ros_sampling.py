@@ -19,7 +19,7 @@ import signal
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from mlx_tempcomp.node_parameters import DRIVER_SPECS
+from mlx_tempcomp.parameters.driver import DRIVER_SPECS
 from mlx_tempcomp.ros.adis16130_stream import simulated_adis
 from mlx_tempcomp.ros.timed_stream import MAX_BACKLOG_S
 from mlx_tempcomp.sources.decimation import Decimator

@@ -1,7 +1,7 @@
 """Start-up: each node says in one line what it runs and waits for; WARNs for what never comes."""
 
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
-from mlx_tempcomp.model_params import effect_parameters
+from mlx_tempcomp.parameters.files import effect_parameters
 import pytest
 from ros_harness import first_line_with, start_in_namespace
 

@@ -11,8 +11,9 @@ by sample; a good file (the fingerprint an earlier release saved) still applies 
 
 import math
 
-from mlx_tempcomp.node_parameters import build_model, node_values
-from mlx_tempcomp.state_file import write_state
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.state_file import write_state
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, first_line_with, simulated_driver_params, UNTRACKED,

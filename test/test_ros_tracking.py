@@ -21,12 +21,14 @@ import signal
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.node_parameters import build_model, node_values
+from mlx_tempcomp.parameters.files import node_values
+from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.state_file import read_state, write_state
+from mlx_tempcomp.recordings.bag import RawTopics
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
-from mlx_tempcomp.sources.bag import RawBagReader, RawTopics
-from mlx_tempcomp.sources.recording import load_recording
-from mlx_tempcomp.state_file import read_state, write_state
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

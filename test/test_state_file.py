@@ -1,8 +1,8 @@
 import logging
 import os
 
-from mlx_tempcomp.state_file import (atomic_write, check_state, Field, load_state, read_state,
-                                     StateFileError, write_state)
+from mlx_tempcomp.parameters.state_file import (atomic_write, check_state, Field, load_state,
+                                                read_state, StateFileError, write_state)
 import pytest
 
 FIELDS = (Field('model', 'text', choices=('polynomial', 'eeprom')),

@@ -6,7 +6,7 @@
 
 import math
 
-from mlx_tempcomp.sweep import format_population, format_report, main, run_sweep
+from mlx_tempcomp.simulation.sweep import format_population, format_report, main, run_sweep
 import numpy as np
 import pytest
 

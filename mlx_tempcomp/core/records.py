@@ -112,7 +112,7 @@ def join_records(recordings) -> Records:
 
     Each has ``source``, ``axes``, ``time_s``, ``temperature_c``,
     ``gyro_rad_s`` and the optional columns (None when absent), like
-    `mlx_tempcomp.sources.recording.Recording`; one recording stands for
+    `mlx_tempcomp.recordings.recording.Recording`; one recording stands for
     itself alone, a `Records` is returned as it is. Raise CalibrationError
     naming a record whose axes or columns differ from the first's.
     """

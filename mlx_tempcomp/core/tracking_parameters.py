@@ -2,7 +2,7 @@
 The compensation node's ``bias_tracking.*`` parameters: their table and the settings they make.
 
 `PARAMETERS` lists each parameter (name without the prefix, default, description,
-range of a scalar); ``node_parameters`` makes the node's specs of it, so the node, the
+range of a scalar); ``parameters.compensation`` makes the node's specs of it, so the node, the
 shipped config and ``mlx-tempcomp evaluate`` share one table. `tracking_settings` turns
 the node's values into `TrackingSettings` (None when tracking is off), checking what a
 descriptor cannot say: per-axis lists of one value or one per axis, each in its range;

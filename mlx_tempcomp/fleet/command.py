@@ -19,7 +19,8 @@ from .prior import write_fleet_prior
 from .report import write_fleet_report
 from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitError,
                    UnitJob)
-from ..sources.recording import column_preset, parse_column_map, RecordingError
+from ..recordings.columns import column_preset, parse_column_map
+from ..recordings.recording import RecordingError
 from ..toolkit.common import check_output_folder, non_negative_int, UserError
 from ..toolkit.extras import readers, require
 from ..toolkit.progress import add_progress_option

@@ -20,7 +20,7 @@ files:
   shrunk coefficients, how much the fleet moved it and its record's test of
   the shrunk fit.
 
-The population file is read back by `node_parameters.node_values` and built
+The population file is read back by `parameters.files.node_values` and built
 by `build_model`, as the node would; each shrunk model is built from those
 checked values with its own coefficients before its file is written.
 """
@@ -38,9 +38,10 @@ from ..core.effects import AxisTerms, EffectModel
 from ..core.errors import TempCompError
 from ..core.pooling import (CONFLICT_LEVEL, MIN_POOLED_UNITS, moments_of, pool_fleet,
                             RATE_WINDOW_S, unit_moments)
-from ..model_params import effect_parameters, parameter_file, write_parameter_file
-from ..node_parameters import build_model, node_values, ParameterError
-from ..sources.recording import AXES
+from ..parameters.files import effect_parameters, node_values, parameter_file, write_parameter_file
+from ..parameters.models import build_model
+from ..parameters.specs import ParameterError
+from ..recordings.recording import AXES
 from ..toolkit.common import write_json
 
 FLEET_PARAMS = 'fleet_params.yaml'

@@ -32,7 +32,7 @@ import numpy as np
 import yaml
 
 from .unit import UNIT_FILE
-from ..node_parameters import flat_parameters
+from ..parameters.files import flat_parameters
 from ..toolkit.common import write_json, write_result
 
 OUTLIER_Z = 3.5

@@ -22,8 +22,9 @@ from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, ther
 from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
 from ..core.errors import CalibrationError, TempCompError
 from ..core.noise import allan_deviation
-from ..model_params import linear_btc_parameters, parameter_file, write_parameter_file
-from ..node_parameters import effects_of, ParameterError
+from ..parameters.driver import effects_of
+from ..parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
+from ..parameters.specs import ParameterError
 from ..simulation.adis16130 import Adis16130Truth, Fault
 from ..sources import adis16130
 

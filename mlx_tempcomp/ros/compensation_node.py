@@ -34,21 +34,20 @@ from .compensation_inputs import AUXILIARY, CompensationInputs
 from .compensation_outputs import CompensationOutputs
 from .compensation_status import compensation_status, missing_inputs
 from .compensation_tracking import CompensationTracking
-from .params import declare
+from .declare import declare
 from .qos import EEPROM_QOS, stream_subscription
 from .runner import run
 from .service_window import await_window
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
+from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
 from ..core.tracking_parameters import tracking_settings
-from ..node_parameters import (axes_of, build_model, check_choices, COMPENSATION_SPECS,
-                               model_error_of, ParameterError, state_file_of, transfer_of)
-from ..sources.bag import BagError, eeprom_images_from_multiarray
+from ..parameters.compensation import COMPENSATION_SPECS, model_error_of, state_file_of
+from ..parameters.models import build_model, MODEL_PREFIXES
+from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
 
-# Parameters whose change rebuilds the model: model and those under these prefixes.
-_MODEL_PREFIXES = ('eeprom.', 'polynomial.', 'linear_btc.', 'effects.', 'chain.')
 _MODEL_ERROR_PREFIX = 'model_error.'
 # Parameters the bias tracking's settings depend on.
 _TRACKING_PREFIXES = ('bias_tracking.', 'rate_noise_rad_s')
@@ -200,7 +199,7 @@ class CompensationNode(Node):
                 raise ParameterError(reason)
             if self.values['model'] == 'eeprom':
                 self._use(self._with_saved_offset(self._build(self.values)))
-        except (BagError, TempCompError, ParameterError) as err:
+        except (TempCompError, ParameterError) as err:
             self.eeprom_error = str(err)
             self.get_logger().error(f'unusable EEPROM message: {err}')
             return
@@ -339,7 +338,7 @@ class CompensationNode(Node):
 
 
 def _changes_model(parameters) -> bool:
-    return any(p.name == 'model' or p.name.startswith(_MODEL_PREFIXES) for p in parameters)
+    return any(p.name == 'model' or p.name.startswith(MODEL_PREFIXES) for p in parameters)
 
 
 def messages_value(parameter):

@@ -13,7 +13,7 @@ from sensor_msgs.msg import Imu, Temperature
 from . import messages
 from .compensation_inputs import InputBlock
 from .qos import stream_publisher
-from ..node_parameters import model_error_of
+from ..parameters.compensation import model_error_of
 
 
 class CompensationOutputs:

@@ -39,7 +39,7 @@ from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
 from ..core.models import AXIS_NAMES
 from ..core.tracking_parameters import tracking_settings
-from ..state_file import check_state, Field, move_aside, reject_state, StateFileError
+from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
 
 NS_PER_S = 1_000_000_000
 # The estimate: the latest kept for late joiners, as the EEPROM images are.
@@ -56,7 +56,7 @@ NO_DATA = -1.0
 
 
 def stamp_seconds(stamps_ns: np.ndarray) -> np.ndarray:
-    """Give int64 stamps in seconds as `sources.recording.load_bag` does: seconds + ns x 1e-9."""
+    """Give int64 stamps in seconds as `recordings.load.load_bag` does: seconds + ns x 1e-9."""
     return (stamps_ns // NS_PER_S).astype(np.float64) + (stamps_ns % NS_PER_S) * 1e-9
 
 

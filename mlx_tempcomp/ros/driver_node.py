@@ -29,15 +29,17 @@ from std_msgs.msg import UInt8MultiArray
 
 from . import messages
 from .adis16130_stream import AdisStream
+from .declare import declare
 from .mlx90609_stream import Mlx90609Stream
 from .mpu6000_stream import MpuStream
-from .params import declare
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, stream_publisher
 from .runner import run
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..node_parameters import axes_of, check_choices, DRIVER_SPECS, ParameterError, transfer_of
-from ..sources.bag import (absolute_topic, ImuRecord, RawBagReader, RawTopics,
-                           SupplyVoltageRecord, TemperatureRecord)
+from ..parameters.driver import DRIVER_SPECS
+from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
+from ..recordings.bag import (absolute_topic, ImuRecord, RawTopics, SupplyVoltageRecord,
+                              TemperatureRecord)
+from ..recordings.bag_reader import RawBagReader
 
 # The stream of each ``device``: a new sensor adds its row.
 STREAMS = {'mlx90609': Mlx90609Stream, 'adis16130': AdisStream, 'mpu6000': MpuStream}

@@ -8,9 +8,9 @@ import numpy as np
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
-from ..core.eeprom import EEPROM_SIZE
+from ..core.eeprom_multiarray import eeprom_multiarray_from_images
 from ..core.models import AXIS_NAMES
-from ..state_file import StateFileError, write_state
+from ..parameters.state_file import StateFileError, write_state
 
 NAN = float('nan')
 
@@ -108,11 +108,11 @@ def supply_voltage_message(stamp: Time, frame_id: str, voltage_v: float) -> Batt
 
 def eeprom_message(images) -> UInt8MultiArray:
     """Pack all chips' EEPROM images: dimension 'axis' x dimension 'byte'."""
+    dims, data = eeprom_multiarray_from_images(images)
     msg = UInt8MultiArray()
-    msg.layout.dim = [
-        MultiArrayDimension(label='axis', size=len(images), stride=len(images) * EEPROM_SIZE),
-        MultiArrayDimension(label='byte', size=EEPROM_SIZE, stride=EEPROM_SIZE)]
-    msg.data = b''.join(images)
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                      for label, size, stride in dims]
+    msg.data = data
     return msg
 
 

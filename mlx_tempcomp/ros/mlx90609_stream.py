@@ -19,7 +19,8 @@ from ..core.compensation import NominalConversion
 from ..core.conversion import Output
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
-from ..node_parameters import effects_of, ParameterError, transfer_of
+from ..parameters.driver import effects_of
+from ..parameters.specs import ParameterError, transfer_of
 from ..simulation.mlx90609 import Fault
 from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 

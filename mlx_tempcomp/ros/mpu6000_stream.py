@@ -26,11 +26,13 @@ from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_off
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
-from ..node_parameters import axes_of, build_model, node_values, ParameterError
+from ..parameters.files import node_values
+from ..parameters.models import build_model
+from ..parameters.specs import axes_of, ParameterError
+from ..parameters.state_file import Field, load_state
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000
-from ..state_file import Field, load_state
 
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 _INT16 = {'low': INT16_MIN, 'high': INT16_MAX}

@@ -7,7 +7,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
                        ReliabilityPolicy)
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 
-from ..node_parameters import ParameterError
+from ..parameters.specs import ParameterError
 
 # Streams: best effort, as REP-2003 asks for sensor data.
 SENSOR_QOS = qos_profile_sensor_data

@@ -22,8 +22,9 @@ from rclpy.logging import get_logger
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
-from .params import check_command_line, explain_parse_error, unknown_parameters
+from .declare import check_command_line, unknown_parameters
 from ..errors import MlxTempCompError
+from ..parameters.command_line import explain_parse_error
 
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 

@@ -19,7 +19,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
 from ..hardware.errors import HardwareError
-from ..node_parameters import ParameterError
+from ..parameters.specs import ParameterError
 from ..simulation.mlx90609 import Fault
 from ..simulation.physics import ThermalProfile
 from ..sources.decimation import Decimator

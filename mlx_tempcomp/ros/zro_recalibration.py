@@ -25,8 +25,9 @@ from .service_window import SampleWindow
 from ..core.errors import CalibrationError, TempCompError
 from ..core.models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
-from ..node_parameters import limits_of, ParameterError
-from ..state_file import Field, load_state, reject_state, StateFileError, write_state
+from ..parameters.compensation import limits_of
+from ..parameters.specs import ParameterError
+from ..parameters.state_file import Field, load_state, reject_state, StateFileError, write_state
 
 # How the log names the state.
 ZRO_STATE = 'saved ZRO offset'

@@ -1,1 +1,1 @@
-"""Raw data sources: simulated and SPI sensors, rosbag2 replay. No rclpy."""
+"""Sample sources of the driver: simulated and SPI parts, their protocol, decimation. No rclpy."""

@@ -28,7 +28,7 @@ from ..core.errors import TempCompError
 from ..core.fitting import format_btc_table, table_step_c
 from ..core.noise import allan_deviation
 from ..hardware.errors import HardwareError
-from ..model_params import linear_btc_parameters
+from ..parameters.files import linear_btc_parameters
 from ..simulation.adis16130 import Adis16130Truth, self_heating_profile
 from ..sources.adis16130 import (AXES, DEFAULT_SPEED_HZ, SimulatedSensor, SimulationConfig,
                                  spidev_sensor)

@@ -20,7 +20,7 @@ from .common import (add_recording_options, check_output_file, check_output_fold
                      read_options, UserError, write_json, write_result)
 from ..core.errors import TempCompError
 from ..core.noise import allan_deviation, NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S
-from ..sources.recording import AXES
+from ..recordings.recording import AXES
 
 SECONDS_PER_HOUR = 3600.0
 # The topic a visual-inertial tool reads: the compensation node's output.

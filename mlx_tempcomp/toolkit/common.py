@@ -30,11 +30,12 @@ from .outputs import Outputs
 from ..core.validation import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                                DEFAULT_VALIDATION, SCHEMES)
 from ..errors import MlxTempCompError
-from ..model_params import parameter_file, write_parameter_file
-from ..sources.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
-                                 read_flight_log)
-from ..sources.recording import load_flight_log, load_recording, Recording, RecordingError
-from ..state_file import atomic_write
+from ..parameters.files import parameter_file, write_parameter_file
+from ..parameters.state_file import atomic_write
+from ..recordings.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
+                                    read_flight_log)
+from ..recordings.load import load_flight_log, load_recording
+from ..recordings.recording import Recording, RecordingError
 
 EXIT_USER_ERROR = 2
 # The topics a bag is read from by default: the driver's raw output, what `simulate` and

@@ -19,9 +19,10 @@ import numpy as np
 from .common import (add_recording_options, check_output_folder, load, read_options,
                      UserError)
 from .progress import add_progress_option, Progress
-from ..sources.bag import (BagError, EepromRecord, ImuRecord, RawBagWriter, RawTopics, STORAGES,
-                           SupplyVoltageRecord, TemperatureRecord)
-from ..sources.recording import AXES, Recording
+from ..recordings.bag import (BagError, EepromRecord, ImuRecord, RawTopics, STORAGES,
+                              SupplyVoltageRecord, TemperatureRecord)
+from ..recordings.bag_writer import RawBagWriter
+from ..recordings.recording import AXES, Recording
 
 TEMPERATURE_2_TOPIC = '/imu/temperature_2_raw'
 FRAME_ID = 'imu_link'

@@ -4,7 +4,7 @@ The ``mlx-tempcomp evaluate`` command: a parameter file's model run over a recor
 The model is built as ``compensation_node`` builds it: the node's parameter
 defaults (`COMPENSATION_SPECS`), overridden by the node's section of the
 parameter file (types and ranges checked as rcl would: `node_values`), then
-`build_model`, all from `node_parameters`.
+`build_model`, all from `parameters`.
 It runs over the whole recording in one batch, so stateful effects start at
 the first sample as they do when the recording is replayed into the node; the
 ZRO state file of the node is not applied. The error is the corrected rate
@@ -32,8 +32,11 @@ from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
 from ..core.model_interface import INPUTS, ModelInputs
 from ..core.table import sensor_tables
-from ..node_parameters import axes_of, build_model, node_values, ParameterError, transfer_of
-from ..sources.bag import BagError, RawBagReader, RawTopics
+from ..parameters.files import node_values
+from ..parameters.models import build_model
+from ..parameters.specs import axes_of, ParameterError, transfer_of
+from ..recordings.bag import BagError, RawTopics
+from ..recordings.bag_reader import RawBagReader
 
 
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')

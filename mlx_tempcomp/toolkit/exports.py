@@ -49,9 +49,11 @@ from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
 from ..core.models import AXIS_NAMES
-from ..node_parameters import build_model, COMPENSATION_SPECS, flat_parameters
-from ..sources.dataflash import board_rotation
-from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log
+from ..parameters.compensation import COMPENSATION_SPECS
+from ..parameters.files import flat_parameters
+from ..parameters.models import build_model
+from ..recordings.dataflash import board_rotation
+from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log
 
 EXPORT_ORDER = 3
 # The last fifth of the rows is held out for the comparison with the full model.

@@ -17,7 +17,7 @@ import importlib
 from pathlib import Path
 
 from .common import UserError
-from ..sources.flightlog import is_flight_log
+from ..recordings.flightlog import is_flight_log
 
 # Optional package -> (what it is for, the extra of setup.py that installs it).
 OPTIONAL = {
@@ -29,7 +29,7 @@ OPTIONAL = {
     'distributed': ('the fleet job', 'fleet'),
     'fsspec': ('records given as URLs', 'fleet'),
 }
-# The reader of each flight-log extension (sources/ulog.py, sources/dataflash.py).
+# The reader of each flight-log extension (recordings/ulog.py, recordings/dataflash.py).
 READERS = {'.ulg': 'pyulog', '.bin': 'pymavlink'}
 
 

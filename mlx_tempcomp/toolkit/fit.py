@@ -34,7 +34,7 @@ from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, f
 from ..core.models import AXIS_NAMES
 from ..core.validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
                                held_out_outside_range, split)
-from ..model_params import chain_parameters, linear_btc_parameters, polynomial_parameters
+from ..parameters.files import chain_parameters, linear_btc_parameters, polynomial_parameters
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order

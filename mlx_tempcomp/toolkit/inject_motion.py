@@ -21,8 +21,8 @@ import numpy as np
 from .common import (add_recording_options, check_output_file, load, non_negative_int,
                      read_options, UserError, write_json)
 from ..core.errors import TempCompError
+from ..recordings.recording import AXES
 from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings
-from ..sources.recording import AXES
 
 SCHEDULES = ('cycle', 'mixed')
 _CSV_FORMAT = '%.17g'   # round trip: the reference is exact

@@ -21,8 +21,8 @@ from .common import add_recording_options, load, read_options, ReadOptions, User
 from ..core.diagnosis import DiagnosisSettings
 from ..core.motion import moving_samples
 from ..core.noise import MAX_INTERVAL_SPREAD, MIN_SAMPLES
-from ..sources.flightlog import FlightLogError, is_flight_log, read_flight_log, sample_rate_hz
-from ..sources.recording import BAG_SUFFIXES
+from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log, sample_rate_hz
+from ..recordings.load import BAG_SUFFIXES
 
 # A thermal calibration wants the temperature to move this much: ArduPilot's onboard
 # learning waits for a 10 C rise (AP_InertialSensor_tempcal.cpp).

@@ -31,11 +31,11 @@ from ..core.conversion import Output, SensorTransfer
 from ..core.errors import TempCompError
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
+from ..recordings.bag import STORAGES
+from ..recordings.recording import AXES, Recording
 from ..simulation.physics import Effects, GRAVITY_M_S2, GyroTruth, Noise, NOMINAL_SUPPLY_V
 from ..simulation.turntable import simulate_turntable, TurntableProtocol
-from ..sources.bag import STORAGES
 from ..sources.mlx90609 import SimulatedArray, SimulationConfig
-from ..sources.recording import AXES, Recording
 
 FORMATS = ('csv',) + STORAGES
 DEFAULT_DURATION_S = 600.0

@@ -13,7 +13,7 @@ lines, a plot and the ``model_error.*`` node parameters.
 import math
 
 from ..core.model_error import ModelErrorTable
-from ..model_params import model_error_parameters
+from ..parameters.files import model_error_parameters
 
 OUTSIDE_MEANING = ('rows whose temperature (T_eff with a thermal lag) lies outside the range '
                    'the model predicting them was fitted on: the node clamps the temperature at '

@@ -20,8 +20,8 @@ import numpy as np
 from .fits import (AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD,
                    TIME_GRID_S, WIDTH_GRID_C)
 from .folds import Folds
-from .problem import DiagnosisProblem, HYSTERESIS_SPAN_SHARE
-from .results import Candidate, HeldOutError, ModelChoice, Score
+from .problem import DiagnosisProblem, HYSTERESIS_SPAN_SHARE, Score
+from .results import Candidate, HeldOutError, ModelChoice
 from .settings import DiagnosisSettings, RECORD_SEARCH
 from ..validation import cubic_instead, FORWARD, paired
 
@@ -87,17 +87,19 @@ def unbounded(problem: DiagnosisProblem, effect: str, spec: AxisSpec) -> str:
             'record cannot tell from a drift')
 
 
-def judge(problem: DiagnosisProblem, base: Score, score: Score) -> Judgement:
+def judge(problem: DiagnosisProblem, base: Score, score: Score, folds: Folds) -> Judgement:
     """
     Judge a trial's score against the axis's current one, on the same folds (`Judgement`).
 
-    A block's change is the rise of its held-out RMS over the larger of that
-    RMS and the axis's overall held-out RMS; the worst is the largest.
+    A block's change is the rise of its held-out RMS, over the bins the folds
+    count, over the larger of that RMS and the axis's overall held-out RMS;
+    the worst is the largest.
     """
     settings = problem.settings
     gain = (base.rms - score.rms) / base.rms if base.rms > 0.0 else 0.0
     comparison = paired(base.fold_rms, score.fold_rms)
-    before, after = problem.block_rms(base.residual), problem.block_rms(score.residual)
+    before, after = (problem.block_rms(np.where(folds.scored, s.residual, math.nan))
+                     for s in (base, score))
     # A block near zero cannot lose by a ratio: rises count against the axis's error too.
     # Block 0 is not judged: there every history state starts from an assumed equilibrium.
     change = (after - before) / np.maximum(before, base.rms)
@@ -145,7 +147,7 @@ def record_findings(problem: DiagnosisProblem, axis: int, spec: AxisSpec, number
         trial = best_trial(problem, axis, spec, effect)  # always one trial
         folds = problem.folds_for(trial.spec, FORWARD)
         current = problem.score_spec(axis, spec, folds)
-        judgement = judge(problem, current, problem.score_spec(axis, trial.spec, folds))
+        judgement = judge(problem, current, problem.score_spec(axis, trial.spec, folds), folds)
         findings.append(to_candidate(problem, axis, Attempt(effect, trial.spec, judgement),
                                      number, judgement.reason))
     return tuple(findings)

@@ -9,7 +9,7 @@ trials on a `DiagnosisProblem` and keeps the best scored.
 """
 
 # The problem runs this table, and the table's functions take the problem: the annotations
-# name it without importing it at run time.
+# name it (and its Score) without importing it at run time.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -23,8 +23,7 @@ from .settings import BASE_EFFECT
 from ..effects import AxisTerms, EFFECT_NAMES, FirstOrderLag, play_state
 
 if TYPE_CHECKING:
-    from .problem import DiagnosisProblem
-    from .results import Score
+    from .problem import DiagnosisProblem, Score
 
 # Log grids of the 1-D searches: ratio 2^(1/4) between neighbours. The coarse pass
 # visits every COARSE-th point within the bounds, the fine pass the neighbours of the best.

@@ -9,6 +9,7 @@ fold's training blocks, the rest being extrapolation, reported apart.
 """
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -48,6 +49,12 @@ def cut_bins(time_s: np.ndarray, record_rows: list, blocks: int, average_s: floa
     starts = np.flatnonzero(boundary)
     counts = np.diff(np.append(starts, rows)).astype(np.float64)
     return Bins(edges, first_blocks, starts, counts, block[starts])
+
+
+def weighted_rms(values, weights) -> float:
+    """Give the RMS of bin values weighted by their rows (NaN with no weight)."""
+    total = float(np.sum(weights))
+    return math.sqrt(float(np.sum(weights * np.square(values))) / total) if total else math.nan
 
 
 ALL_ROWS = 'all'

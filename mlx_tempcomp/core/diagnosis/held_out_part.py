@@ -13,7 +13,8 @@ from typing import Optional
 
 import numpy as np
 
-from .problem import DiagnosisProblem, effective_temperature, weighted_rms
+from .folds import weighted_rms
+from .problem import DiagnosisProblem, effective_temperature
 from .results import BinnedResidual, ErrorByTemperature, HeldOutError, METHODS, OutsideFittedRange
 from .settings import DEFAULT_REZERO_S, DiagnosisSettings, REZERO_MIN_SAMPLES
 from ..effects import EffectModel, temperature_rate_c_s

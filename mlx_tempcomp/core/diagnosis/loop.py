@@ -12,9 +12,9 @@ from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RE
 from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
                             written_error_by_temperature)
-from .problem import DiagnosisProblem
-from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, HeldOutRun,
-                      ModelChoice, RecordFit, Score, Step)
+from .problem import DiagnosisProblem, HeldOutRun, Score
+from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
+                      RecordFit, Step)
 from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
 from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
@@ -178,7 +178,7 @@ def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
 
     ``recording`` has time_s, temperature_c, axes, gyro_rad_s and optional
     reference_rad_s, acceleration_m_s2, temperature_2_c and supply_voltage_v
-    (a `mlx_tempcomp.sources.recording.Recording`). ``progress(done, total,
+    (a `mlx_tempcomp.recordings.recording.Recording`). ``progress(done, total,
     label)`` is called as work advances. Raise `CalibrationError` when the
     data cannot support the diagnosis.
     """
@@ -253,8 +253,9 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
 def _attempt(problem: DiagnosisProblem, axis: int, effect: str, trial: Trial,
              spec: AxisSpec) -> Attempt:
     """Judge an effect's best trial against the axis's terms on its folds; a bound refuses."""
-    current = problem.score_spec(axis, spec, problem.folds_for(trial.spec))
-    judgement = judge(problem, current, trial.score)
+    folds = problem.folds_for(trial.spec)
+    current = problem.score_spec(axis, spec, folds)
+    judgement = judge(problem, current, trial.score, folds)
     bound = unbounded(problem, effect, trial.spec)
     if bound and not judgement.reason:
         judgement = replace(judgement, reason=bound)

@@ -9,18 +9,19 @@ fold's training rows as PX4 fits it and run clamped (`baseline_run`): the
 incumbent every other model is compared with, fold by fold.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import functools
 import math
 from typing import Optional
 
 import numpy as np
 
+from .cubic import baseline_run, BaselineRun, cubic_bias
 from .fits import AxisSpec, FITS, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_GRID_C
-from .folds import cut_bins, Folds
-from .results import AxisFit, BaselineRun, HeldOutError, HeldOutRun, Score
+from .folds import cut_bins, Folds, weighted_rms
+from .results import HeldOutError
 from .settings import DiagnosisSettings, Progress
-from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, PX4_ORDER, solve_cubic
+from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, solve_cubic
 from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
 from ..errors import CalibrationError
 from ..fitting import MIN_SPAN_C
@@ -39,6 +40,32 @@ RANK_RCOND = 1e-12
 
 
 @dataclass(frozen=True)
+class Score:
+    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
+
+    fold_rms: np.ndarray
+    rms: float
+    rank_ok: bool
+    residual: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class HeldOutRun:
+    """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
+
+    residual: np.ndarray
+    errors: tuple
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    """One axis fitted: its terms, and each fitted record's offset to add to their constant."""
+
+    terms: AxisTerms
+    offsets_rad_s: tuple
+
+
+@dataclass(frozen=True)
 class Centring:
     """The centre and half span of an input column, which its terms are scaled by."""
 
@@ -53,11 +80,6 @@ class _LagFeatures:
     powers: np.ndarray
     block_low_c: np.ndarray
     block_high_c: np.ndarray
-
-
-def weighted_rms(values, weights) -> float:
-    total = float(np.sum(weights))
-    return math.sqrt(float(np.sum(weights * np.square(values))) / total) if total else math.nan
 
 
 def _solve_normal(gram: np.ndarray, moment: np.ndarray) -> tuple:
@@ -369,28 +391,9 @@ class DiagnosisProblem:
                      residual)
 
     def baseline_run(self, folds: Optional[Folds] = None) -> BaselineRun:
-        """
-        Fit the PX4-style cubic on each fold's training blocks, run it clamped on its held bins.
-
-        Rows of each record keep that record's offset (`baseline.solve_cubic`,
-        the least squares of `baseline.fit_cubic` from the blocks' sums);
-        cached per folds.
-        """
+        """Give the PX4-style cubic of each fold run on its held bins (`cubic.baseline_run`)."""
         folds = folds or self.folds
-
-        def build():
-            axes = len(self.axes)
-            residual = np.full((len(self.starts), axes), math.nan)
-            fold_rms = np.full((folds.split.folds, axes), math.nan)
-            for fold, (held, counted) in enumerate(zip(folds.split.held, folds.counted)):
-                cubics = self.fold_cubics(folds.split.training[fold])
-                for block in np.flatnonzero(held):
-                    residual[self.bin_block == block] = self._cubic_block(cubics, block)
-                fold_rms[fold] = [weighted_rms(residual[counted, a], self.counts[counted])
-                                  for a in range(axes)]
-            return BaselineRun(residual, fold_rms, tuple(
-                self.error(residual[:, a], folds) for a in range(axes)))
-        return self.cached(('baseline', folds.key), build)
+        return self.cached(('baseline', folds.key), lambda: baseline_run(self, folds))
 
     def fold_cubics(self, blocks: np.ndarray) -> tuple:
         """Give the PX4-style cubic of the given training blocks: a `ClampedCubic` per record."""
@@ -398,23 +401,6 @@ class DiagnosisProblem:
             self.temperature, self.error_rows, self.block_edges, self.centre_c, self.scale_c,
             np.searchsorted(self.records.starts, self.block_edges[:-1], side='right') - 1))
         return solve_cubic(sums, blocks, self.fitted_records)
-
-    def _cubic_block(self, cubics: tuple, block: int) -> np.ndarray:
-        """Give the bin means of a block's residual under the cubics (its record's)."""
-        rows = slice(self.block_edges[block], self.block_edges[block + 1])
-        cubic = cubics[self.records.record_of(rows.start)]
-        corrected = cubic.corrected(self.rate[rows], self.temperature[rows])
-        if self.reference is not None:
-            corrected = corrected - self.reference[rows]
-        bins = self.bin_block == block
-        return np.add.reduceat(corrected, self.starts[bins] - rows.start, axis=0) / \
-            self.counts[bins][:, None]
-
-    def rows_of(self, bins: Optional[np.ndarray]) -> np.ndarray:
-        """Give the rows (a mask over the diagnosed rows) of the given bins, all when None."""
-        if bins is None:
-            return np.ones(self.rows, dtype=bool)
-        return np.repeat(bins, self.counts.astype(np.int64))
 
     def cubics(self) -> tuple:
         """Fit the PX4-style cubic on every diagnosed row (`baseline.fit_cubic`): per record."""
@@ -454,7 +440,7 @@ class DiagnosisProblem:
     def _cubic_fit(self, axis: int, blocks: Optional[np.ndarray]) -> AxisFit:
         """Give the PX4-style cubic as an `AxisFit` in x: its terms are the last record's."""
         cubics = self.cubics() if blocks is None else self.fold_cubics(blocks)
-        biases = [_cubic_bias(cubic, axis, self.centre_c, self.scale_c) for cubic in cubics]
+        biases = [cubic_bias(cubic, axis, self.centre_c, self.scale_c) for cubic in cubics]
         return AxisFit(AxisTerms(bias=biases[-1]), tuple(b[0] - biases[-1][0] for b in biases))
 
     def blocks_of(self, bins: np.ndarray) -> np.ndarray:
@@ -639,21 +625,6 @@ def _shifted(terms: AxisTerms, offset_rad_s: float) -> AxisTerms:
     if not offset_rad_s:
         return terms
     return replace(terms, bias=(terms.bias[0] + offset_rad_s,) + terms.bias[1:])
-
-
-def _cubic_bias(cubic, axis: int, centre_c: float, scale_c: float) -> tuple:
-    """
-    Give a cubic's coefficients in x = (T - centre) / scale, lowest first.
-
-    Exact where the centre is the cubic's TREF (scale a power of two): the
-    written cubic; a fold's, fitted on part of the range, is re-expanded.
-    """
-    coefficients = cubic.coefficients[axis]
-    if cubic.reference_c == centre_c:
-        return tuple(c * scale_c ** k for k, c in enumerate(coefficients))
-    polynomial = np.polynomial.Polynomial
-    shifted = polynomial(coefficients)(polynomial((centre_c - cubic.reference_c, scale_c))).coef
-    return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))
 
 
 def effective_temperature(records, time_s: np.ndarray, temperature_c: np.ndarray,

@@ -1,9 +1,4 @@
-"""
-What ``mlx-tempcomp diagnose`` finds: the result records, a held-out error to `Diagnosis`.
-
-And the records the problem scores and runs with: a spec's `Score`, the fold
-models' `HeldOutRun`, the cubic's `BaselineRun`, an axis's `AxisFit`.
-"""
+"""What ``mlx-tempcomp diagnose`` finds: the result records, a held-out error to `Diagnosis`."""
 
 from dataclasses import dataclass, field
 import math
@@ -12,50 +7,10 @@ from typing import Mapping, Optional
 import numpy as np
 
 from .settings import DiagnosisSettings
-from ..effects import AxisTerms, EffectModel
+from ..effects import EffectModel
 from ..validation import OutsideRange, split, TemperatureErrors
 
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
-
-
-@dataclass(frozen=True)
-class Score:
-    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
-
-    fold_rms: np.ndarray
-    rms: float
-    rank_ok: bool
-    residual: np.ndarray = field(repr=False)
-
-
-@dataclass(frozen=True)
-class HeldOutRun:
-    """The fold models run as the node runs them: binned residual (bins, axes), errors per axis."""
-
-    residual: np.ndarray
-    errors: tuple
-
-
-@dataclass(frozen=True)
-class BaselineRun:
-    """
-    The PX4-style cubic of each fold, fitted on its training rows and run clamped.
-
-    ``residual`` (bins, axes) holds the held-out bins, NaN elsewhere;
-    ``fold_rms`` (folds, axes) each fold's RMS over the bins it counts.
-    """
-
-    residual: np.ndarray
-    fold_rms: np.ndarray
-    errors: tuple
-
-
-@dataclass(frozen=True)
-class AxisFit:
-    """One axis fitted: its terms, and each fitted record's offset to add to their constant."""
-
-    terms: AxisTerms
-    offsets_rad_s: tuple
 
 
 @dataclass(frozen=True)

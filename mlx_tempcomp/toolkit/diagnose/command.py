@@ -20,7 +20,7 @@ from ..tracking import tracking_section
 from ..uncertainty import params_model_error
 from ...core.diagnosis import DEFAULT_REZERO_S, DiagnosisSettings, SCORING
 from ...core.errors import TempCompError
-from ...model_params import effect_parameters, parameter_file, write_parameter_file
+from ...parameters.files import effect_parameters, parameter_file, write_parameter_file
 
 CUBIC_ORDER = 3
 # The other files of --out, which diagnose replaces as a whole.

@@ -1,7 +1,7 @@
 """
 The rclpy-free parameter schema against rclpy: the same type names and the same descriptors.
 
-`node_parameters` checks a parameter file's values without a node (``evaluate``, the MPU
+`parameters` checks a parameter file's values without a node (``evaluate``, the MPU
 offset refresh); the nodes declare the same specs through rclpy. Both must agree on every
 value a YAML file can give.
 """
@@ -10,10 +10,12 @@ from pathlib import Path
 
 from hypothesis import given, strategies as st
 from mlx_tempcomp.core.model_error import ModelErrorTable
-from mlx_tempcomp.node_parameters import (COMPENSATION_SPECS, DRIVER_SPECS, flat_parameters,
-                                          limits_of, model_error_of, node_values, NoDefault,
-                                          ParameterError, type_of)
-from mlx_tempcomp.ros.params import descriptor
+from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS, limits_of, model_error_of
+from mlx_tempcomp.parameters.driver import DRIVER_SPECS
+from mlx_tempcomp.parameters.files import flat_parameters, node_values
+from mlx_tempcomp.parameters.models import build_model, MODELS
+from mlx_tempcomp.parameters.specs import NoDefault, ParameterError, type_of
+from mlx_tempcomp.ros.declare import descriptor
 import pytest
 from rclpy.parameter import Parameter
 import yaml
@@ -120,3 +122,14 @@ def test_model_error_of_names_what_is_wrong(given, message):
     with pytest.raises(ParameterError) as raised:
         model_error_of(model_error_values(**given))
     assert str(raised.value) == message
+
+
+def test_the_model_table_gives_the_choices_and_refuses_a_name_it_lacks():
+    """``model`` offers the table's names; a name outside it is refused, not built as another."""
+    spec = next(spec for spec in COMPENSATION_SPECS if spec.name == 'model')
+    assert spec.choices == tuple(MODELS) == ('eeprom', 'polynomial', 'linear_btc', 'effects',
+                                             'chain')
+    values = {spec.name: spec.initial_value for spec in COMPENSATION_SPECS}
+    with pytest.raises(ParameterError, match="invalid parameter model: 'cubic' is not one of "
+                                             'eeprom, polynomial, linear_btc, effects, chain'):
+        build_model({**values, 'model': 'cubic'})

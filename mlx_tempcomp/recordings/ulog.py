@@ -26,7 +26,7 @@ import struct
 
 import numpy as np
 
-from .flightlog import FlightLog, FlightLogError, ImuInstance
+from .flightlog import FlightLog, FlightLogError, ImuInstance, register
 from ..core.motion import MOTION_MARGIN_S, moving_samples, near
 
 TOPICS = ('sensor_gyro', 'sensor_accel', 'sensor_combined')
@@ -184,3 +184,6 @@ def read_ulog(path) -> FlightLog:
     return FlightLog(source=str(path), log_format='PX4 ULog', system=system,
                      instances=instances, parameters=dict(ulog.initial_parameters),
                      notes=notes)
+
+
+register('.ulg', read_ulog)

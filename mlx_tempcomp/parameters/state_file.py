@@ -29,7 +29,7 @@ from typing import Optional, Tuple, Union
 
 import yaml
 
-from .errors import MlxTempCompError
+from ..errors import MlxTempCompError
 
 
 class StateFileError(MlxTempCompError):

@@ -1,9 +1,11 @@
 """
 Flight-controller logs (PX4 ULog, ArduPilot DataFlash): their IMU instances, and one as columns.
 
-`read_flight_log` picks the reader by extension (``.ulg``: `sources.ulog`,
-``.bin``: `sources.dataflash`); each loads only the messages it needs and
-gives a `FlightLog`: one `ImuInstance` per IMU, with its raw samples in SI
+`read_flight_log` picks the reader by extension: each reader registers the
+suffix of its logs here (`register`: ``.ulg`` `ulog`, ``.bin`` `dataflash`,
+which the package's ``__init__`` imports, so neither this module nor they
+import each other back). Each loads only the messages it needs and gives a
+`FlightLog`: one `ImuInstance` per IMU, with its raw samples in SI
 units (rad/s, m/s^2, degC, time in s from the log's own stamps), the
 samples the vehicle moved in (`core.motion`), the log's parameters and
 notes on how it was read (units assumed, a file cut short). `instance_columns`
@@ -16,13 +18,12 @@ from dataclasses import dataclass, field
 import math
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping, Optional
+from typing import Callable, Mapping, Optional
 
 import numpy as np
 
-from .errors import SourceError
+from .errors import RecordFileError
 
-FLIGHT_LOG_SUFFIXES = ('.ulg', '.bin')
 SKIP_MOVING = 'moving (vehicle moved)'
 SKIP_NO_TEMPERATURE = 'no temperature (NaN)'
 # Temperatures that agree to this many decimals are one reading (a sensor without one
@@ -30,7 +31,7 @@ SKIP_NO_TEMPERATURE = 'no temperature (NaN)'
 TEMPERATURE_DECIMALS = 6
 
 
-class FlightLogError(SourceError):
+class FlightLogError(RecordFileError):
     """A flight-controller log cannot be read, or the IMU instance asked for cannot be used."""
 
 
@@ -141,9 +142,18 @@ class FlightLog:
         return found[0]
 
 
+# The suffix of each kind of log (lower case, with its dot) -> its reader.
+_READERS = {}
+
+
+def register(suffix: str, reader: Callable[[Path], FlightLog]) -> None:
+    """Make ``reader`` read the logs whose name ends in ``suffix`` (lower case, with its dot)."""
+    _READERS[suffix] = reader
+
+
 def is_flight_log(path) -> bool:
     """Tell whether ``path`` is read as a flight-controller log (by its extension)."""
-    return Path(path).suffix.lower() in FLIGHT_LOG_SUFFIXES
+    return Path(path).suffix.lower() in _READERS
 
 
 def read_flight_log(path) -> FlightLog:
@@ -153,11 +163,12 @@ def read_flight_log(path) -> FlightLog:
         msg = f'cannot read {path}: no such file' if not path.exists() else \
             f'cannot read {path}: not a file'
         raise FlightLogError(msg)
-    if path.suffix.lower() == '.ulg':
-        from .ulog import read_ulog
-        return read_ulog(path)
-    from .dataflash import read_dataflash
-    return read_dataflash(path)
+    reader = _READERS.get(path.suffix.lower())
+    if reader is None:
+        msg = f'{path} is not a flight-controller log: its name ends in none of ' \
+              f'{", ".join(_READERS)}'
+        raise FlightLogError(msg)
+    return reader(path)
 
 
 def instance_columns(log: FlightLog, index: Optional[int] = None) -> tuple:

@@ -1,24 +1,108 @@
 """
-ROS 2 parameters of the compensation node for a fitted model, free of rclpy.
+ROS 2 parameter files: reading a node's values from one, and writing a fitted model's.
 
-One function per model the toolkit fits builds its ``ros__parameters``
-mapping: `polynomial_parameters` (bias polynomials, also the relative
-correction), `linear_btc_parameters`, `effect_parameters` (the effect model
-of ``diagnose``) and `chain_parameters`; `model_error_parameters` adds the
-model's error by temperature to any of them. `parameter_file` wraps the mapping
-in the section of a node and `write_parameter_file` writes it atomically so
-that ``compensation_node --ros-args --params-file FILE`` loads it as is. Every
-number is a Python float (rcl refuses an int for a double parameter) and
-axis names are quoted strings (YAML 1.1 reads a bare y as a boolean).
+Reading: `node_values` gives every compensation-node parameter with a node's
+sections of a file (``/**`` first, then the node's), type and range checked as
+rcl checks them (`flat_parameters` gives a file's keys as rcl names them).
+
+Writing: one function per model the toolkit fits builds its
+``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
+the relative correction), `linear_btc_parameters`, `effect_parameters` (the
+effect model of ``diagnose``) and `chain_parameters`;
+`model_error_parameters` adds the model's error by temperature to any of
+them. `parameter_file` wraps the mapping in the section of a node and
+`write_parameter_file` writes it atomically so that ``compensation_node
+--ros-args --params-file FILE`` loads it as is. Every number is a Python
+float (rcl refuses an int for a double parameter) and axis names are quoted
+strings (YAML 1.1 reads a bare y as a boolean).
 """
 
 import yaml
 
-from .core.chain import ChainModel
-from .core.effects import EffectModel, LinearBtc
-from .core.model_error import ModelErrorTable
-from .core.models import AXIS_NAMES
+from .compensation import COMPENSATION_SPECS
+from .specs import check_choices, check_value, ParameterError, widen_integers
 from .state_file import atomic_write
+from ..core.chain import ChainModel
+from ..core.effects import EffectModel, LinearBtc
+from ..core.model_error import ModelErrorTable
+from ..core.models import AXIS_NAMES
+
+_WILDCARDS = ('/**', '**')
+
+
+def flat_parameters(tree: dict, prefix: str = '') -> dict:
+    """Turn ``{'a': {'b': v}}`` into ``{'a.b': v}``: the names rcl gives a file's keys."""
+    flat = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(flat_parameters(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _read_overrides(path: str, node_name: str) -> dict:
+    """Give the flat parameters of ``node_name`` in a ROS 2 parameter file (wildcards first)."""
+    try:
+        with open(path, encoding='utf-8') as stream:
+            document = yaml.safe_load(stream)
+    except OSError as err:
+        msg = f'cannot read parameter file {path}: {err.strerror}'
+        raise ParameterError(msg) from None
+    except (yaml.YAMLError, ValueError, RecursionError) as err:
+        # ValueError: not UTF-8, or a value YAML's constructors refuse (2026-13-45, !!int a).
+        mark = getattr(err, 'problem_mark', None)
+        where = f' (line {mark.line + 1})' if mark is not None else ''
+        problem = getattr(err, 'problem', None) or str(err).split('\n')[0] or type(err).__name__
+        msg = f'parameter file {path} is not YAML{where}: {problem}'
+        raise ParameterError(msg) from None
+    if not isinstance(document, dict):
+        msg = f'parameter file {path} is not a mapping of node sections'
+        raise ParameterError(msg)
+    names = [key for key in _WILDCARDS if key in document] + \
+        [key for key in (node_name, '/' + node_name.lstrip('/')) if key in document]
+    if not names:
+        sections = ', '.join(repr(str(key)) for key in document) or 'none'
+        msg = f'parameter file {path} has no section for node {node_name!r} (sections: ' \
+              f'{sections}); see --node-name'
+        raise ParameterError(msg)
+    overrides = {}
+    for name in names:
+        section = document[name]
+        parameters = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(parameters, dict):
+            msg = f'parameter file {path}: section {name!r} has no ros__parameters mapping'
+            raise ParameterError(msg)
+        overrides.update(flat_parameters(parameters))
+    return overrides
+
+
+def node_values(path: str, node_name: str) -> dict:
+    """
+    Give every compensation-node parameter value with ``node_name``'s section of a file.
+
+    The node's defaults, overridden by the file's ``/**`` and ``node_name`` sections,
+    type and range checked as rcl checks them, then the choices. Raise `ParameterError`
+    (the message starts with ``path``) where the node would refuse to start.
+    """
+    overrides = _read_overrides(path, node_name)
+    values = {}
+    for spec in COMPENSATION_SPECS:
+        if spec.name not in overrides:
+            values[spec.name] = spec.initial_value
+            continue
+        value = widen_integers(spec, overrides[spec.name])
+        try:
+            check_value(spec, value)
+        except ParameterError as err:
+            raise ParameterError(f'{path}: {err}') from None
+        values[spec.name] = value
+    try:
+        check_choices(COMPENSATION_SPECS, values)
+    except ParameterError as err:
+        raise ParameterError(f'{path}: {err}') from None
+    return values
 
 
 # libyaml's emitter when PyYAML has it: the same text, four times faster (a fleet writes a

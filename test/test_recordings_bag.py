@@ -2,9 +2,11 @@
 
 import array
 
-from mlx_tempcomp.sources.bag import (
-    BagError, eeprom_images_from_multiarray, eeprom_multiarray_from_images, EepromRecord,
-    ImuRecord, RawBagReader, RawBagWriter, RawTopics, SupplyVoltageRecord, TemperatureRecord)
+from mlx_tempcomp.core.eeprom_multiarray import eeprom_multiarray_from_images
+from mlx_tempcomp.recordings.bag import (BagError, EepromRecord, ImuRecord, RawTopics,
+                                         SupplyVoltageRecord, TemperatureRecord)
+from mlx_tempcomp.recordings.bag_reader import RawBagReader
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Writer
@@ -331,41 +333,11 @@ def test_writer_refuses_bad_input(tmp_path):
         bag.write_imu(3, imu_record(3))
 
 
-def test_multiarray_round_trip_and_plain_values():
-    images = eeprom_record(3).images
-    dims, data = eeprom_multiarray_from_images(images)
-    assert dims == [('axis', 3, 384), ('byte', 128, 128)]
-    assert eeprom_images_from_multiarray(dims, data) == images
-    assert eeprom_images_from_multiarray(dims, list(data)) == images
-    assert eeprom_images_from_multiarray(dims, array.array('B', data)) == images
-    assert eeprom_images_from_multiarray(dims, b'\xff' + data, data_offset=1) == images
-
-
-@pytest.mark.parametrize('dims, size, words', [
-    ([('axis', 1, 128)], 128, '2 dims'),
-    ([('byte', 128, 128), ('axis', 1, 128)], 128, "labels must be 'axis' and 'byte'"),
-    ([('axis', 1, 128), ('byte', 64, 64)], 64, 'byte dim must have size and stride 128'),
-    ([('axis', 0, 0), ('byte', 128, 128)], 0, 'axis dim must have size >= 1'),
-    ([('axis', 2, 128), ('byte', 128, 128)], 256, 'stride must be 2 x 128 = 256, got 128'),
-    ([('axis', 2, 256), ('byte', 128, 128)], 255, 'has 255 bytes.*needs 256'),
-])
-def test_multiarray_layout_errors(dims, size, words):
-    with pytest.raises(BagError, match=words):
-        eeprom_images_from_multiarray(dims, bytes(size))
-
-
-def test_multiarray_data_errors():
-    dims = [('axis', 1, 128), ('byte', 128, 128)]
-    with pytest.raises(BagError, match='outside 0..255'):
-        eeprom_images_from_multiarray(dims, [256] * 128)
-    with pytest.raises(BagError, match='flat sequence of bytes'):
-        eeprom_images_from_multiarray(dims, [0.5] * 128)
-
-
 def test_record_validation():
     with pytest.raises(BagError, match=r'angular_velocity_rad_s: expected shape \(3,\)'):
         ImuRecord(0, 'f', [0.0, 1.0], np.zeros(9), np.zeros(3), np.zeros(9), np.zeros(9))
-    with pytest.raises(BagError, match='image 1: expected 128 bytes, got 127'):
+    with pytest.raises(BagError, match='^EepromRecord.images: EEPROM image 1: expected 128 bytes, '
+                                       'got 127$'):
         EepromRecord((bytes(128), bytes(127)))
     with pytest.raises(BagError, match='no image'):
         EepromRecord(())

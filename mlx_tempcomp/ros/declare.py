@@ -1,23 +1,23 @@
 """
-The nodes' parameters in rclpy: descriptors, declaration and the command line.
+The nodes' parameters in rclpy: descriptors, declaration, and the command-line checks.
 
-The specs, their checks and the model they build are in `node_parameters`
-(no rclpy). Each parameter is declared with a descriptor made of its spec
-(type, description, range, read-only for hardware settings); rclpy enforces
-those. Raise `ParameterError` naming the parameter.
+The specs, their checks and the model they build are in `parameters` (no
+rclpy), and so are the command-line checks on plain values
+(`parameters.command_line`); this is the glue that applies them to a node.
+Each parameter is declared with a descriptor made of its spec (type,
+description, range, read-only for hardware settings); rclpy enforces those.
+Raise `ParameterError` naming the parameter.
 """
 
-import difflib
-import re
 import sys
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
                               ParameterUninitializedException)
 from rclpy.parameter import Parameter
-import yaml
 
-from ..node_parameters import check_choices, KNOWN_NAMES, NoDefault, ParameterError, Spec
+from ..parameters.command_line import check_override, plain_overrides, unknown_parameter_warnings
+from ..parameters.specs import check_choices, NoDefault, ParameterError, Spec
 
 
 def descriptor(spec: Spec) -> ParameterDescriptor:
@@ -84,74 +84,15 @@ def _as_double(spec: Spec, override):
 
 def unknown_parameters(node) -> list:
     """Give a warning per parameter set for ``node`` that no node here has, with the closest."""
-    warnings = []
-    for name in sorted(node._parameter_overrides):
-        if name in KNOWN_NAMES or node.has_parameter(name):
-            continue
-        close = difflib.get_close_matches(name, KNOWN_NAMES, n=1)
-        hint = f'; did you mean {close[0]}?' if close else ''
-        warnings.append(f'unknown parameter {name} ignored: no node of mlx_tempcomp has it{hint}')
-    return warnings
-
-
-def _plain_overrides(args) -> dict:
-    """
-    Give {name: value text} of the ``-p name:=value`` after the last ``--params-file``.
-
-    Those are meant to win; a node-qualified ``-p node:name:=value`` always does.
-    """
-    overrides, ros_args, expect = {}, False, None
-    for token in args:
-        if expect == 'param':
-            name, assign, text = token.partition(':=')
-            if assign and ':' not in name:
-                overrides[name] = text
-        elif expect == 'file':
-            overrides.clear()
-        expect = None
-        if token == '--ros-args':
-            ros_args = True
-        elif token == '--':
-            ros_args = False
-        elif ros_args and token in ('-p', '--param'):
-            expect = 'param'
-        elif ros_args and token == '--params-file':
-            expect = 'file'
-    return overrides
+    return unknown_parameter_warnings(name for name in sorted(node._parameter_overrides)
+                                      if not node.has_parameter(name))
 
 
 def check_command_line(node, args=None) -> None:
-    """
-    Raise `ParameterError` if a ``-p`` after the parameter files did not take effect.
-
-    rcl gives a plain ``-p`` to every node (``/**``), and a section named after the
-    node in a parameter file outranks ``/**`` whatever the order.
-    """
-    for name, text in _plain_overrides(sys.argv if args is None else args).items():
-        if not node.has_parameter(name):
-            continue
-        wanted = yaml.safe_load(text)
-        value = node.get_parameter(name).value
-        if isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
-            value = list(value)
-        if wanted is None or wanted == value:
-            continue
-        node_name = node.get_name()
-        msg = (f'-p {name}:={text} did not take effect ({name} is {value!r}): a '
-               f"'{node_name}:' section of a parameter file outranks a plain -p; give "
-               f'-p {node_name}:{name}:={text}, or set it in a file after that one')
-        raise ParameterError(msg)
-
-
-def explain_parse_error(text: str) -> str:
-    """Make rcl's parameter-file error one line, with what to do for the usual slips."""
-    text = ' '.join(re.sub(r', at \S+:\d+', '', text).split())
-    if "Value type 'bool'" in text:
-        text += ('; YAML reads a bare y, n, yes, no, on or off as a boolean: quote it, '
-                 "e.g. axes: ['x', 'y', 'z']")
-    elif re.search(r"Sequence should be of same type. Value type '(double|integer)'", text):
-        text += '; write every number of a list alike, e.g. [1.0, 2.0]'
-    return text
+    """Raise `ParameterError` if a ``-p`` after the parameter files did not take effect."""
+    for name, text in plain_overrides(sys.argv if args is None else args).items():
+        if node.has_parameter(name):
+            check_override(name, text, node.get_parameter(name).value, node.get_name())
 
 
 def value_of(parameter):

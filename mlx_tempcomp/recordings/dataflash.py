@@ -27,7 +27,7 @@ import tempfile
 
 import numpy as np
 
-from .flightlog import FlightLog, FlightLogError, ImuInstance
+from .flightlog import FlightLog, FlightLogError, ImuInstance, register
 from ..core.motion import moving_samples
 
 IMU_TYPES = ('IMU', 'IMU2', 'IMU3')
@@ -215,3 +215,6 @@ def read_dataflash(path) -> FlightLog:
     return FlightLog(source=str(path), log_format='ArduPilot DataFlash',
                      system=firmware or 'ArduPilot (no version message)', instances=instances,
                      parameters=parameters, notes=notes)
+
+
+register('.bin', read_dataflash)

@@ -7,7 +7,7 @@ zero rate, read it frame by frame through `Mlx90609`, compensate it with the
 factory table read from its own EEPROM, and print the ZRO error of the
 nominal conversion (AN2 method 1) beside the EEPROM-compensated one (method 4).
 
-Run ``python -m mlx_tempcomp.sweep --help`` for the options.
+Run ``python -m mlx_tempcomp.simulation.sweep --help`` for the options.
 """
 
 import argparse
@@ -16,15 +16,15 @@ import sys
 
 import numpy as np
 
-from .core.compensation import NominalConversion, table_compensation
-from .core.conversion import Output
-from .core.eeprom import decode_eeprom, EepromFields
-from .core.errors import TempCompError
-from .core.metrics import ErrorStatistics
-from .core.table import factory_table
-from .hardware.mlx90609 import Mlx90609
-from .simulation.mlx90609 import FactoryMeasurement, simulated_device
-from .simulation.physics import GyroTruth, Scenario, ThermalProfile
+from .mlx90609 import FactoryMeasurement, simulated_device
+from .physics import GyroTruth, Scenario, ThermalProfile
+from ..core.compensation import NominalConversion, table_compensation
+from ..core.conversion import Output
+from ..core.eeprom import decode_eeprom, EepromFields
+from ..core.errors import TempCompError
+from ..core.metrics import ErrorStatistics
+from ..core.table import factory_table
+from ..hardware.mlx90609 import Mlx90609
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ def format_population(seeds, results) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
-        prog='python -m mlx_tempcomp.sweep',
+        prog='python -m mlx_tempcomp.simulation.sweep',
         description='Sweep a simulated MLX90609 through -40..85 C, read it over the SPI '
                     'driver and compare nominal with EEPROM-compensated ZRO error.')
     parser.add_argument('--seed', type=int, default=0, help='device and noise seed (0)')

@@ -7,12 +7,16 @@ from pathlib import Path
 import time
 
 from measured_data import MEASURED_CSV as TOFUPILOT_CSV
-from mlx_tempcomp.sources.bag import (ImuRecord, RawBagWriter, RawTopics, SupplyVoltageRecord,
-                                      TemperatureRecord)
-from mlx_tempcomp.sources.recording import (
-    ColumnMap, load_bag, load_csv, load_recording, parse_column_map, PRESETS, Recording,
-    RecordingError, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY, SKIP_NON_FINITE, SKIP_NON_NUMERIC,
-    SKIP_OUT_OF_RANGE, SKIP_PRESET, SKIP_REPEATED_ROW, SKIP_TEMPERATURE_UNPAIRED)
+from mlx_tempcomp.recordings.bag import (ImuRecord, RawTopics, SupplyVoltageRecord,
+                                         TemperatureRecord)
+from mlx_tempcomp.recordings.bag_writer import RawBagWriter
+from mlx_tempcomp.recordings.columns import ColumnMap, parse_column_map, PRESETS
+from mlx_tempcomp.recordings.csv_reader import load_csv
+from mlx_tempcomp.recordings.load import load_bag, load_recording
+from mlx_tempcomp.recordings.recording import (Recording, RecordingError, SKIP_IMU_UNPAIRED,
+                                               SKIP_NO_SUPPLY, SKIP_NON_FINITE, SKIP_NON_NUMERIC,
+                                               SKIP_OUT_OF_RANGE, SKIP_PRESET, SKIP_REPEATED_ROW,
+                                               SKIP_TEMPERATURE_UNPAIRED)
 import numpy as np
 import pytest
 

@@ -1,0 +1,82 @@
+"""
+The PX4-style cubic in the diagnosis: each fold's, run on its held-out bins, and the written one.
+
+Each fold fits the cubic on its training blocks (`baseline.solve_cubic`, from
+the blocks' normal equations) and runs it clamped at their range, as PX4
+runs it, on the blocks it holds out: `baseline_run`, the incumbent every
+other model is compared with fold by fold. The cubic an axis writes is
+`baseline.fit_cubic` on every diagnosed row, carried in the problem's x
+(`cubic_bias`).
+"""
+
+# The problem computes these and they take the problem: annotations only name it.
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .folds import weighted_rms
+from ..baseline import PX4_ORDER
+
+if TYPE_CHECKING:
+    from .folds import Folds
+    from .problem import DiagnosisProblem
+
+
+@dataclass(frozen=True)
+class BaselineRun:
+    """
+    The PX4-style cubic of each fold, fitted on its training blocks and run clamped.
+
+    ``residual`` (bins, axes) holds the held-out bins, NaN elsewhere;
+    ``fold_rms`` (folds, axes) each fold's RMS over the bins it counts.
+    """
+
+    residual: np.ndarray
+    fold_rms: np.ndarray
+    errors: tuple
+
+
+def baseline_run(problem: DiagnosisProblem, folds: Folds) -> BaselineRun:
+    """Fit the cubic on each fold's training blocks, run it on its held blocks (`BaselineRun`)."""
+    axes = len(problem.axes)
+    residual = np.full((len(problem.starts), axes), math.nan)
+    fold_rms = np.full((folds.split.folds, axes), math.nan)
+    for fold, (held, counted) in enumerate(zip(folds.split.held, folds.counted)):
+        cubics = problem.fold_cubics(folds.split.training[fold])
+        for block in np.flatnonzero(held):
+            residual[problem.bin_block == block] = _block_residual(problem, cubics, block)
+        fold_rms[fold] = [weighted_rms(residual[counted, a], problem.counts[counted])
+                          for a in range(axes)]
+    return BaselineRun(residual, fold_rms, tuple(problem.error(residual[:, a], folds)
+                                                 for a in range(axes)))
+
+
+def _block_residual(problem: DiagnosisProblem, cubics: tuple, block: int) -> np.ndarray:
+    """Give the bin means of a block's residual under the cubics (its record's)."""
+    rows = slice(problem.block_edges[block], problem.block_edges[block + 1])
+    cubic = cubics[problem.records.record_of(rows.start)]
+    corrected = cubic.corrected(problem.rate[rows], problem.temperature[rows])
+    if problem.reference is not None:
+        corrected = corrected - problem.reference[rows]
+    bins = problem.bin_block == block
+    return np.add.reduceat(corrected, problem.starts[bins] - rows.start, axis=0) / \
+        problem.counts[bins][:, None]
+
+
+def cubic_bias(cubic, axis: int, centre_c: float, scale_c: float) -> tuple:
+    """
+    Give a cubic's coefficients in x = (T - centre) / scale, lowest first.
+
+    Exact where the centre is the cubic's TREF (scale a power of two): the
+    written cubic; a fold's, fitted on part of the range, is re-expanded.
+    """
+    coefficients = cubic.coefficients[axis]
+    if cubic.reference_c == centre_c:
+        return tuple(c * scale_c ** k for k, c in enumerate(coefficients))
+    polynomial = np.polynomial.Polynomial
+    shifted = polynomial(coefficients)(polynomial((centre_c - cubic.reference_c, scale_c))).coef
+    return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))

@@ -1,0 +1,116 @@
+"""
+The compensation node's parameters: its specs, and the settings read from their values.
+
+`COMPENSATION_SPECS` are the parameters both nodes share (`specs.COMMON_SPECS`),
+``model`` and each model's own (`models.MODELS`, in that order), the model
+error table, the ZRO recalibration, the inputs, and the bias tracking
+(``bias_tracking.*``, from `core.tracking_parameters`). `model_error_of`,
+`limits_of` and `state_file_of` read the settings the node and the toolkit
+build from the values, raising `ParameterError` naming the parameter.
+"""
+
+import math
+import os
+from typing import Optional
+
+from .models import MODELS
+from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
+from ..core.errors import ConfigError
+from ..core.model_error import ModelErrorTable, table_temperatures
+from ..core.models import AXIS_NAMES
+from ..core.recalibration import RecalibrationLimits
+from ..core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
+
+COMPENSATION_SPECS = COMMON_SPECS + (
+    Spec('model', 'eeprom', 'compensation model', choices=tuple(MODELS)),
+) + tuple(spec for kind in MODELS.values() for spec in kind.specs) + (
+    Spec('model_error.temperature_c', NoDefault('double_array'),
+         'temperatures of the model error table, strictly increasing, degC (empty: no model '
+         'error; mlx-tempcomp diagnose writes it)'),
+) + tuple(
+    Spec(f'model_error.{axis}_rad_s', NoDefault('double_array'),
+         f'axis {axis}: held-out RMS error of the model at each model_error.temperature_c, '
+         'rad/s; its square, linear in T between them and held beyond, is added to '
+         'rate_noise_rad_s^2 in the angular velocity covariance') for axis in AXIS_NAMES
+) + (
+    Spec('recalibration.duration_s', 5.0, 'averaging window (sensor time)', low=0.05,
+         high=3600.0),
+    Spec('recalibration.noise_multiple', 3.0, 'rate spread above this x noise means motion',
+         low=0.1, high=1000.0),
+    Spec('recalibration.max_mean_rate_rad_s', math.radians(2.0),
+         'mean residual rate above this means motion', low=1e-6, high=10.0),
+    Spec('recalibration.max_temperature_change_c', 0.5,
+         'temperature change within the window above this is refused', low=1e-3, high=100.0),
+    Spec('recalibration.state_file', '',
+         "ZRO state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_zro.yaml)", read_only=True),
+    Spec('stale_timeout_s', 1.0, 'no input for this long is reported as stale', low=0.01,
+         high=3600.0),
+    Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
+         'block (1: one message per callback)', read_only=True, low=1, high=100000),
+    Spec('supply_voltage.pairing', 'hold',
+         'how a model with supply terms pairs imu/supply_voltage with the samples: hold = '
+         'the latest voltage stamped at or before each sample (a battery monitor at its own '
+         'rate), stamp = the voltage with the same stamp (a driver or bag that stamps it '
+         'with the sample)', read_only=True, choices=('hold', 'stamp')),
+    Spec('supply_voltage.max_age_s', 5.0,
+         'hold: a voltage further than this from the sample stamp is not used; the sample '
+         'is skipped and counted', low=0.0, high=3600.0),
+) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
+          for p in TRACKING_PARAMETERS) + (
+    # The node's own, not the unit's: fit and diagnose do not write it.
+    Spec(TRACKING + 'save_period_s', 60.0,
+         'the tracked offset is written to the state file at most once per this many '
+         'seconds of sensor time, when it learnt since the last write, and at a clean stop',
+         low=0.0, high=86400.0),
+)
+
+
+def limits_of(values: dict) -> RecalibrationLimits:
+    noise = values['rate_noise_rad_s']
+    if noise <= 0.0:
+        msg = 'invalid parameter rate_noise_rad_s: recalibration needs a positive noise figure'
+        raise ParameterError(msg)
+    return RecalibrationLimits(
+        rate_noise_rad_s=noise, noise_multiple=values['recalibration.noise_multiple'],
+        max_mean_rate_rad_s=values['recalibration.max_mean_rate_rad_s'],
+        max_temperature_change_c=values['recalibration.max_temperature_change_c'])
+
+
+def model_error_of(values: dict) -> Optional[ModelErrorTable]:
+    """
+    Build the model error table of the measured axes; None when model_error.* is unset.
+
+    Raise `ParameterError` naming the parameter when the table is given in part
+    or is not a table (temperatures not increasing, lengths that differ).
+    """
+    axes = axes_of(values)
+    temperature = values['model_error.temperature_c']
+    errors = [values[f'model_error.{axis}_rad_s'] for axis in axes]
+    if not temperature and not any(errors):
+        return None
+    if not temperature:
+        given = next(axis for axis, values in zip(axes, errors) if values)
+        msg = (f'invalid parameter model_error.temperature_c: unset, but '
+               f'model_error.{given}_rad_s is given; the table needs its temperatures')
+        raise ParameterError(msg)
+    try:
+        table_temperatures(temperature)
+    except ConfigError as err:
+        raise ParameterError(f'invalid parameter model_error.temperature_c: {err}') from None
+    for axis, column in zip(axes, errors):
+        if len(column) != len(temperature):
+            msg = (f'invalid parameter model_error.{axis}_rad_s: needs {len(temperature)} '
+                   f'values (one per model_error.temperature_c), got {len(column)}')
+            raise ParameterError(msg)
+        if not all(math.isfinite(v) and v >= 0.0 for v in column):
+            msg = (f'invalid parameter model_error.{axis}_rad_s: an error must be finite and '
+                   f'>= 0, got {list(column)}')
+            raise ParameterError(msg)
+    return ModelErrorTable(tuple(temperature), tuple(tuple(column) for column in errors))
+
+
+def state_file_of(values: dict, node_name: str) -> str:
+    path = values['recalibration.state_file']
+    if not path:
+        path = os.path.join('~', '.ros', 'mlx_tempcomp', f'{node_name}_zro.yaml')
+    return os.path.expanduser(path)

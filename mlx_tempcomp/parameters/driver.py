@@ -1,0 +1,173 @@
+"""
+The driver node's parameters: its specs per device and source, and the simulated effects.
+
+`DEVICES` names the parts the driver reads (a test holds it equal to the
+driver's ``STREAMS``); `DRIVER_SPECS` are the parameters both nodes share
+(`specs.COMMON_SPECS`), then the driver's: the source, SPI, bag replay, the
+simulated part, and one group per device (``adis16130.*``, ``mpu6000.*``).
+"""
+
+from .specs import COMMON_SPECS, NoDefault, Spec
+from ..simulation.mlx90609 import Fault
+from ..simulation.physics import Effects
+
+DEVICES = ('mlx90609', 'adis16130', 'mpu6000')
+
+DRIVER_SPECS = COMMON_SPECS + (
+    Spec('device', 'mlx90609', 'sensor read by the simulated and spidev sources', read_only=True,
+         choices=DEVICES),
+    Spec('source', 'simulated', 'where raw data comes from', read_only=True,
+         choices=('simulated', 'spidev', 'bag')),
+    Spec('frame_id', 'imu_link', 'frame_id of published messages (REP-145)'),
+    Spec('publish_rate_hz', 100.0, 'publish rate in Hz (simulated time for the simulated '
+         'source); each message is the mean of the device samples of its interval',
+         read_only=True, low=0.1, high=10000.0),
+    Spec('sample_rate_hz', 0.0, 'device sample rate in Hz, at least publish_rate_hz; 0 = the '
+         "part's natural rate (MLX90609 1000, UNCONFIRMED; ADIS16130 5700; MPU-6000 its gyro "
+         'output rate over 1 + SMPLRT_DIV)', read_only=True, low=0.0, high=100000.0),
+    Spec('oversample', 1, 'conversions averaged per device sample', read_only=True,
+         low=1, high=256),
+    Spec('spi.bus', 0, 'spidev bus number', read_only=True, low=0, high=255),
+    Spec('spi.chip_selects', [0], 'spidev chip select per axis, same order as axes',
+         read_only=True),
+    Spec('spi.speed_hz', 0,
+         'SPI clock in Hz; 0 = the device default (MLX90609 500 kHz, its maximum UNCONFIRMED; '
+         'ADIS16130 1 MHz; MPU-6000/6500 1 MHz, the limit for configuration registers)',
+         read_only=True, low=0, high=20000000),
+    Spec('spi.mode', 3, 'SPI mode (0 or 3 work: data latched on the rising edge)',
+         read_only=True, low=0, high=3),
+    Spec('bag.path', '', 'rosbag2 folder (sqlite3 or mcap) to replay', read_only=True),
+    Spec('bag.rate_factor', 1.0,
+         'replay speed: 1 = recorded rate, 2 = twice as fast, 0 = as fast as the consumer '
+         'takes it (paced by bag.pace_topic)',
+         read_only=True, low=0.0, high=1000.0),
+    Spec('bag.pace_topic', 'imu/data',
+         'at rate factor 0: keep at most 100 samples ahead of the stamps seen here',
+         read_only=True),
+    Spec('bag.pace_timeout_s', 1.0,
+         'at rate factor 0: after this long without progress on bag.pace_topic the replay '
+         'goes on anyway (a replay nobody consumes still ends)',
+         read_only=True, low=0.001, high=3600.0),
+    Spec('bag.on_end', 'stop', 'at the end of the bag: stop (log a summary, exit 0), loop '
+         '(start over, stamps shifted to keep increasing) or hold (stay up, publish nothing)',
+         read_only=True, choices=('stop', 'loop', 'hold')),
+    Spec('bag.imu_topic', '/imu/data_raw', 'Imu topic in the bag', read_only=True),
+    Spec('bag.temperature_topic', '/imu/temperature_raw', 'Temperature topic in the bag',
+         read_only=True),
+    Spec('bag.eeprom_topic', '/imu/eeprom', 'EEPROM topic in the bag', read_only=True),
+    Spec('bag.supply_voltage_topic', '/imu/supply_voltage',
+         'supply-voltage topic in the bag (sensor_msgs/BatteryState), replayed as '
+         'imu/supply_voltage when the bag has it', read_only=True),
+    Spec('bag.temperature_2_topic', '',
+         "second-temperature topic in the bag, replayed as imu/temperature_2_raw ('' = none)",
+         read_only=True),
+    Spec('simulation.seed', 0, 'seed of the simulated chips and their noise', read_only=True,
+         low=0, high=2**31 - 1),
+    Spec('simulation.real_time_factor', 1.0,
+         'simulated seconds per wall second (10 = ten times faster than real time)',
+         read_only=True, low=0.001, high=10000.0),
+    Spec('simulation.lossless', False,
+         'read every sample: a driver that falls behind lets the simulated clock lag wall '
+         'time instead of skipping samples as missed reads (for tests)', read_only=True),
+    Spec('simulation.wait_for_subscriber', False,
+         'hold the simulated clock at 0 until imu/data_raw has a subscriber (or a '
+         'compensation node in the same process), so a late listener misses nothing',
+         read_only=True),
+    Spec('simulation.eeprom_version', 2, 'EEPROM VERSION the simulated factory writes',
+         read_only=True, low=0, high=255),
+    Spec('simulation.start_temperature_c', 25.0, 'chamber temperature at start',
+         read_only=True, low=-60.0, high=125.0),
+    Spec('simulation.cycle_temperatures_c', NoDefault('double_array'),
+         'chamber temperatures to ramp through in turn (empty: constant)', read_only=True),
+    Spec('simulation.ramp_c_per_min', 2.0, 'chamber ramp rate', read_only=True,
+         low=0.001, high=1000.0),
+    Spec('simulation.hold_s', 0.0, 'soak at each cycle temperature', read_only=True,
+         low=0.0, high=1e6),
+    Spec('simulation.die_time_constant_s', 0.0, 'die follows the chamber with this lag',
+         read_only=True, low=0.0, high=1e5),
+    Spec('simulation.rate_dps', [0.0], 'true rate in deg/s, one value or one per axis',
+         read_only=True),
+    Spec('simulation.supply_v', 5.0,
+         'supply voltage (settable at runtime on the MLX90609: a step from the next sample)',
+         low=0.0, high=10.0),
+    Spec('simulation.supply_monitor_hz', 0.0,
+         'MLX90609: publish the simulated supply on imu/supply_voltage (BatteryState) at this '
+         'rate, on stamps of its own, as a board supply monitor would (0 = none)',
+         read_only=True, low=0.0, high=1000.0),
+    Spec('simulation.thermal_lag_s', 0.0, 'effect: temperature sensor lags the die',
+         read_only=True, low=0.0, high=1e5),
+    Spec('simulation.hysteresis_dps', 0.0, 'effect: ZRO heating/cooling branch difference',
+         read_only=True, low=-100.0, high=100.0),
+    Spec('simulation.zro_supply_dps_per_v', 0.0, 'effect: ZRO shift per volt off 5 V',
+         read_only=True, low=-1000.0, high=1000.0),
+    Spec('simulation.fault', 'none',
+         'SPI fault of the simulated chips (settable at runtime; adis16130 and mpu6000: none, '
+         'silent_high, silent_low)', choices=tuple(f.value for f in Fault)),
+    Spec('simulation.bias_dps', 0.0, 'adis16130: bias at 25 C in deg/s', read_only=True,
+         low=-1000.0, high=1000.0),
+    Spec('simulation.bias_dps_per_c', 0.0,
+         'adis16130: bias temperature slope in deg/s/C (mpu6000: drawn from the seed)',
+         read_only=True, low=-100.0, high=100.0),
+    Spec('adis16130.resolution_bits', 24, 'conversion resolution, 24 or 16 (MODE b1)',
+         read_only=True, low=16, high=24),
+    Spec('adis16130.verify_registers', True,
+         'read the start-up registers back (read-back UNCONFIRMED on real parts)',
+         read_only=True),
+    Spec('adis16130.bias_procedure.average_s', 10.0, 'window of each point (the note: 10 s)',
+         low=0.01, high=3600.0),
+    Spec('adis16130.bias_procedure.self_heat_s', 600.0,
+         'wait between the points while the part warms itself (the note: 600 s)',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.settle_s', 2400.0,
+         'wait before the PBC window, the rest record included (the note: 2400 s)',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.pbc_s', 150.0,
+         'PBC window (the note: 150 s); 0 = the averaging time the rest record advises',
+         low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.allan_record_s', 1200.0,
+         'rest record at the end of the settle wait for the Allan deviation (0 = none: no '
+         'noise figures, motion check against rate_noise_rad_s)', low=0.0, high=1e5),
+    Spec('adis16130.bias_procedure.min_temperature_change_c', 0.5,
+         'smallest T2 - T1 a BTC is computed from', low=0.001, high=100.0),
+    Spec('adis16130.bias_procedure.output_file', '',
+         "linear_btc parameter file ('' = ~/.ros/mlx_tempcomp/<node name>_linear_btc.yaml)"),
+    Spec('adis16130.bias_procedure.node_name', 'compensation_node',
+         'node section of the parameter file'),
+    Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000 (or 6050 register map) or MPU-6500',
+         read_only=True, choices=('mpu6000', 'mpu6500')),
+    Spec('mpu6000.gyro_full_scale_dps', 250, 'gyro range: 250, 500, 1000 or 2000 deg/s',
+         read_only=True, low=250, high=2000),
+    Spec('mpu6000.accel_full_scale_g', 2, 'accelerometer range: 2, 4, 8 or 16 g',
+         read_only=True, low=2, high=16),
+    Spec('mpu6000.dlpf_config', 3, 'DLPF_CFG (CONFIG bits 2..0)', read_only=True, low=0,
+         high=6),
+    Spec('mpu6000.sample_rate_divider', 0, 'SMPLRT_DIV', read_only=True, low=0, high=255),
+    Spec('mpu6000.accel_noise_m_s2', 0.049,
+         '1-sigma accelerometer noise of one sample in m/s^2 (datasheet 400 ug/sqrt(Hz) at '
+         '100 Hz: 0.005 g); sets the linear acceleration covariance (0 = unknown)',
+         low=0.0, high=100.0),
+    Spec('mpu6000.offsets_file', '',
+         "offset register state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_offsets.yaml)",
+         read_only=True),
+    Spec('mpu6000.calibration.duration_s', 1.0,
+         'averaging window of imu/calibrate_offsets (sensor time; the note: 200 samples)',
+         low=0.01, high=3600.0),
+    Spec('mpu6000.calibration.noise_multiple', 3.0,
+         'a gyro rate spread above this x rate_noise_rad_s means the board moves',
+         low=0.1, high=1000.0),
+    Spec('mpu6000.offset_model_file', '',
+         'parameter file of a polynomial bias model of gyro x, y, z (mlx-tempcomp fit): '
+         "refresh the gyro offset registers from it as the temperature moves ('' = off)",
+         read_only=True),
+    Spec('mpu6000.offset_model_node', 'compensation_node',
+         'node section of mpu6000.offset_model_file', read_only=True),
+    Spec('mpu6000.offset_refresh_c', 0.5,
+         'rewrite the gyro offset registers when the temperature moved this much since the '
+         'last write', read_only=True, low=0.001, high=100.0),
+)
+
+
+def effects_of(values: dict) -> Effects:
+    return Effects(thermal_lag_s=values['simulation.thermal_lag_s'],
+                   hysteresis_dps=values['simulation.hysteresis_dps'],
+                   zro_supply_dps_per_v=values['simulation.zro_supply_dps_per_v'])

@@ -1,0 +1,13 @@
+"""
+Recorded files for the toolkit and the driver's replay: CSV, rosbag2 bags, flight-controller logs.
+
+`recording` is what the toolkit works on (`Recording`); `load` loads one by
+the path's extension; `columns` and `csv_reader` read CSV files; `bag`,
+`bag_reader` and `bag_writer` our raw topics in rosbag2 bags; `flightlog`
+PX4 ULog (`ulog`) and ArduPilot DataFlash (`dataflash`) logs. No rclpy.
+
+The flight-log readers register their suffixes with `flightlog` when they are
+imported, which is here: importing any module of this package imports them.
+"""
+
+from . import dataflash, ulog  # noqa: F401 - they register with flightlog on import
