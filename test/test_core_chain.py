@@ -14,9 +14,9 @@ largest error seen over 60 seeds. Without noise the fit recovers the truth to 1e
 import dataclasses
 import math
 
-from mlx_tempcomp.core.chain import (CalibrationChain, ChainModel, ChainSettings,
-                                     find_plateaus, fit_chain, format_stage_table, stage_errors,
-                                     STAGE_NAMES)
+from mlx_tempcomp.core.chain import CalibrationChain, ChainModel, STAGE_NAMES
+from mlx_tempcomp.core.chain_fit import (ChainSettings, find_plateaus, fit_chain,
+                                         format_stage_table, stage_errors)
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
 from mlx_tempcomp.core.model_interface import CompensationModel, ModelInputs, ModelStream
 from mlx_tempcomp.simulation.turntable import simulate_turntable, TurntableProtocol

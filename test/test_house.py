@@ -12,20 +12,11 @@ TYPE_CHECKING:`` runs only for a type checker and makes no cycle.
 import ast
 from pathlib import Path
 
-import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / 'mlx_tempcomp'
 MAX_MODULE_LINES = 700
 MAX_FUNCTION_LINES = 80
 TOP_LEVEL = {'__init__.py', 'cli.py', 'errors.py'}
-
-# Over the limits before issue 26 and being cut apart beside this change (branch funcs: the
-# toolkit's long functions, toolkit/diagnose.py, core/chain.py); the lead empties these
-# when they have landed. A module or function over the limits and not listed here fails.
-PENDING_MODULES = {'toolkit/diagnose.py'}
-PENDING_FUNCTIONS = {'core/chain.py:fit_chain', 'toolkit/diagnose.py:_report',
-                     'toolkit/evaluate.py:evaluate_command',
-                     'toolkit/simulate.py:_device_recording', 'toolkit/simulate.py:add_parser'}
 
 
 def _modules() -> dict:
@@ -131,19 +122,11 @@ def _long_functions() -> dict:
 
 
 def test_no_module_is_over_700_lines():
-    found = _long_modules()
-    assert {name: lines for name, lines in found.items() if name not in PENDING_MODULES} == {}
+    assert _long_modules() == {}
 
 
 def test_no_function_is_over_80_lines():
-    found = _long_functions()
-    assert {name: lines for name, lines in found.items() if name not in PENDING_FUNCTIONS} == {}
-
-
-@pytest.mark.xfail(strict=False, reason='the modules and functions of PENDING_* are being cut '
-                                        'on another branch; remove them and this mark once cut')
-def test_nothing_is_pending():
-    assert (_long_modules(), _long_functions()) == ({}, {})
+    assert _long_functions() == {}
 
 
 def test_no_modules_import_each_other_round_a_circle():

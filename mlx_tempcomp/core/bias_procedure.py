@@ -205,8 +205,9 @@ class BiasResult:
         if self.noise is None:
             return None
         change_c = abs(self.point_2.temperature_c - self.point_1.temperature_c)
-        return math.hypot(adev_at_rad_s(self.noise, self.point_1.duration_s)[0],
-                          adev_at_rad_s(self.noise, self.point_2.duration_s)[0]) / change_c
+        adev_1_rad_s, _ = adev_at_rad_s(self.noise, self.point_1.duration_s)
+        adev_2_rad_s, _ = adev_at_rad_s(self.noise, self.point_2.duration_s)
+        return math.hypot(adev_1_rad_s, adev_2_rad_s) / change_c
 
     @property
     def model(self) -> EffectModel:

@@ -114,6 +114,12 @@ def _read_field(image: np.ndarray, layout: _FieldLayout) -> tuple:
     return value, outvoted, tuple(int((copy * weights).sum()) for copy in copies)
 
 
+def _voted_value(image: np.ndarray, layout: _FieldLayout) -> int:
+    """Return the voted value of one field."""
+    value, _, _ = _read_field(image, layout)
+    return value
+
+
 def decode_eeprom(image: bytes) -> EepromFields:
     """
     Recover RANGE, VERSION, TC0..2, EE_ZRO0..2 and EE_SF0..2 from a 128-byte image.
@@ -134,8 +140,8 @@ def decode_eeprom(image: bytes) -> EepromFields:
     for layout in (_RANGE, _VERSION) + _TC:
         values[layout.name], outvoted[layout.name], copies[layout.name] = \
             _read_field(cells, layout)
-    ee_zro = tuple(_read_field(cells, layout)[0] for layout in _EE_ZRO)
-    ee_sf = tuple(_read_field(cells, layout)[0] for layout in _EE_SF)
+    ee_zro = tuple(_voted_value(cells, layout) for layout in _EE_ZRO)
+    ee_sf = tuple(_voted_value(cells, layout) for layout in _EE_SF)
     return EepromFields(range_code=values['RANGE'], version=values['VERSION'],
                         tc_mv=tuple(values[layout.name] for layout in _TC), ee_zro=ee_zro,
                         ee_sf=ee_sf, outvoted_bits=outvoted, voted_copies=copies)

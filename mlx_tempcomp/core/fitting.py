@@ -259,6 +259,7 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
     """
     highest = orders[-1]
     scaling = _scaling(float(np.min(temperature)), float(np.max(temperature)))
+    centre_c, scale_c = scaling
     parts = [_moments(temperature, rate, slice(first, last), scaling, highest)
              for first, last in zip(bounds[:-1], bounds[1:])]
     rms = {order: np.full((folds.folds, rate.shape[1]), math.inf) for order in orders}
@@ -280,7 +281,7 @@ def _held_out_rms_rad_s(temperature, rate, bounds, orders, folds) -> dict:
             for first, last in _chunks(bounds[block], bounds[block + 1]):
                 clamped_c = np.clip(temperature[first:last], training.low_c, training.high_c)
                 basis = np.polynomial.legendre.legvander(
-                    (clamped_c - scaling[0]) / scaling[1], max(solutions))
+                    (clamped_c - centre_c) / scale_c, max(solutions))
                 for order, solution in solutions.items():
                     residual = rate[first:last] - basis[:, :order + 1] @ solution \
                         if order != PX4_ORDER else \

@@ -30,7 +30,7 @@ from .manifest import is_url, OPTIONAL_COLUMNS, RecordSpec, UnitSpec
 from ..core.pooling import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
-from ..toolkit.common import load, run_handler
+from ..toolkit.common import load, read_options, ReadOptions, run_handler
 
 COMMANDS = ('diagnose', 'fit')
 # The commands that fit one model over several records of a unit.
@@ -120,11 +120,11 @@ def one_line(err: BaseException) -> str:
     return text[0] if text else type(err).__name__
 
 
-def _moments(args: argparse.Namespace, local: str) -> dict:
+def _moments(options: ReadOptions, local: str) -> dict:
     """Give one record's design moments for the fleet prior, or why there are none."""
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            recording = load(argparse.Namespace(**{**vars(args), 'input': local}))
+            recording = load(local, options)
         return {'moments': record_moments(recording.time_s, recording.temperature_c,
                                           recording.rate_error_rad_s, recording.axes)}
     except MlxTempCompError as err:
@@ -197,7 +197,7 @@ def _run(job: UnitJob, run: int, work: Path, files: dict, moments: dict) -> None
         raise UnitError(named(f'{type(err).__name__}: {one_line(err)}')) from None
     (out / LOG_FILE).write_text(log.getvalue(), encoding='utf-8')
     for index, local in zip(indices, locals_):
-        found = _moments(args, local)
+        found = _moments(read_options(args), local)
         moments[index] = {key: named(value) if key == 'error' else value
                           for key, value in found.items()}
     for path in sorted(out.rglob('*')):

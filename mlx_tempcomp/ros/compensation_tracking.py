@@ -117,7 +117,8 @@ class CompensationTracking:
         self.write_error = ''
         self.latest_s = None
         self.windows = 0
-        self.publishers = None
+        self.bias_publisher = None      # imu/gyro_bias, created when tracking is first on
+        self.status_publisher = None    # imu/gyro_bias/status, with it
         if self.settings is not None:
             self._create_publishers()
 
@@ -241,7 +242,7 @@ class CompensationTracking:
             self.save(' (tracking reconfigured)')
             self.held_state = tracking_state(self.tracker.state(), len(self.axes))
         self.settings = settings
-        if settings is not None and self.publishers is None:
+        if settings is not None and self.bias_publisher is None:
             self._create_publishers()
         updates = self.written_updates
         self._build(self.held_state)
@@ -332,14 +333,15 @@ class CompensationTracking:
 
     def _create_publishers(self) -> None:
         node = self.node
-        self.publishers = (
-            node.create_publisher(TwistWithCovarianceStamped, 'imu/gyro_bias', BIAS_QOS),
-            node.create_publisher(DiagnosticArray, 'imu/gyro_bias/status', BIAS_QOS))
+        self.bias_publisher = node.create_publisher(TwistWithCovarianceStamped,
+                                                    'imu/gyro_bias', BIAS_QOS)
+        self.status_publisher = node.create_publisher(DiagnosticArray, 'imu/gyro_bias/status',
+                                                      BIAS_QOS)
 
     def _publish(self, stamp, frame_id: str) -> None:
         """Publish the estimate (at ``stamp``; None: the latest sample's time) and its status."""
         tracker = self.tracker
-        if tracker is None or self.publishers is None:
+        if tracker is None or self.bias_publisher is None:
             return
         if stamp is None:
             stamp = messages.ns_to_stamp(0 if self.latest_s is None else
@@ -362,8 +364,8 @@ class CompensationTracking:
         array = DiagnosticArray(status=[
             self._axis_status(status, i, axis) for i, axis in enumerate(self.axes)])
         array.header = bias.header
-        self.publishers[0].publish(bias)
-        self.publishers[1].publish(array)
+        self.bias_publisher.publish(bias)
+        self.status_publisher.publish(array)
 
     def _axis_status(self, status, i: int, axis: str) -> DiagnosticStatus:
         """One axis: OK while its estimate is stable, else WARN saying why not."""

@@ -56,40 +56,30 @@ _PHASE_TEXT = {
 }
 
 
-def _check_options(args: argparse.Namespace) -> None:
-    wrong = _SPIDEV_ONLY if args.source == 'simulated' else _SIMULATED_ONLY
-    given = ['--' + name.replace('_', '-') for name in wrong if getattr(args, name) is not None]
-    if given:
-        msg = f'{", ".join(given)} {"does" if len(given) == 1 else "do"} not apply to ' \
-              f'--source {args.source}'
-        raise UserError(msg)
-    short = short_window(args.rate_hz, args.average_s, args.pbc_s or NOTE_PBC_S,
-                         args.allan_record_s)
-    if short is not None:
-        name, seconds, why = short
-        msg = f'--{name.replace("_", "-")} {seconds:g} at --rate-hz {args.rate_hz:g} {why}'
-        raise UserError(msg)
-
-
 def _needs(args: argparse.Namespace) -> list:
     """Give the optional packages adis-bias will import (extras.require): the rest record's."""
     return [('allantools', 'give --allan-record-s 0')] if args.allan_record_s > 0 else []
 
 
-def _open_sensor(args: argparse.Namespace):
-    """Start the part; give the sensor and a description of it."""
+def _spidev_sensor(bus, cs, speed_hz, bits: int):
+    """Start the part on spidev (None: bus 0, chip select 0, the default clock); describe it."""
+    bus = 0 if bus is None else bus
+    cs = 0 if cs is None else cs
+    speed_hz = DEFAULT_SPEED_HZ if speed_hz is None else speed_hz
     try:
-        if args.source == 'spidev':
-            bus = 0 if args.bus is None else args.bus
-            cs = 0 if args.cs is None else args.cs
-            speed_hz = DEFAULT_SPEED_HZ if args.speed_hz is None else args.speed_hz
-            sensor = spidev_sensor(bus, cs, speed_hz=speed_hz, resolution_bits=args.bits)
-            return sensor, f'/dev/spidev{bus}.{cs} at {speed_hz} Hz SCLK'
-        slope = DEFAULT_SLOPE_DPS_PER_C if args.bias_slope_dps_per_c is None \
-            else args.bias_slope_dps_per_c
-        rise_c = DEFAULT_RISE_C if args.self_heat_rise_c is None else args.self_heat_rise_c
-        seed = 0 if args.seed is None else args.seed
-        config = SimulationConfig(seed=seed, resolution_bits=args.bits,
+        sensor = spidev_sensor(bus, cs, speed_hz=speed_hz, resolution_bits=bits)
+    except HardwareError as err:
+        raise UserError(f'ADIS16130: {err}') from None
+    return sensor, f'/dev/spidev{bus}.{cs} at {speed_hz} Hz SCLK'
+
+
+def _simulated_sensor(seed, bits: int, slope_dps_per_c, rise_c):
+    """Start the simulated part (None: the defaults); give it and a description of it."""
+    slope = DEFAULT_SLOPE_DPS_PER_C if slope_dps_per_c is None else slope_dps_per_c
+    rise_c = DEFAULT_RISE_C if rise_c is None else rise_c
+    seed = 0 if seed is None else seed
+    try:
+        config = SimulationConfig(seed=seed, resolution_bits=bits,
                                   truth=Adis16130Truth(bias_dps_per_c=slope),
                                   thermal=self_heating_profile(rise_c=rise_c))
         return SimulatedSensor(config), (f'the simulated part (seed {seed}, bias slope '
@@ -118,7 +108,7 @@ class _Pacer:
             time.sleep(max(wall_s - (time.monotonic() - self._wall_start), 0.0))
 
 
-def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
+def _print_noise(procedure: BiasProcedure) -> None:
     figures = procedure.noise
     arw_deg_rt_h = math.degrees(figures.angle_random_walk_rad_s_rt_hz) * SECONDS_PER_HOUR ** 0.5
     print(f'  noise of the rest record: ARW {arw_deg_rt_h:.4g} deg/sqrt(h) '
@@ -138,7 +128,7 @@ def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
     print(f'  averaging time advised: {advised_s:g} s (the Allan minimum, at least the '
           f'{NOTE_PBC_S:g} s of the note, at most a tenth of the record)')
     print(f'  {"window":<10}{"note (s)":>10}{"used (s)":>10}{"expected bias 1-sigma":>26}')
-    rows = (('point 1/2', NOTE_AVERAGE_S, args.average_s),
+    rows = (('point 1/2', NOTE_AVERAGE_S, procedure.settings.average_s),
             ('PBC', NOTE_PBC_S, procedure.phase_duration_s(Phase.PBC)))
     for name, note_s, used_s in rows:
         adev_rad_s, inside = adev_at_rad_s(figures, used_s)
@@ -147,7 +137,7 @@ def _print_noise(procedure: BiasProcedure, args: argparse.Namespace) -> None:
               f'{adev_rad_s:>16.3e} rad/s ({math.degrees(adev_rad_s):.4g} deg/s){mark}')
 
 
-def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
+def _announce_close(procedure: BiasProcedure, phase: Phase) -> None:
     if phase is Phase.POINT_1:
         p = procedure.point_1
         print(f'  T1 = {p.temperature_c:.4f} C, B1 = {rate_text(p.bias_rad_s)}, '
@@ -160,7 +150,7 @@ def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
         print(f'  BTC = -(B2 - B1) / (T2 - T1) = {btc:+.4e} rad/s/C '
               f'({math.degrees(btc):+.6f} deg/s/C)')
     elif phase is Phase.REST_RECORD:
-        _print_noise(procedure, args)
+        _print_noise(procedure)
         print(f'  motion check: window rate spread at most '
               f'{procedure.settings.motion_noise_multiple:g} x rate_noise_rad_s; points 1 and '
               '2 passed')
@@ -170,11 +160,16 @@ def _announce_close(procedure: BiasProcedure, phase: Phase, args) -> None:
               f'{r.pbc_point.samples} samples')
 
 
-def _run(sensor, procedure: BiasProcedure, args: argparse.Namespace) -> None:
-    """Read and feed samples until the procedure is done, announcing each phase."""
-    pacer = _Pacer(sensor, args.time_scale)
-    jump_waits = args.source == 'simulated' and args.time_scale is None
-    period_s = 1.0 / args.rate_hz
+def _run(sensor, procedure: BiasProcedure, rate_hz: float, time_scale, jump_waits: bool,
+         progress_enabled) -> None:
+    """
+    Read and feed samples at ``rate_hz`` until the procedure is done, announcing each phase.
+
+    ``time_scale`` holds the wall clock back (None: as fast as it goes);
+    ``jump_waits``: the waits are skipped in one step (the simulated part).
+    """
+    pacer = _Pacer(sensor, time_scale)
+    period_s = 1.0 / rate_hz
     phase = None
     progress = None
     next_s = sensor.clock.now_s
@@ -186,13 +181,13 @@ def _run(sensor, procedure: BiasProcedure, args: argparse.Namespace) -> None:
                 if progress is not None:
                     progress.update(1000)
                     progress.close()
-                    _announce_close(procedure, phase, args)
+                    _announce_close(procedure, phase)
                 phase = procedure.phase
                 if phase is Phase.DONE:
                     break
                 print(f'phase {phase.value}: '
                       + _PHASE_TEXT[phase].format(procedure.phase_duration_s(phase)))
-                progress = Progress(1000, f'  {phase.value}', args.progress or None)
+                progress = Progress(1000, f'  {phase.value}', progress_enabled)
             progress.update(int(1000 * procedure.progress))
             if phase.is_wait:
                 end_s = procedure.phase_end_s
@@ -206,7 +201,18 @@ def _run(sensor, procedure: BiasProcedure, args: argparse.Namespace) -> None:
 
 
 def adis_bias_command(args: argparse.Namespace) -> int:
-    _check_options(args)
+    wrong = _SPIDEV_ONLY if args.source == 'simulated' else _SIMULATED_ONLY
+    given = ['--' + name.replace('_', '-') for name in wrong if getattr(args, name) is not None]
+    if given:
+        msg = f'{", ".join(given)} {"does" if len(given) == 1 else "do"} not apply to ' \
+              f'--source {args.source}'
+        raise UserError(msg)
+    short = short_window(args.rate_hz, args.average_s, args.pbc_s or NOTE_PBC_S,
+                         args.allan_record_s)
+    if short is not None:
+        name, seconds, why = short
+        msg = f'--{name.replace("_", "-")} {seconds:g} at --rate-hz {args.rate_hz:g} {why}'
+        raise UserError(msg)
     check_output_file(args.out, '--out')
     try:
         settings = ProcedureSettings(
@@ -217,7 +223,11 @@ def adis_bias_command(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     procedure = BiasProcedure(settings, _noise_figures if args.allan_record_s > 0 else None)
     try:
-        sensor, described = _open_sensor(args)
+        sensor, described = (
+            _spidev_sensor(args.bus, args.cs, args.speed_hz, args.bits)
+            if args.source == 'spidev' else
+            _simulated_sensor(args.seed, args.bits, args.bias_slope_dps_per_c,
+                              args.self_heat_rise_c))
         try:
             print(f'ADIS16130 bias procedure (AN-1042) on {described}, {args.bits}-bit, '
                   f'{args.rate_hz:g} Hz', flush=True)
@@ -226,7 +236,8 @@ def adis_bias_command(args: argparse.Namespace) -> int:
             if args.allan_record_s == 0:
                 print('no rest record (--allan-record-s 0): no noise figures, no motion check, '
                       'rate_noise_rad_s not written')
-            _run(sensor, procedure, args)
+            _run(sensor, procedure, args.rate_hz, args.time_scale,
+                 args.source == 'simulated' and args.time_scale is None, args.progress or None)
         finally:
             sensor.close()
     except KeyboardInterrupt:
@@ -236,11 +247,13 @@ def adis_bias_command(args: argparse.Namespace) -> int:
         raise UserError(str(err)) from None
     except HardwareError as err:
         raise UserError(f'ADIS16130: {err}') from None
-    _report_and_write(procedure, args)
+    _report_and_write(procedure, args.source, args.out, args.node_name, args.outputs)
     return 0
 
 
-def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> None:
+def _report_and_write(procedure: BiasProcedure, source: str, out: str, node_name: str,
+                      outputs) -> None:
+    """Print the result and write it as the node's linear_btc parameters (``out``, staged)."""
     result = procedure.result
     model = result.model
     p1, p2 = result.point_1, result.point_2
@@ -264,12 +277,12 @@ def _report_and_write(procedure: BiasProcedure, args: argparse.Namespace) -> Non
     if result.noise is not None:
         parameters['rate_noise_rad_s'] = float(result.noise.rate_noise_rad_s)
     header = (f'ADIS16130 bias procedure (AN-1042) by mlx-tempcomp adis-bias, source '
-              f'{args.source}: T1 {p1.temperature_c:.4f} C, T2 {p2.temperature_c:.4f} C, '
+              f'{source}: T1 {p1.temperature_c:.4f} C, T2 {p2.temperature_c:.4f} C, '
               f'T3 {result.t3_c:.4f} C')
-    write_node_parameters(args, parameters, header)
+    write_node_parameters(out, node_name, outputs, parameters, header)
     noise = '' if result.noise is None else \
         f', rate_noise_rad_s {parameters["rate_noise_rad_s"]:.4g}'
-    print(f'wrote {args.out} (model linear_btc{noise})')
+    print(f'wrote {out} (model linear_btc{noise})')
 
 
 def add_parser(commands) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (add_recording_options, check_output_file, check_output_folder, load,
-                     UserError, write_json, write_result)
+                     read_options, UserError, write_json, write_result)
 from ..core.errors import TempCompError
 from ..core.noise import allan_deviation, NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S
 from ..recordings.recording import AXES
@@ -68,13 +68,12 @@ def _axis_json(figures, lines, unit: str) -> dict:
             'adev_rad_s': figures.adev_rad_s.tolist()}
 
 
-def _write_allan_files(args: argparse.Namespace, gyro: tuple, accel: tuple) -> None:
-    """Write allan.json (figures and curves) and allan.png (log-log curves) into --out."""
+def _write_allan_files(out_dir: str, source: str, outputs, gyro: tuple, accel: tuple) -> None:
+    """Write allan.json (figures and curves) and allan.png (log-log curves) into ``out_dir``."""
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
 
-    out_dir, source = args.out, args.input
     result = {'source': source, 'axes': [_axis_json(f, lines, 'rad_s') for f, lines in gyro]}
     if accel:
         # The accelerometer's curve is in m/s^2, under the same keys as the gyro's.
@@ -92,8 +91,8 @@ def _write_allan_files(args: argparse.Namespace, gyro: tuple, accel: tuple) -> N
     axes.legend()
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        write_json(args.outputs.file(Path(out_dir) / 'allan.json'), result)
-        figure.savefig(args.outputs.file(Path(out_dir) / 'allan.png'), dpi=100, format='png')
+        write_json(outputs.file(Path(out_dir) / 'allan.json'), result)
+        figure.savefig(outputs.file(Path(out_dir) / 'allan.png'), dpi=100, format='png')
     except OSError as err:
         msg = f'cannot write to {out_dir}: {err.strerror}'
         raise UserError(msg) from None
@@ -103,8 +102,8 @@ def _write_allan_files(args: argparse.Namespace, gyro: tuple, accel: tuple) -> N
 
 def _largest(pairs: tuple) -> tuple:
     """Give the largest noise density and random walk over the axes, and whether each bounds."""
-    density = max(pairs, key=lambda pair: pair[1].noise_density)[1]
-    walk = max(pairs, key=lambda pair: pair[1].random_walk)[1]
+    density = max((lines for _, lines in pairs), key=lambda lines: lines.noise_density)
+    walk = max((lines for _, lines in pairs), key=lambda lines: lines.random_walk)
     return (density.noise_density, density.noise_density_bound, walk.random_walk,
             walk.random_walk_bound)
 
@@ -143,7 +142,7 @@ def kalibr_yaml(gyro: tuple, accel: tuple, topic: str, rate_hz: float, source: s
     return '\n'.join(lines) + '\n'
 
 
-def _figures(args: argparse.Namespace, recording) -> tuple:
+def _figures(source: str, recording) -> tuple:
     """Give ((NoiseFigures, NoiseLines) per gyro axis, the same per accelerometer axis)."""
     try:
         gyro = allan_deviation(recording.time_s, recording.gyro_rad_s, recording.axes)
@@ -152,7 +151,7 @@ def _figures(args: argparse.Namespace, recording) -> tuple:
         return (tuple((f, noise_lines(f)) for f in gyro),
                 tuple((f, noise_lines(f)) for f in accel))
     except TempCompError as err:
-        msg = f'{args.input}: {err}'
+        msg = f'{source}: {err}'
         raise UserError(msg) from None
 
 
@@ -165,8 +164,8 @@ def allan_command(args: argparse.Namespace) -> int:
         check_output_folder(args.out, '--out')
     if args.kalibr_yaml is not None:
         check_output_file(args.kalibr_yaml, '--kalibr-yaml')
-    recording = load(args)
-    gyro, accel = _figures(args, recording)
+    recording = load(args.input, read_options(args))
+    gyro, accel = _figures(args.input, recording)
     print(f'{args.input}: {len(recording)} samples over {recording.duration_s:.1f} s')
     print(f'{"axis":<6}{"ARW":>12}{"ARW":>14}{"bias inst.":>12}{"bias inst.":>12}'
           f'{"at tau":>10}{"rate_noise":>12}')
@@ -201,6 +200,6 @@ def allan_command(args: argparse.Namespace) -> int:
         print(f'wrote {args.kalibr_yaml} (Kalibr imu.yaml, rostopic {args.kalibr_topic}, '
               f'update_rate {rate_hz:.6g} Hz)')
     if args.out is not None:
-        _write_allan_files(args, gyro, accel)
+        _write_allan_files(args.out, args.input, args.outputs, gyro, accel)
         print(f'wrote {Path(args.out) / "allan.json"} and {Path(args.out) / "allan.png"}')
     return 0

@@ -15,12 +15,14 @@ previous outputs, or none, never part of them.
 """
 
 import argparse
+from dataclasses import dataclass
 import json
 import math
 import os
 from pathlib import Path
 import re
 import sys
+from typing import Optional
 
 import numpy as np
 
@@ -40,6 +42,7 @@ EXIT_USER_ERROR = 2
 # `convert` write and every driver publishes (the compensated imu/data is the node's output).
 RAW_IMU_TOPIC = '/imu/data_raw'
 RAW_TEMPERATURE_TOPIC = '/imu/temperature_raw'
+RAW_SUPPLY_VOLTAGE_TOPIC = '/imu/supply_voltage'
 
 
 class UserError(MlxTempCompError):
@@ -162,7 +165,7 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
                              'fits raw data)')
     parser.add_argument('--temperature-topic', default=RAW_TEMPERATURE_TOPIC, metavar='TOPIC',
                         help='Temperature topic read from a bag (default: %(default)s)')
-    parser.add_argument('--supply-voltage-topic', default='/imu/supply_voltage',
+    parser.add_argument('--supply-voltage-topic', default=RAW_SUPPLY_VOLTAGE_TOPIC,
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '
                              'it (default: %(default)s)')
@@ -192,20 +195,21 @@ def add_parameter_file_options(parser: argparse.ArgumentParser, when: str = '') 
                         help='node section of the parameter file (default: %(default)s)')
 
 
-def write_node_parameters(args: argparse.Namespace, parameters: dict, header: str) -> None:
+def write_node_parameters(path: str, node_name: str, outputs, parameters: dict,
+                          header: str) -> None:
     """
-    Write ``parameters`` as the file `add_parameter_file_options` names, staged.
+    Write ``parameters`` as the compensation node's parameter file ``path``, staged.
 
+    ``node_name`` names its section (`add_parameter_file_options`);
     ``header`` becomes its comment lines, followed by the command that loads
     the file; a file that cannot be written is a UserError. The file is
-    written under its staging name (``args.outputs``, `run_handler`).
+    written under its staging name in ``outputs`` (`run_handler`).
     """
-    header += f'\nUse: compensation_node --ros-args --params-file {args.out}'
+    header += f'\nUse: compensation_node --ros-args --params-file {path}'
     try:
-        write_parameter_file(args.outputs.file(args.out),
-                             parameter_file(args.node_name, parameters), header)
+        write_parameter_file(outputs.file(path), parameter_file(node_name, parameters), header)
     except OSError as err:
-        msg = f'cannot write {args.out}: {err.strerror}'
+        msg = f'cannot write {path}: {err.strerror}'
         raise UserError(msg) from None
 
 
@@ -252,40 +256,64 @@ def flight_log_summary(log: FlightLog, used: ImuInstance = None) -> str:
     return '\n'.join(lines)
 
 
-def load(args: argparse.Namespace) -> Recording:
+@dataclass(frozen=True)
+class ReadOptions:
     """
-    Load the recording named by the options `add_recording_options` defines.
+    How to read a recording: the options `add_recording_options` adds.
+
+    ``columns`` or ``preset`` map a CSV file's columns; ``instance`` picks the
+    IMU of a flight log (None: the first usable one); the topics are a bag's.
+    """
+
+    columns: Optional[str] = None
+    preset: Optional[str] = None
+    instance: Optional[int] = None
+    imu_topic: str = RAW_IMU_TOPIC
+    temperature_topic: str = RAW_TEMPERATURE_TOPIC
+    supply_voltage_topic: str = RAW_SUPPLY_VOLTAGE_TOPIC
+
+
+def read_options(args: argparse.Namespace) -> ReadOptions:
+    """Give the read options of a command line (those `add_recording_options` added)."""
+    return ReadOptions(columns=args.columns, preset=args.preset,
+                       instance=getattr(args, 'instance', None), imu_topic=args.imu_topic,
+                       temperature_topic=args.temperature_topic,
+                       supply_voltage_topic=args.supply_voltage_topic)
+
+
+def load(path: str, options: ReadOptions, to_stderr: bool = False) -> Recording:
+    """
+    Load the recording at ``path`` as ``options`` say.
 
     Prints `loading_summary` (for a flight log, after `flight_log_summary`)
-    on stdout, or on stderr when ``args.json`` keeps stdout for JSON.
+    on stdout, or on stderr (``to_stderr``) when stdout is kept for JSON.
     """
-    stream = sys.stderr if getattr(args, 'json', False) else sys.stdout
-    instance = getattr(args, 'instance', None)
+    stream = sys.stderr if to_stderr else sys.stdout
     try:
-        if is_flight_log(args.input) and not Path(args.input).is_dir():
-            if args.columns is not None or args.preset is not None:
-                msg = f'{args.input} is a flight-controller log: --columns and --preset ' \
+        if is_flight_log(path) and not Path(path).is_dir():
+            if options.columns is not None or options.preset is not None:
+                msg = f'{path} is a flight-controller log: --columns and --preset ' \
                       'apply to CSV files'
                 raise UserError(msg)
-            recording, log, used = load_flight_log(args.input, instance)
+            recording, log, used = load_flight_log(path, options.instance)
             print(flight_log_summary(log, used), file=stream)
         else:
-            if instance is not None:
-                msg = f'--instance applies to .ulg and .bin logs, not {args.input}'
+            if options.instance is not None:
+                msg = f'--instance applies to .ulg and .bin logs, not {path}'
                 raise UserError(msg)
-            recording = load_recording(args.input, columns=args.columns, preset=args.preset,
-                                       imu_topic=args.imu_topic,
-                                       temperature_topic=args.temperature_topic,
-                                       supply_voltage_topic=args.supply_voltage_topic)
+            recording = load_recording(path, columns=options.columns, preset=options.preset,
+                                       imu_topic=options.imu_topic,
+                                       temperature_topic=options.temperature_topic,
+                                       supply_voltage_topic=options.supply_voltage_topic)
     except RecordingError as err:
         raise UserError(str(err)) from None
     print(loading_summary(recording), file=stream)
     return recording
 
 
-def load_records(args: argparse.Namespace) -> list:
-    """Load each of ``args.records`` with `load` (the same options for all), in order."""
-    return [load(argparse.Namespace(**{**vars(args), 'input': path})) for path in args.records]
+def load_records(paths: list, options: ReadOptions) -> list:
+    """Load each record of ``paths`` with `load` (the same options for all), in order."""
+    return [load(path, options) for path in paths]
 
 
 # Output options a command run once per IMU instance (--instance all) suffixes with .imuN.

@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 
-from .common import add_recording_options, check_output_folder, load, UserError
+from .common import (add_recording_options, check_output_folder, load, read_options,
+                     UserError)
 from .progress import add_progress_option, Progress
 from ..recordings.bag import (BagError, EepromRecord, ImuRecord, RawTopics, STORAGES,
                               SupplyVoltageRecord, TemperatureRecord)
@@ -107,7 +108,7 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
 
 def convert_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out', new=True)
-    recording = load(args)
+    recording = load(args.input, read_options(args))
     messages = write_raw_bag(args.outputs.folder(args.out, create=False, replace=False),
                              args.storage, recording, progress_enabled=args.progress or None,
                              name=args.out)

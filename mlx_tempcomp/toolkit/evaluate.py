@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 from .common import (add_recording_options, check_output_file, float_type, load,
-                     positive_float, UserError)
+                     positive_float, read_options, UserError)
 from .tracking import offline_twin, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
@@ -42,21 +42,20 @@ from ..recordings.bag_reader import RawBagReader
 _fraction = float_type(lambda value: 0.0 < value <= 1.0, 'a fraction in (0, 1]')
 
 
-def _eeprom_images(args: argparse.Namespace) -> tuple:
-    """Give the EEPROM images from --eeprom files, else from the bag's EEPROM topic."""
-    if args.eeprom:
+def _eeprom_images(files, path: str, imu_topic: str) -> tuple:
+    """Give the EEPROM images from ``files`` (--eeprom), else from the bag at ``path``."""
+    if files:
         images = []
-        for name in args.eeprom:
+        for name in files:
             try:
                 images.append(Path(name).read_bytes())
             except OSError as err:
                 msg = f'cannot read EEPROM image {name}: {err.strerror}'
                 raise UserError(msg) from None
         return tuple(images)
-    path = Path(args.input)
-    if _is_bag(path):
+    if _is_bag(Path(path)):
         try:
-            with RawBagReader(path, RawTopics(imu=args.imu_topic)) as bag:
+            with RawBagReader(Path(path), RawTopics(imu=imu_topic)) as bag:
                 if bag.eeprom is not None:
                     return bag.eeprom.images
         except BagError as err:
@@ -70,29 +69,28 @@ def _is_bag(path: Path) -> bool:
     return path.is_dir() or path.suffix.lower() in ('.db3', '.mcap')
 
 
-def _chip_temperatures(args: argparse.Namespace, axes: tuple, time_s: np.ndarray):
+def _chip_temperatures(path: str, imu_topic: str, temperature_topic: str, axes: tuple,
+                       time_s: np.ndarray):
     """
-    Give each chip's temperature (samples, axes) from a bag, as the node pairs them.
+    Give each chip's temperature (samples, axes) from the bag at ``path``, as the node pairs them.
 
     With several chips and the eeprom model the node takes each chip's own
     temperature from ``<temperature topic>/<axis>``; None when the input has none.
     """
-    path = Path(args.input)
-    if not _is_bag(path):
+    if not _is_bag(Path(path)):
         return None
-    topics = tuple(f'{args.temperature_topic.rstrip("/")}/{a}' for a in axes)
-    by_topic = {topic: {} for topic in topics}
+    chips = tuple(f'{temperature_topic.rstrip("/")}/{a}' for a in axes)
+    by_topic = {topic: {} for topic in chips}
     try:
-        with RawBagReader(path, RawTopics(imu=args.imu_topic,
-                                          temperature=args.temperature_topic),
-                          extra_temperature_topics=topics) as bag:
+        with RawBagReader(Path(path), RawTopics(imu=imu_topic, temperature=temperature_topic),
+                          extra_temperature_topics=chips) as bag:
             for _, topic, record in bag.records():
                 if topic in by_topic:
                     by_topic[topic][record.stamp_ns] = record.temperature_c
     except BagError as err:
         raise UserError(str(err)) from None
     columns = []
-    for topic in topics:
+    for topic in chips:
         if not by_topic[topic]:
             return None
         stamps = np.array(sorted(by_topic[topic]), dtype=np.int64)
@@ -104,21 +102,39 @@ def _chip_temperatures(args: argparse.Namespace, axes: tuple, time_s: np.ndarray
         if len(stamps) == 1:
             index = np.zeros(len(time_s), dtype=int)
         if np.any(np.abs(stamps[index] - wanted_ns) > 1e3):
-            msg = f'{args.input}: {topic} lacks the stamps of some IMU samples'
+            msg = f'{path}: {topic} lacks the stamps of some IMU samples'
             raise UserError(msg)
         columns.append(values[index])
     return np.column_stack(columns)
 
 
-def _build(args: argparse.Namespace, values: dict):
+def _node_values(params: str, node_name: str) -> tuple:
+    """Give the node's parameter values in the file ``params`` and the axes they compensate."""
+    try:
+        values = node_values(params, node_name)
+    except ParameterError as err:
+        raise UserError(str(err)) from None
+    try:
+        return values, axes_of(values)
+    except ParameterError as err:
+        raise UserError(f'{params}: {err}') from None
+
+
+def _build(values: dict, params: str, eeprom_files, path: str, imu_topic: str):
+    """
+    Build the node's model from ``values`` (of the file ``params``).
+
+    The eeprom model takes its tables from ``eeprom_files`` (--eeprom), else
+    from the bag at ``path`` (`_eeprom_images`).
+    """
     try:
         model = build_model(values)
         if model is None:
-            tables = sensor_tables(_eeprom_images(args), Output.DIGITAL, transfer_of(values),
-                                   values['sensor.full_scale_dps'])
+            tables = sensor_tables(_eeprom_images(eeprom_files, path, imu_topic), Output.DIGITAL,
+                                   transfer_of(values), values['sensor.full_scale_dps'])
             model = build_model(values, tables.tables, tables.full_scale_dps)
     except ParameterError as err:
-        raise UserError(f'{args.params}: {err}') from None
+        raise UserError(f'{params}: {err}') from None
     except TempCompError as err:
         raise UserError(f'EEPROM: {err}') from None
     return model
@@ -164,32 +180,15 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 def evaluate_command(args: argparse.Namespace) -> int:
     if args.out_csv is not None:
         check_output_file(args.out_csv, '--out-csv')
-    try:
-        values = node_values(args.params, args.node_name)
-    except ParameterError as err:
-        raise UserError(str(err)) from None
-    try:
-        axes = axes_of(values)
-    except ParameterError as err:
-        raise UserError(f'{args.params}: {err}') from None
-    model = _build(args, values)
-    recording = load(args)
-    missing = [a for a in axes if a not in recording.axes]
-    if missing:
-        msg = (f'{args.input} has no gyro_{", gyro_".join(missing)} but the parameter file '
-               f'compensates axes {", ".join(axes)}')
-        raise UserError(msg)
-    columns = [recording.axes.index(a) for a in axes]
-    for name in INPUTS:
-        if name in model.inputs and getattr(recording, name) is None:
-            *others, last = INPUTS[name].columns
-            what = f'{", ".join(others)} and {last} columns' if others else f'a {last} column'
-            msg = f'the {model.name} model of {args.params} needs {what}; {args.input} has none'
-            raise UserError(msg)
+    values, axes = _node_values(args.params, args.node_name)
+    model = _build(values, args.params, args.eeprom, args.input, args.imu_topic)
+    recording = load(args.input, read_options(args), to_stderr=args.json)
+    columns = _columns(recording, axes, model, args.params, args.input)
     inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
     temperature_c = recording.temperature_c
     if model.name == 'eeprom' and len(axes) > 1:
-        chips = _chip_temperatures(args, axes, recording.time_s)
+        chips = _chip_temperatures(args.input, args.imu_topic, args.temperature_topic, axes,
+                                   recording.time_s)
         if chips is None:
             print(f'note: {args.input} has no per-chip temperatures '
                   f'({args.temperature_topic}/<axis>): every chip gets the mean temperature',
@@ -232,24 +231,47 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    print(f'model {model.name} from {args.params}; truth: {report["truth"]}')
-    which = 'every row' if part.start == 0 else \
-        f'the last {args.test_fraction:.0%} of the rows, --test-fraction {args.test_fraction:g}'
-    print(f'evaluated {len(recording) - part.start} samples from '
-          f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s ({which}); '
-          f'{report["temperature_clamped_samples"]} with temperature clamped')
-    print(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
-    for a in axes:
-        for label, key in (('per sample', 'per_sample'), (f'{args.average_s:g} s mean',
-                                                          'averaged')):
-            s = report[key][a]
-            print(f'{a:<6}{label:<14}{s["mean"]:>12.3e}{s["sigma"]:>12.3e}{s["rms"]:>12.3e}'
-                  f'{s["peak"]:>12.3e}')
-    if twin:
-        print('\n'.join(twin_lines(twin.report, axes)))
+    print('\n'.join(_text_lines(report, part.start, twin)))
     if args.out_csv is not None:
         print(f'wrote {args.out_csv}')
     return 0
+
+
+def _columns(recording, axes: tuple, model, params: str, path: str) -> list:
+    """Give the recording's column of each axis the model compensates; refuse missing inputs."""
+    missing = [a for a in axes if a not in recording.axes]
+    if missing:
+        msg = (f'{path} has no gyro_{", gyro_".join(missing)} but the parameter file '
+               f'compensates axes {", ".join(axes)}')
+        raise UserError(msg)
+    for name in INPUTS:
+        if name in model.inputs and getattr(recording, name) is None:
+            *others, last = INPUTS[name].columns
+            what = f'{", ".join(others)} and {last} columns' if others else f'a {last} column'
+            msg = f'the {model.name} model of {params} needs {what}; {path} has none'
+            raise UserError(msg)
+    return [recording.axes.index(a) for a in axes]
+
+
+def _text_lines(report: dict, start: int, twin) -> list:
+    """Give the report as text: the rows evaluated (from row ``start``), the error per axis."""
+    fraction = report['test_fraction']
+    lines = [f'model {report["model"]} from {report["params"]}; truth: {report["truth"]}']
+    which = 'every row' if start == 0 else \
+        f'the last {fraction:.0%} of the rows, --test-fraction {fraction:g}'
+    lines.append(f'evaluated {report["rows"] - start} samples from '
+                 f'{report["evaluated_from_s"]:.1f} to {report["evaluated_to_s"]:.1f} s '
+                 f'({which}); {report["temperature_clamped_samples"]} with temperature clamped')
+    lines.append(f'{"axis":<6}{"":<14}{"mean":>12}{"sigma":>12}{"rms":>12}{"peak":>12}   rad/s')
+    for a in report['axes']:
+        for label, key in (('per sample', 'per_sample'), (f'{report["average_s"]:g} s mean',
+                                                          'averaged')):
+            s = report[key][a]
+            lines.append(f'{a:<6}{label:<14}{s["mean"]:>12.3e}{s["sigma"]:>12.3e}'
+                         f'{s["rms"]:>12.3e}{s["peak"]:>12.3e}')
+    if twin:
+        lines += twin_lines(twin.report, tuple(report['axes']))
+    return lines
 
 
 def add_parser(commands) -> None:

@@ -258,63 +258,94 @@ def add_export_options(parser) -> None:
                              'its device_id in a .ulg log; without one, no TC_A* set')
 
 
-def check_export_outputs(args) -> None:
+@dataclass(frozen=True)
+class ExportRequest:
+    """
+    The export options (`add_export_options`) and the record they export from.
+
+    ``record`` names the record; of a flight log, the IMU ``instance`` (None:
+    the first usable one) is exported. The paths are the files to write.
+    """
+
+    record: str
+    instance: Optional[int] = None
+    px4_params: Optional[str] = None
+    ardupilot_parm: Optional[str] = None
+    px4_device_id: Optional[int] = None
+    px4_accel_device_id: Optional[int] = None
+
+    @property
+    def wanted(self) -> bool:
+        """Say whether a file is asked for."""
+        return self.px4_params is not None or self.ardupilot_parm is not None
+
+
+def export_request(args: argparse.Namespace) -> ExportRequest:
+    """Give the export options of a command line and its (first) record."""
+    return ExportRequest(record=args.input, instance=getattr(args, 'instance', None),
+                         px4_params=args.px4_params, ardupilot_parm=args.ardupilot_parm,
+                         px4_device_id=args.px4_device_id,
+                         px4_accel_device_id=args.px4_accel_device_id)
+
+
+def check_export_outputs(request: ExportRequest, folder=None) -> None:
     """
     Check the export options, paths and IMU before any work (UserError if one cannot be used).
 
-    What the record alone can tell (its axes, its acceleration) is
-    `check_export_record`'s, right after it is read.
+    A file inside ``folder`` (diagnose's --out, which writes it with the
+    rest) is checked with that folder. What the record alone can tell (its
+    axes, its acceleration) is `check_export_record`'s, right after it is read.
     """
-    if args.px4_params is None:
-        options = ('px4_device_id', 'px4_accel_device_id')
-        given = [f'--{option.replace("_", "-")}' for option in options
-                 if getattr(args, option) is not None]
+    if request.px4_params is None:
+        options = (('px4_device_id', request.px4_device_id),
+                   ('px4_accel_device_id', request.px4_accel_device_id))
+        given = [f'--{option.replace("_", "-")}' for option, value in options
+                 if value is not None]
         if given:
             msg = f'{" and ".join(given)} {"apply" if len(given) > 1 else "applies"} with ' \
                   '--px4-params'
             raise UserError(msg)
-    for option in ('px4_params', 'ardupilot_parm'):
-        path = getattr(args, option, None)
-        # diagnose writes one into its --out folder with the rest, that folder checked as --out
-        inside = hasattr(args, 'records') and path is not None and \
-            Path(path).resolve().parent == Path(args.out).resolve()
+    for option, path in (('px4_params', request.px4_params),
+                         ('ardupilot_parm', request.ardupilot_parm)):
+        inside = folder is not None and path is not None and \
+            Path(path).resolve().parent == Path(folder).resolve()
         if path is not None and not inside:
             check_output_file(path, '--' + option.replace('_', '-'))
-    if getattr(args, 'px4_params', None) is None and getattr(args, 'ardupilot_parm', None) is None:
+    if not request.wanted:
         return
-    imu = _exported_imu(args)
-    if args.px4_params is not None and imu.index >= PX4_SETS:
-        msg = (f'{args.input}: PX4 has thermal sets TC_G0..{PX4_SETS - 1}; instance '
+    imu = _exported_imu(request)
+    if request.px4_params is not None and imu.index >= PX4_SETS:
+        msg = (f'{request.record}: PX4 has thermal sets TC_G0..{PX4_SETS - 1}; instance '
                f'{imu.index} has none')
         raise UserError(msg)
-    if args.px4_params is not None and _gyro_device_id(args, imu) is None:
+    if request.px4_params is not None and _gyro_device_id(request, imu) is None:
         msg = ("--px4-params needs the gyro's device id, which PX4 matches TC_Gn_ID against: "
                f'give --px4-device-id (CAL_GYRO{imu.index}_ID on the vehicle); a .ulg log '
                'holds it')
         raise UserError(msg)
-    if args.ardupilot_parm is not None and imu.index >= ARDUPILOT_TCAL_IMUS:
-        msg = (f'{args.input}: ArduPilot has thermal sets for IMUs 1-{ARDUPILOT_TCAL_IMUS} '
+    if request.ardupilot_parm is not None and imu.index >= ARDUPILOT_TCAL_IMUS:
+        msg = (f'{request.record}: ArduPilot has thermal sets for IMUs 1-{ARDUPILOT_TCAL_IMUS} '
                f'(INS_TCAL1..3_*, INS4_TCAL_*, INS5_TCAL_*); instance {imu.index} '
                f'(IMU {imu.index + 1}) has none')
         raise UserError(msg)
 
 
-def check_export_record(args, recording) -> None:
+def check_export_record(request: ExportRequest, recording) -> None:
     """Check, once the record is read and before the fit, that it can give the exports."""
-    if args.px4_params is None and args.ardupilot_parm is None:
+    if not request.wanted:
         return
     if recording.axes != AXIS_NAMES:
-        msg = (f'{args.input}: a flight controller corrects x, y and z; the recording has '
+        msg = (f'{request.record}: a flight controller corrects x, y and z; the recording has '
                f'gyro {", ".join(recording.axes)}')
         raise UserError(msg)
-    if args.px4_accel_device_id is not None and recording.acceleration_m_s2 is None:
+    if request.px4_accel_device_id is not None and recording.acceleration_m_s2 is None:
         msg = '--px4-accel-device-id: the record has no acceleration, so no TC_A* set'
         raise UserError(msg)
 
 
-def _gyro_device_id(args, imu: ExportedImu):
+def _gyro_device_id(request: ExportRequest, imu: ExportedImu):
     """Give TC_Gn_ID: --px4-device-id, else the log's, else None."""
-    return args.px4_device_id if args.px4_device_id is not None else imu.gyro_device_id
+    return request.px4_device_id if request.px4_device_id is not None else imu.gyro_device_id
 
 
 def _tcal_enabled(log, index: int) -> str:
@@ -323,26 +354,27 @@ def _tcal_enabled(log, index: int) -> str:
     return name if log.parameters.get(name) == 1 else ''
 
 
-def _exported_imu(args) -> ExportedImu:
+def _exported_imu(request: ExportRequest) -> ExportedImu:
     """Give the IMU's instance number, device ids and board rotation (none unless a log says)."""
-    if not is_flight_log(args.input):
+    if not is_flight_log(request.record):
         return ExportedImu()
     try:
-        log = read_flight_log(args.input)
-        instance = log.instance(args.instance)
+        log = read_flight_log(request.record)
+        instance = log.instance(request.instance)
     except FlightLogError as err:
         raise UserError(str(err)) from None
     orientation = int(log.parameters.get('AHRS_ORIENTATION', 0))
     try:
         rotation = board_rotation(orientation)
     except FlightLogError as err:
-        msg = f"{args.input}: {err}; the exports need the IMU's own axes, where it is corrected"
+        msg = (f"{request.record}: {err}; the exports need the IMU's own axes, where it is "
+               'corrected')
         raise UserError(msg) from None
     enabled = _tcal_enabled(log, instance.index)
     if enabled:
         # The logged samples are already corrected by that set; tempcal_IMU.py takes the
         # correction off again before fitting.
-        msg = (f'{args.input}: {enabled} is 1 in the log: its IMU samples are already '
+        msg = (f'{request.record}: {enabled} is 1 in the log: its IMU samples are already '
                'corrected by that thermal set, which this export does not undo; calibrate '
                'from a log taken with it 0')
         raise UserError(msg)
@@ -350,21 +382,21 @@ def _exported_imu(args) -> ExportedImu:
                        orientation, rotation)
 
 
-def _cubic(args, temperature_c, values, what: str = 'cubic') -> EffectModel:
+def _cubic(record: str, temperature_c, values, what: str = 'cubic') -> EffectModel:
     try:
         return fit_polynomial(temperature_c, values, EXPORT_ORDER)
     except TempCompError as err:
-        msg = f'{args.input}: the exported {what}: {err}'
+        msg = f'{record}: the exported {what}: {err}'
         raise UserError(msg) from None
 
 
-def _cubics(args, recording, imu: ExportedImu = ExportedImu()) -> ExportedCubics:
+def _cubics(record: str, recording, imu: ExportedImu = ExportedImu()) -> ExportedCubics:
     """Fit the gyro cubic and, with acceleration, the accelerometer's, in the sensor's axes."""
-    gyro = _cubic(args, recording.temperature_c, imu.sensor_axes(recording.rate_error_rad_s))
+    gyro = _cubic(record, recording.temperature_c, imu.sensor_axes(recording.rate_error_rad_s))
     if recording.acceleration_m_s2 is None:
         return ExportedCubics(gyro)
     acceleration = imu.sensor_axes(recording.acceleration_m_s2)
-    accel = _cubic(args, recording.temperature_c, acceleration, 'accelerometer cubic')
+    accel = _cubic(record, recording.temperature_c, acceleration, 'accelerometer cubic')
     return ExportedCubics(gyro, accel, np.median(acceleration, axis=0))
 
 
@@ -391,21 +423,22 @@ def _rms(values) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def _comparison(args, recording, full_model_on, start: int, full_saw_held_out: bool) -> list:
+def _comparison(record: str, recording, full_model_on, start: int,
+                full_saw_held_out: bool) -> list:
     """
     Say on the held-out rows how far the cubics leave the full model, per axis.
 
     Both in the record's axes: a least-squares cubic per axis turns with its data.
     """
     train, held = recording.slice(slice(0, start)), slice(start, len(recording))
-    cubics = _cubics(args, train)
+    cubics = _cubics(record, train)
     cubic = px4_cubic(cubics.gyro)
     truth = 0.0 if recording.reference_rad_s is None else recording.reference_rad_s[held]
     cubic_rad_s = recording.gyro_rad_s[held] - cubic.offset_rad_s(recording.temperature_c[held])
     try:
         full_rad_s = _corrected(full_model_on(train), recording)[held]
     except TempCompError as err:
-        msg = f'{args.input}: the full model on the rows before the held-out part: {err}'
+        msg = f'{record}: the full model on the rows before the held-out part: {err}'
         raise UserError(msg) from None
     seen = ('; the full model saw these rows (diagnose without --test)' if full_saw_held_out
             else '')
@@ -436,41 +469,43 @@ def _comparison(args, recording, full_model_on, start: int, full_saw_held_out: b
     return lines
 
 
-def write_exports(args, recording, full_model_on, start=None, full_saw_held_out=False) -> None:
+def write_exports(request: ExportRequest, outputs, recording, full_model_on, start=None,
+                  full_saw_held_out=False) -> None:
     """
-    Write the files --px4-params and --ardupilot-parm name, and print the comparison.
+    Write the files ``request`` names (staged in ``outputs``), and print the comparison.
 
     ``full_model_on(part)`` gives our full model fitted to a part of the
     recording (a node model: ``stream().correct_block``); ``start`` is the
     first held-out row (default: the last `HELD_OUT_FRACTION` of the rows).
     """
-    if args.px4_params is None and args.ardupilot_parm is None:
+    if not request.wanted:
         return
-    check_export_record(args, recording)
-    imu = _exported_imu(args)
+    check_export_record(request, recording)
+    imu = _exported_imu(request)
     start = held_out_start(len(recording)) if start is None else start
-    for line in _comparison(args, recording, full_model_on, start, full_saw_held_out):
+    for line in _comparison(request.record, recording, full_model_on, start, full_saw_held_out):
         print(line)
-    cubics = _cubics(args, recording, imu)
+    cubics = _cubics(request.record, recording, imu)
     if imu.orientation:
         print(f'AHRS_ORIENTATION {imu.orientation} undone: the files hold the cubics in the '
               "IMU's own axes, in which ArduPilot corrects (as tempcal_IMU.py)")
     try:
-        if args.px4_params is not None:
-            _write_px4(args, cubics, imu)
-        if args.ardupilot_parm is not None:
-            _write_ardupilot(args, cubics, imu.index)
+        if request.px4_params is not None:
+            _write_px4(request, outputs, cubics, imu)
+        if request.ardupilot_parm is not None:
+            _write_ardupilot(request.ardupilot_parm, outputs, cubics, imu.index)
     except OSError as err:
         msg = f'cannot write {err.filename}: {err.strerror}'
         raise UserError(msg) from None
 
 
-def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
+def _write_px4(request: ExportRequest, outputs, cubics: ExportedCubics,
+               imu: ExportedImu) -> None:
     index = imu.index
-    device_id = _gyro_device_id(args, imu)   # check_export_outputs made sure there is one
+    device_id = _gyro_device_id(request, imu)   # check_export_outputs made sure there is one
     accel, left_out = None, ''
     if cubics.accel is not None:
-        accel_id = args.px4_accel_device_id if args.px4_accel_device_id is not None \
+        accel_id = request.px4_accel_device_id if request.px4_accel_device_id is not None \
             else imu.accel_device_id
         if accel_id is None:
             left_out = (f'  TC_A{index}_* left out: PX4 matches it by the device id of the '
@@ -478,12 +513,12 @@ def _write_px4(args, cubics: ExportedCubics, imu: ExportedImu) -> None:
         else:
             accel = (px4_cubic(cubics.accel, cubics.accel_median), accel_id)
     cubic = px4_cubic(cubics.gyro)
-    write_result(args.outputs.file(args.px4_params),
+    write_result(outputs.file(request.px4_params),
                  px4_params_text(cubic, index, device_id, accel))
     sets, enables = f'TC_G{index}_* (ID {device_id})', 'TC_G_ENABLE 1'
     if accel is not None:
-        sets, enables = f'TC_A{index}_* (ID {accel[1]}) and {sets}', 'TC_A_ENABLE and ' + enables
-    print(f'wrote {args.px4_params} (PX4 {sets}, TREF {cubic.reference_c:.2f} C, range '
+        sets, enables = f'TC_A{index}_* (ID {accel_id}) and {sets}', 'TC_A_ENABLE and ' + enables
+    print(f'wrote {request.px4_params} (PX4 {sets}, TREF {cubic.reference_c:.2f} C, range '
           f'{cubic.temperature_min_c:.2f} to {cubic.temperature_max_c:.2f} C; {enables}; '
           'reboot to apply)')
     if left_out:
@@ -499,16 +534,16 @@ def _rounding(model: EffectModel, written: FirmwareCubic) -> float:
     return float(np.max(np.abs(written.offset_rad_s(grid_c) - exact.offset_rad_s(grid_c))))
 
 
-def _write_ardupilot(args, cubics: ExportedCubics, index: int) -> None:
+def _write_ardupilot(path: str, outputs, cubics: ExportedCubics, index: int) -> None:
     imu = index + 1
     gyro = ardupilot_cubic(cubics.gyro)
     accel = None if cubics.accel is None else ardupilot_cubic(cubics.accel)
-    write_result(args.outputs.file(args.ardupilot_parm), ardupilot_parm_text(gyro, imu, accel))
+    write_result(outputs.file(path), ardupilot_parm_text(gyro, imu, accel))
     prefix = ardupilot_tcal_prefix(imu)
     rounding = f'gyro {_rounding(cubics.gyro, gyro):.1e} rad/s'
     if accel is not None:
         rounding += f', accelerometer {_rounding(cubics.accel, accel):.1e} m/s^2'
-    print(f'wrote {args.ardupilot_parm} (ArduPilot {prefix}*, about 35 C, range '
+    print(f'wrote {path} (ArduPilot {prefix}*, about 35 C, range '
           f'{gyro.temperature_min_c:.1f} to {gyro.temperature_max_c:.1f} C; the file digits '
           f'move the cubics by at most {rounding}; reboot to apply)')
     constant = ', '.join(f'{axis} {c[0]:+.4e}' for axis, c in zip(AXIS_NAMES, gyro.coefficients))

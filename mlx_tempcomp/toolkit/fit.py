@@ -10,20 +10,23 @@ residual gives (`toolkit.tracking`). docs/toolkit-fit.md describes the models.
 
 import argparse
 import contextlib
+from dataclasses import dataclass
 import io
 import math
+from typing import Optional
 
 import numpy as np
 
 from .common import (add_parameter_file_options, add_recording_options,
                      add_validation_options, check_output_file, finite_float, load,
-                     non_negative_int, positive_float, UserError, validation_settings,
-                     write_node_parameters)
-from .exports import (add_export_options, check_export_outputs, check_export_record, node_model,
-                      write_exports)
+                     non_negative_int, positive_float, read_options, UserError,
+                     validation_settings, write_node_parameters)
+from .exports import (add_export_options, check_export_outputs, check_export_record,
+                      export_request, node_model, write_exports)
 from .tracking import tracking_section
 from .uncertainty import block_lines
-from ..core.chain import ChainModel, ChainSettings, find_plateaus, fit_chain, format_stage_table
+from ..core.chain import ChainModel
+from ..core.chain_fit import ChainSettings, find_plateaus, fit_chain, format_stage_table
 from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
@@ -41,6 +44,37 @@ RELATIVE_SOURCE = '"Temperature Correction in MPU6000"'
 CHAIN_SOURCE = 'the PSI 3-axis teslameter calibration paper'
 
 
+@dataclass(frozen=True)
+class _FitOptions:
+    """
+    What the model fits take from the command line; None where an option was not given.
+
+    ``source`` names the record in messages and in the file's header;
+    ``validation`` is `validation_settings`'.
+    """
+
+    source: str
+    order: Optional[int]
+    max_order: Optional[int]
+    blocks: Optional[int]
+    folds: Optional[int]
+    validation: dict
+    true_temperature: Optional[float]
+    t3: Optional[float]
+    table_step: Optional[float]
+    full_scale_dps: Optional[float]
+    reference_temperature: Optional[float]
+    reference_temperature_2: Optional[float]
+
+
+@dataclass(frozen=True)
+class _Fitted:
+    """A fitted model's node parameters and the header of their file."""
+
+    parameters: dict
+    header: str
+
+
 def _rate_error(recording) -> tuple:
     """Return the rate error the bias is fitted to and how it was formed."""
     if recording.reference_rad_s is None:
@@ -48,19 +82,19 @@ def _rate_error(recording) -> tuple:
     return recording.rate_error_rad_s, 'gyro rate minus the reference rate (ref columns)'
 
 
-def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
+def _fit_polynomial_bias(options: _FitOptions, recording, rate_rad_s):
     """Choose the orders (or take --order), fit, print the orders; return the model."""
     readings_c = np.unique(np.round(recording.temperature_c, DISTINCT_DECIMALS))
     if readings_c.size == 1:
-        msg = (f'{args.input}: the temperature does not vary: every row reads '
+        msg = (f'{options.source}: the temperature does not vary: every row reads '
                f'{readings_c[0]:.2f} C; a bias(T) fit needs a recording over a temperature '
                'range (heat or cool the sensor while recording)')
         raise UserError(msg)
-    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
-    folds = DEFAULT_FOLDS if args.folds is None else args.folds
-    if args.order is None:
-        max_order = DEFAULT_MAX_ORDER if args.max_order is None else args.max_order
-        validation = validation_settings(args)
+    blocks = DEFAULT_BLOCKS if options.blocks is None else options.blocks
+    folds = DEFAULT_FOLDS if options.folds is None else options.folds
+    if options.order is None:
+        max_order = DEFAULT_MAX_ORDER if options.max_order is None else options.max_order
+        validation = options.validation
         selections = select_orders(recording.temperature_c, rate_rad_s, axes=recording.axes,
                                    candidate_orders=range(max_order + 1), blocks=blocks,
                                    folds=folds, **validation)
@@ -73,7 +107,7 @@ def _fit_polynomial_bias(args: argparse.Namespace, recording, rate_rad_s):
                                          dealt)
         print('\n'.join(block_lines(outside, dealt.describe())))
     else:
-        orders = (args.order,) * len(recording.axes)
+        orders = (options.order,) * len(recording.axes)
         how = 'given by --order'
     model = fit_polynomial(recording.temperature_c, rate_rad_s, orders)
     chosen = ', '.join(f'{axis} {order}' for axis, order in zip(recording.axes, orders))
@@ -86,24 +120,24 @@ def _print_range(model) -> None:
           f'{model.temperature_max_c:.2f} C (clamped outside)')
 
 
-def _fit_polynomial_model(args: argparse.Namespace, recording) -> tuple:
+def _fit_polynomial_model(options: _FitOptions, recording) -> tuple:
     rate_rad_s, formed = _rate_error(recording)
     print(f'model polynomial: bias(T) fitted to the {formed}')
-    model = _fit_polynomial_bias(args, recording, rate_rad_s)
+    model = _fit_polynomial_bias(options, recording, rate_rad_s)
     _print_range(model)
-    return (polynomial_parameters(model, recording.axes),
-            f'Bias polynomials fitted by mlx-tempcomp fit from {args.input}')
+    return _Fitted(polynomial_parameters(model, recording.axes),
+                   f'Bias polynomials fitted by mlx-tempcomp fit from {options.source}')
 
 
-def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
+def _fit_relative_model(options: _FitOptions, recording) -> tuple:
     rate_rad_s, formed = _rate_error(recording)
-    if args.true_temperature is None:
+    if options.true_temperature is None:
         true_c, how = float(np.mean(recording.temperature_c)), 'mean temperature of the data'
     else:
-        true_c, how = args.true_temperature, 'given by --true-temperature'
+        true_c, how = options.true_temperature, 'given by --true-temperature'
     print(f'model relative ({RELATIVE_SOURCE}): rate - (p(T) - p(T_true)), p fitted to the '
           f'{formed}')
-    fitted = _fit_polynomial_bias(args, recording, rate_rad_s)
+    fitted = _fit_polynomial_bias(options, recording, rate_rad_s)
     model = relative_polynomial(fitted, true_c)
     _print_range(model)
     print(f'T_true = {true_c:.2f} C ({how})')
@@ -113,16 +147,17 @@ def _fit_relative_model(args: argparse.Namespace, recording) -> tuple:
     print(f'p(T_true) taken off the constant terms (rad/s): {removed}')
     print("written as model 'polynomial' whose bias is zero at T_true; the compensation "
           'node runs it unchanged')
-    return (polynomial_parameters(model, recording.axes),
-            f'Relative bias correction rate - (p(T) - p({true_c:.2f} C)) of {RELATIVE_SOURCE}, '
-            f'written as polynomials,\nfitted by mlx-tempcomp fit from {args.input}')
+    return _Fitted(polynomial_parameters(model, recording.axes),
+                   f'Relative bias correction rate - (p(T) - p({true_c:.2f} C)) of '
+                   f'{RELATIVE_SOURCE}, written as polynomials,\nfitted by mlx-tempcomp fit '
+                   f'from {options.source}')
 
 
-def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
+def _fit_linear_btc_model(options: _FitOptions, recording) -> tuple:
     rate_rad_s, formed = _rate_error(recording)
-    model = fit_linear_btc(recording.temperature_c, rate_rad_s, args.t3)
+    model = fit_linear_btc(recording.temperature_c, rate_rad_s, options.t3)
     line = LinearBtc.of(model)
-    how = 'given by --t3' if args.t3 is not None else 'mean temperature of the data'
+    how = 'given by --t3' if options.t3 is not None else 'mean temperature of the data'
     print('model linear_btc (ADIS16130 AN-1042): RBC = RATE + PBC + (TEMP - T3) x BTC, '
           f'line fitted to the {formed}')
     print(f'T3 = {line.t3_c:.2f} C ({how})')
@@ -134,19 +169,20 @@ def _fit_linear_btc_model(args: argparse.Namespace, recording) -> tuple:
         btc = line.btc_rad_s_per_c[i]
         print(f'{axis:<6}{btc:>12.3e}{line.pbc_rad_s[i]:>12.3e}{rms[i]:>12.3e}'
               f'{math.degrees(-btc):>14.6g}')
-    if args.table_step is None:
+    if options.table_step is None:
         extent_c = max(abs(float(np.min(recording.temperature_c)) - line.t3_c),
                        abs(float(np.max(recording.temperature_c)) - line.t3_c))
         step_c = table_step_c(extent_c, BTC_TABLE_ROWS)
     else:
-        step_c = args.table_step
+        step_c = options.table_step
     print('correction factors (TEMP - T3) x BTC, as Table 6 of the note:')
     print(format_btc_table(model, recording.axes, step_c, BTC_TABLE_ROWS))
-    return (linear_btc_parameters(model, recording.axes),
-            f'ADIS16130 linear BTC/PBC correction fitted by mlx-tempcomp fit from {args.input}')
+    return _Fitted(linear_btc_parameters(model, recording.axes),
+                   'ADIS16130 linear BTC/PBC correction fitted by mlx-tempcomp fit from '
+                   f'{options.source}')
 
 
-def _check_chain_columns(args: argparse.Namespace, recording) -> None:
+def _check_chain_columns(options: _FitOptions, recording) -> None:
     missing = [f'gyro_{axis}' for axis in AXIS_NAMES if axis not in recording.axes]
     if recording.reference_rad_s is None:
         missing += [f'ref_{axis}' for axis in AXIS_NAMES]
@@ -155,29 +191,29 @@ def _check_chain_columns(args: argparse.Namespace, recording) -> None:
     if recording.temperature_2_c is None:
         missing.append('temperature_2')
     if missing:
-        msg = (f'{args.input}: --model chain needs the columns gyro_x|y|z, ref_x|y|z and '
+        msg = (f'{options.source}: --model chain needs the columns gyro_x|y|z, ref_x|y|z and '
                f'temperature_2; missing {", ".join(missing)}')
         raise UserError(msg)
 
 
-def _chain_plateaus(args: argparse.Namespace, recording) -> np.ndarray:
+def _chain_plateaus(options: _FitOptions, recording) -> np.ndarray:
     """Give each row's plateau number (-1 off the plateaus); refuse a record without one."""
     plateau_id = find_plateaus(recording.reference_rad_s, recording.temperature_c,
                                recording.temperature_2_c)
     if not (plateau_id >= 0).any():
-        msg = (f'{args.input}: no plateau: the reference rate and temperatures never hold '
+        msg = (f'{options.source}: no plateau: the reference rate and temperatures never hold '
                'steady for 10 samples')
         raise UserError(msg)
     return plateau_id
 
 
-def _chain_full_scale(args: argparse.Namespace, recording) -> tuple:
+def _chain_full_scale(options: _FitOptions, recording) -> tuple:
     """Give the full scale in rad/s and where it came from."""
-    if args.full_scale_dps is not None:
-        return math.radians(args.full_scale_dps), 'given by --full-scale-dps'
+    if options.full_scale_dps is not None:
+        return math.radians(options.full_scale_dps), 'given by --full-scale-dps'
     full_scale_rad_s = float(np.max(np.abs(recording.reference_rad_s)))
     if full_scale_rad_s == 0.0:
-        msg = f'{args.input}: the reference rate is zero throughout; the chain needs rates'
+        msg = f'{options.source}: the reference rate is zero throughout; the chain needs rates'
         raise UserError(msg)
     return full_scale_rad_s, 'largest reference rate'
 
@@ -217,29 +253,30 @@ def _print_chain(recording, plateau_id: np.ndarray, settings: ChainSettings, how
     print(format_stage_table(result.stage_errors))
 
 
-def _fit_chain_model(args: argparse.Namespace, recording) -> tuple:
-    _check_chain_columns(args, recording)
-    plateau_id = _chain_plateaus(args, recording)
+def _fit_chain_model(options: _FitOptions, recording) -> tuple:
+    _check_chain_columns(options, recording)
+    plateau_id = _chain_plateaus(options, recording)
     on_plateau = plateau_id >= 0
-    full_scale_rad_s, how_full_scale = _chain_full_scale(args, recording)
-    temperature_c, how_t = _chain_temperature(args.reference_temperature,
+    full_scale_rad_s, how_full_scale = _chain_full_scale(options, recording)
+    temperature_c, how_t = _chain_temperature(options.reference_temperature,
                                               recording.temperature_c, on_plateau,
                                               '--reference-temperature')
-    temperature_2_c, how_t2 = _chain_temperature(args.reference_temperature_2,
+    temperature_2_c, how_t2 = _chain_temperature(options.reference_temperature_2,
                                                  recording.temperature_2_c, on_plateau,
                                                  '--reference-temperature-2')
     settings = ChainSettings(
         full_scale_rad_s=full_scale_rad_s, reference_temperature_c=temperature_c,
         reference_temperature_2_c=temperature_2_c,
-        nonlinearity_order=DEFAULT_CHAIN_ORDER if args.order is None else args.order)
+        nonlinearity_order=DEFAULT_CHAIN_ORDER if options.order is None else options.order)
     result = fit_chain(recording.reference_rad_s, recording.gyro_rad_s,
                        recording.temperature_c, recording.temperature_2_c, plateau_id, settings)
     _print_chain(recording, plateau_id, settings,
                  {'full_scale': how_full_scale, 'temperature': how_t, 'temperature_2': how_t2},
                  result)
-    return (chain_parameters(ChainModel(result.chain)),
-            f'Calibration chain of {CHAIN_SOURCE},\nfitted by mlx-tempcomp fit from {args.input}\n'
-            'The node needs the second temperature (temperature_2) for the offset_2 stage')
+    return _Fitted(chain_parameters(ChainModel(result.chain)),
+                   f'Calibration chain of {CHAIN_SOURCE},\nfitted by mlx-tempcomp fit from '
+                   f'{options.source}\nThe node needs the second temperature (temperature_2) '
+                   'for the offset_2 stage')
 
 
 _FIT_MODELS = {
@@ -313,39 +350,47 @@ def fit_command(args: argparse.Namespace) -> int:
     given = [name for name in _FIT_MODEL_OPTIONS
              if getattr(args, name) is not None and name not in allowed]
     if given:
-        options = ', '.join('--' + name.replace('_', '-') for name in given)
-        msg = f'{options} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
+        names = ', '.join('--' + name.replace('_', '-') for name in given)
+        msg = f'{names} {"does" if len(given) == 1 else "do"} not apply to --model {args.model}'
         raise UserError(msg)
     check_output_file(args.out, '--out')
     if args.model == 'chain' and (args.px4_params or args.ardupilot_parm):
         msg = ('--px4-params and --ardupilot-parm export a bias cubic; --model chain corrects '
                'rate-dependent errors no firmware cubic holds')
         raise UserError(msg)
-    check_export_outputs(args)
+    exports = export_request(args)
+    check_export_outputs(exports)
+    options = _FitOptions(
+        source=args.input, order=args.order, max_order=args.max_order, blocks=args.blocks,
+        folds=args.folds, validation=validation_settings(args),
+        true_temperature=args.true_temperature, t3=args.t3, table_step=args.table_step,
+        full_scale_dps=args.full_scale_dps, reference_temperature=args.reference_temperature,
+        reference_temperature_2=args.reference_temperature_2)
     if args.model in ('polynomial', 'relative') and args.order is None:
-        validation = validation_settings(args)
         try:   # the held-out blocks the order is chosen on, before the record is read
             split(DEFAULT_BLOCKS if args.blocks is None else args.blocks,
-                  validation['validation'], DEFAULT_FOLDS if args.folds is None else args.folds,
-                  validation['min_past'])
+                  options.validation['validation'],
+                  DEFAULT_FOLDS if args.folds is None else args.folds,
+                  options.validation['min_past'])
         except TempCompError as err:
             raise UserError(str(err)) from None
-    recording = load(args)
-    check_export_record(args, recording)
+    recording = load(args.input, read_options(args))
+    check_export_record(exports, recording)
     try:
-        parameters, header = fit(args, recording)
-        tracking, lines = tracking_section([recording], parameters)
+        fitted = fit(options, recording)
+        tracking, lines = tracking_section([recording], fitted.parameters)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
     print('\n'.join(lines))
-    write_exports(args, recording, lambda part: _refit(args, fit, part))
-    write_node_parameters(args, {**parameters, **tracking}, header)
-    print(f'wrote {args.out} (model {parameters["model"]})')
+    write_exports(exports, args.outputs, recording, lambda part: _refit(options, fit, part))
+    write_node_parameters(args.out, args.node_name, args.outputs,
+                          {**fitted.parameters, **tracking}, fitted.header)
+    print(f'wrote {args.out} (model {fitted.parameters["model"]})')
     return 0
 
 
-def _refit(args: argparse.Namespace, fit, part):
+def _refit(options: _FitOptions, fit, part):
     """Fit the same model to a part of the recording, quietly, for the exports' comparison."""
     with contextlib.redirect_stdout(io.StringIO()):
-        return node_model(fit(args, part)[0])
+        return node_model(fit(options, part).parameters)

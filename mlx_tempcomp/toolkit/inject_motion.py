@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (add_recording_options, check_output_file, load, non_negative_int,
-                     UserError, write_json)
+                     read_options, UserError, write_json)
 from ..core.errors import TempCompError
 from ..recordings.recording import AXES
 from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings
@@ -48,7 +48,7 @@ def inject_motion_command(args: argparse.Namespace) -> int:
     check_output_file(args.out, '--out')
     out = Path(args.out)
     schedule_path = out.with_name(out.stem + '.schedule.json')
-    recording = load(args)
+    recording = load(args.input, read_options(args))
     if recording.reference_rad_s is not None:
         msg = (f'{args.input} has a reference rate already (ref columns): inject motion into '
                'a record taken at rest')

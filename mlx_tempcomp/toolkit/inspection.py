@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import add_recording_options, load, UserError
+from .common import add_recording_options, load, read_options, ReadOptions, UserError
 from ..core.diagnosis import DiagnosisSettings
 from ..core.motion import moving_samples
 from ..core.noise import MAX_INTERVAL_SPREAD, MIN_SAMPLES
@@ -121,35 +121,36 @@ def _instance_report(index, name, device_id, time_s, temperature_c, moving, prob
     }
 
 
-def _flight_log_report(args) -> dict:
+def _flight_log_report(path: str, instance) -> dict:
+    """Describe the IMU instances of a flight log: ``instance`` ('all' or None: every one)."""
     try:
-        log = read_flight_log(args.input)
+        log = read_flight_log(path)
     except FlightLogError as err:
         raise UserError(str(err)) from None
     wanted = list(log.instances)
-    if args.instance not in (None, 'all'):
-        wanted = [i for i in log.instances if i.index == args.instance]
+    if instance not in (None, 'all'):
+        wanted = [i for i in log.instances if i.index == instance]
         if not wanted:
             known = ', '.join(str(i.index) for i in log.instances) or 'none'
-            msg = f'{args.input}: no IMU instance {args.instance}; the log has {known}'
+            msg = f'{path}: no IMU instance {instance}; the log has {known}'
             raise UserError(msg)
     thermal = {name: value for name, value in sorted(log.parameters.items())
                if name.startswith(('TC_G', 'INS_TCAL', 'INS4_TCAL', 'INS5_TCAL'))
                or name.endswith('_CALTEMP')}
-    return {'file': str(args.input), 'format': log.log_format, 'system': log.system,
+    return {'file': str(path), 'format': log.log_format, 'system': log.system,
             'notes': list(log.notes), 'thermal_parameters': thermal,
             'instances': [_instance_report(i.index, i.name, i.device_id, i.time_s,
                                            i.temperature_c, i.moving, i.problem())
                           for i in wanted]}
 
 
-def _recording_report(args) -> dict:
-    recording = load(args)
+def _recording_report(path: str, options: ReadOptions, to_stderr: bool) -> dict:
+    """Describe a CSV file or bag as one IMU instance (`load` prints on stderr: ``to_stderr``)."""
+    recording = load(path, options, to_stderr)
     moving = moving_samples(recording.time_s, recording.gyro_rad_s,
                             recording.acceleration_m_s2)
-    path = Path(args.input)
-    bag = path.is_dir() or path.suffix.lower() in BAG_SUFFIXES
-    return {'file': str(args.input), 'format': 'rosbag2 bag' if bag else 'CSV', 'system': '',
+    bag = Path(path).is_dir() or Path(path).suffix.lower() in BAG_SUFFIXES
+    return {'file': str(path), 'format': 'rosbag2 bag' if bag else 'CSV', 'system': '',
             'notes': [], 'skipped': dict(recording.skipped),
             'thermal_parameters': {},
             'instances': [_instance_report(0, 'recording', None, recording.time_s,
@@ -203,12 +204,12 @@ def _text(report: dict) -> str:
 
 def inspect_command(args: argparse.Namespace) -> int:
     if is_flight_log(args.input):
-        report = _flight_log_report(args)
+        report = _flight_log_report(args.input, args.instance)
     else:
         if args.instance is not None:
             msg = f'--instance applies to .ulg and .bin logs, not {args.input}'
             raise UserError(msg)
-        report = _recording_report(args)
+        report = _recording_report(args.input, read_options(args), args.json)
     if args.json:
         print(json.dumps(_plain(report), indent=2))
     else:

@@ -15,8 +15,10 @@ written to ``<out stem>.truth.json`` beside the output.
 
 import argparse
 import dataclasses
+from dataclasses import dataclass
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -62,13 +64,13 @@ def _time_value(text: str) -> tuple:
     """Parse ``TIME:VALUE`` (argparse type)."""
     when, colon, value = text.partition(':')
     try:
-        pair = (float(when), float(value))
+        time_s, number = float(when), float(value)
     except ValueError:
-        pair = (math.nan, math.nan)
-    if not colon or not all(math.isfinite(v) for v in pair) or pair[0] < 0.0:
+        time_s, number = math.nan, math.nan
+    if not colon or not (math.isfinite(time_s) and math.isfinite(number)) or time_s < 0.0:
         msg = f'expected TIME_S:VALUE with TIME_S >= 0, e.g. 1200:0.5; got {text!r}'
         raise argparse.ArgumentTypeError(msg)
-    return pair
+    return time_s, number
 
 
 def _supply(items) -> tuple:
@@ -81,9 +83,53 @@ def _supply(items) -> tuple:
     return tuple(t for t, _ in points), tuple(v for _, v in points)
 
 
-def _output_paths(args: argparse.Namespace) -> tuple:
-    out = Path(args.out)
-    fmt = args.format or ('csv' if out.suffix.lower() == '.csv' else 'sqlite3')
+@dataclass(frozen=True)
+class _ChipRun:
+    """
+    What `_device_recording` simulates: the chips' configuration and the run around them.
+
+    ``duration_s`` None: the thermal cycle, or `DEFAULT_DURATION_S` at a
+    constant temperature. ``supply_given``: the recording carries the supply
+    voltage. ``zro_slope_shift_dps_per_c`` is added to every chip's ZRO slope
+    (an outlier unit of ``--fleet``) after the factory EEPROM was measured.
+    """
+
+    config: SimulationConfig
+    axes: tuple
+    rate_hz: float
+    duration_s: Optional[float]
+    supply_times_s: tuple
+    supply_v: tuple
+    supply_given: bool
+    orientation_period_s: float
+    zro_slope_shift_dps_per_c: float = 0.0
+
+
+@dataclass(frozen=True)
+class _Simulated:
+    """A simulated recording, each chip's temperature (chips only), their EEPROMs, the truth."""
+
+    recording: Recording
+    axis_temperatures_c: Optional[np.ndarray]
+    images: Optional[tuple]
+    truth: dict
+
+
+@dataclass(frozen=True)
+class _Codes:
+    """The chips' raw output at each sample time, the specific force, the samples kept."""
+
+    time_s: np.ndarray
+    rate_code: np.ndarray
+    temperature_code: np.ndarray
+    acceleration_m_s2: np.ndarray
+    kept: np.ndarray
+
+
+def _output_paths(path: str, fmt) -> tuple:
+    """Check --out (``path``) for ``fmt`` (None: by the name); give (out, format, truth file)."""
+    out = Path(path)
+    fmt = fmt or ('csv' if out.suffix.lower() == '.csv' else 'sqlite3')
     if fmt == 'csv':
         check_output_file(out, '--out')
     else:
@@ -91,6 +137,32 @@ def _output_paths(args: argparse.Namespace) -> tuple:
     truth = out.with_name(out.stem + '.truth.json')
     check_output_file(truth, 'truth file of --out')
     return out, fmt, truth
+
+
+def _chip_run(args: argparse.Namespace, rate_hz: float) -> _ChipRun:
+    """Read the chip simulation's options (the handler's, the only reader of them)."""
+    supply_times, supply_v = _supply(args.supply_v or [str(NOMINAL_SUPPLY_V)])
+    effects = Effects(thermal_lag_s=args.thermal_lag_s, hysteresis_dps=args.hysteresis_dps,
+                      hysteresis_width_c=args.hysteresis_width_c,
+                      zro_supply_dps_per_v=args.zro_supply_dps_per_v,
+                      bias_steps=tuple(args.bias_step or ()),
+                      acceleration_dps_per_m_s2=tuple(args.acceleration_dps_per_m_s2))
+    noise = Noise()
+    noise = dataclasses.replace(
+        noise, density_dps_rt_hz=noise.density_dps_rt_hz * args.noise_scale,
+        bias_instability_dps=noise.bias_instability_dps * args.noise_scale,
+        temperature_noise_mv=noise.temperature_noise_mv * args.noise_scale,
+        rate_random_walk_dps_rt_s=args.bias_random_walk_dps_rt_s)
+    config = SimulationConfig(
+        seed=args.seed, full_scale_dps=args.full_scale_dps, eeprom_version=args.eeprom_version,
+        start_temperature_c=args.start_c, cycle_temperatures_c=tuple(args.cycle_c or ()),
+        ramp_c_per_min=args.ramp_c_per_min, hold_s=args.hold_s,
+        die_time_constant_s=args.die_time_constant_s, rate_dps=tuple(args.rate_dps),
+        supply_v=supply_v[0], effects=effects, noise=noise)
+    return _ChipRun(config=config, axes=args.axes, rate_hz=rate_hz, duration_s=args.duration_s,
+                    supply_times_s=supply_times, supply_v=supply_v,
+                    supply_given=args.supply_v is not None,
+                    orientation_period_s=args.orientation_period_s)
 
 
 def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
@@ -109,66 +181,68 @@ def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
     return [math.radians(c) for c in zro_dps.coef]
 
 
-def _device_recording(args, out: Path, progress_enabled,
-                      zro_slope_shift_dps_per_c=0.0) -> tuple:
-    """
-    Run the simulated chips; give the recording, per-chip temperatures, images, truth.
-
-    ``zro_slope_shift_dps_per_c`` is added to every chip's ZRO slope (an outlier
-    unit of `--fleet`), after the factory EEPROM was measured.
-    """
-    supply_times, supply_v = _supply(args.supply_v)
-    effects = Effects(thermal_lag_s=args.thermal_lag_s, hysteresis_dps=args.hysteresis_dps,
-                      hysteresis_width_c=args.hysteresis_width_c,
-                      zro_supply_dps_per_v=args.zro_supply_dps_per_v,
-                      bias_steps=tuple(args.bias_step or ()),
-                      acceleration_dps_per_m_s2=tuple(args.acceleration_dps_per_m_s2))
-    noise = Noise()
-    noise = dataclasses.replace(
-        noise, density_dps_rt_hz=noise.density_dps_rt_hz * args.noise_scale,
-        bias_instability_dps=noise.bias_instability_dps * args.noise_scale,
-        temperature_noise_mv=noise.temperature_noise_mv * args.noise_scale,
-        rate_random_walk_dps_rt_s=args.bias_random_walk_dps_rt_s)
-    config = SimulationConfig(
-        seed=args.seed, full_scale_dps=args.full_scale_dps, eeprom_version=args.eeprom_version,
-        start_temperature_c=args.start_c, cycle_temperatures_c=tuple(args.cycle_c or ()),
-        ramp_c_per_min=args.ramp_c_per_min, hold_s=args.hold_s,
-        die_time_constant_s=args.die_time_constant_s, rate_dps=tuple(args.rate_dps),
-        supply_v=supply_v[0], effects=effects, noise=noise)
-    axes = args.axes
+def _device_recording(run: _ChipRun, out: Path, progress_enabled) -> _Simulated:
+    """Run the simulated chips through the driver's path and the nominal conversion."""
     try:
-        array = SimulatedArray(config, len(axes))
+        array = SimulatedArray(run.config, len(run.axes))
         images = array.read_eeproms()
         transfer = SensorTransfer()
         tables = sensor_tables(images, Output.DIGITAL, transfer)
     except (HardwareError, TempCompError) as err:
         raise UserError(f'simulation: {err}') from None
-    faces = _FACES_M_S2 if args.orientation_period_s else (_FACES_M_S2[0],)
+    faces = _FACES_M_S2 if run.orientation_period_s else (_FACES_M_S2[0],)
+    _set_scenario(array, run, faces[0])
+    codes = _sample(array, run, faces, progress_enabled)
+    kept = codes.kept
+    nominal = NominalConversion.for_range(tables.full_scale_dps, Output.DIGITAL, len(run.axes),
+                                          transfer)
+    rate_rad_s = np.radians((codes.rate_code[kept] - nominal.zro) / nominal.sf)
+    axis_temperatures_c = transfer.temperature_output_to_c(codes.temperature_code[kept],
+                                                           Output.DIGITAL)
+    with_acceleration = run.orientation_period_s or \
+        any(run.config.effects.acceleration_dps_per_m_s2)
+    recording = Recording(
+        source=str(out), time_s=codes.time_s[kept],
+        temperature_c=axis_temperatures_c.mean(axis=1), axes=run.axes, gyro_rad_s=rate_rad_s,
+        acceleration_m_s2=codes.acceleration_m_s2[kept] if with_acceleration else None,
+        supply_voltage_v=np.interp(codes.time_s[kept], run.supply_times_s, run.supply_v)
+        if run.supply_given else None,
+        skipped={'saturated': int(np.count_nonzero(~kept))})
+    return _Simulated(recording, axis_temperatures_c, images,
+                      _device_truth(run, array, transfer))
+
+
+def _set_scenario(array: SimulatedArray, run: _ChipRun, face_m_s2: tuple) -> None:
+    """Give each chip the supply, the first face's specific force and an outlier's ZRO slope."""
     for device in array.devices:
         device.physics.scenario = dataclasses.replace(
-            device.physics.scenario, supply_times_s=supply_times, supply_v=supply_v,
-            acceleration_m_s2=faces[0])
-        if zro_slope_shift_dps_per_c:
+            device.physics.scenario, supply_times_s=run.supply_times_s, supply_v=run.supply_v,
+            acceleration_m_s2=face_m_s2)
+        if run.zro_slope_shift_dps_per_c:
             zro = list(device.physics.truth.zro_dps_coefficients)
             zro += [0.0] * (2 - len(zro))
-            zro[1] += zro_slope_shift_dps_per_c
+            zro[1] += run.zro_slope_shift_dps_per_c
             device.physics.truth = dataclasses.replace(device.physics.truth,
                                                        zro_dps_coefficients=tuple(zro))
-    duration_s = args.duration_s
+
+
+def _sample(array: SimulatedArray, run: _ChipRun, faces: tuple, progress_enabled) -> _Codes:
+    """Read the chips at each sample time, turning the board to the next face on time."""
+    duration_s = run.duration_s
     if duration_s is None:
-        duration_s = config.thermal_profile().duration_s if args.cycle_c else \
-            DEFAULT_DURATION_S
-    samples = int(math.floor(duration_s * args.rate_hz + 1e-9)) + 1
-    time_s = np.arange(samples) / args.rate_hz
-    rate_code = np.empty((samples, len(axes)))
-    temperature_code = np.empty((samples, len(axes)))
+        duration_s = run.config.thermal_profile().duration_s \
+            if run.config.cycle_temperatures_c else DEFAULT_DURATION_S
+    samples = int(math.floor(duration_s * run.rate_hz + 1e-9)) + 1
+    time_s = np.arange(samples) / run.rate_hz
+    rate_code = np.empty((samples, len(run.axes)))
+    temperature_code = np.empty((samples, len(run.axes)))
     acceleration = np.empty((samples, 3))
     kept = np.ones(samples, dtype=bool)
     face = 0
     with Progress(samples, f'simulating {samples} samples', progress_enabled) as progress:
         for i, t in enumerate(time_s.tolist()):
-            if args.orientation_period_s:
-                wanted = int(t // args.orientation_period_s) % len(faces)
+            if run.orientation_period_s:
+                wanted = int(t // run.orientation_period_s) % len(faces)
                 if wanted != face:
                     face = wanted
                     for device in array.devices:
@@ -181,33 +255,26 @@ def _device_recording(args, out: Path, progress_enabled,
             temperature_code[i] = sample.temperature_code
             acceleration[i] = faces[face]
             progress.update(i + 1)
-    nominal = NominalConversion.for_range(tables.full_scale_dps, Output.DIGITAL, len(axes),
-                                          transfer)
-    rate_rad_s = np.radians((rate_code[kept] - nominal.zro) / nominal.sf)
-    axis_temperatures_c = transfer.temperature_output_to_c(temperature_code[kept],
-                                                           Output.DIGITAL)
-    with_acceleration = args.orientation_period_s or any(args.acceleration_dps_per_m_s2)
-    recording = Recording(
-        source=str(out), time_s=time_s[kept], temperature_c=axis_temperatures_c.mean(axis=1),
-        axes=axes, gyro_rad_s=rate_rad_s,
-        acceleration_m_s2=acceleration[kept] if with_acceleration else None,
-        supply_voltage_v=np.interp(time_s[kept], supply_times, supply_v)
-        if args.supply_v_given else None,
-        skipped={'saturated': int(np.count_nonzero(~kept))})
-    truth = {
+    return _Codes(time_s, rate_code, temperature_code, acceleration, kept)
+
+
+def _device_truth(run: _ChipRun, array: SimulatedArray, transfer: SensorTransfer) -> dict:
+    """Give the truth behind a chip recording: configuration, profile, supply, each chip."""
+    config = run.config
+    return {
         'source': 'simulated MLX90609 chips through the SPI protocol and the nominal '
                   'conversion (driver_node source simulated)',
-        'axes': list(axes),
+        'axes': list(run.axes),
         'config': dataclasses.asdict(config),
         'thermal_profile': dataclasses.asdict(config.thermal_profile()),
-        'supply': {'times_s': list(supply_times), 'volts': list(supply_v),
+        'supply': {'times_s': list(run.supply_times_s), 'volts': list(run.supply_v),
                    'nominal_v': NOMINAL_SUPPLY_V},
-        'orientation_period_s': args.orientation_period_s,
+        'orientation_period_s': run.orientation_period_s,
         'devices': {axis: {
             **dataclasses.asdict(device.physics.truth),
             'zero_rate_bias_rad_s_in_reported_t_minus_25c': _truth_polynomial_rad_s(
                 device.physics.truth, transfer),
-        } for axis, device in zip(axes, array.devices)},
+        } for axis, device in zip(run.axes, array.devices)},
         'notes': 'zro_dps_coefficients and sf_relative_coefficients are polynomials in '
                  '(die temperature - 25 C), lowest order first; the zero_rate_bias polynomial '
                  'is the bias of the recorded rate at the recorded temperature without '
@@ -215,19 +282,20 @@ def _device_recording(args, out: Path, progress_enabled,
                  'bias steps, zro_supply_dps_per_v x (supply - 5 V), '
                  'acceleration_dps_per_m_s2 . specific force.',
     }
-    return recording, axis_temperatures_c, images, truth
 
 
-def _turntable_recording(args, out: Path) -> tuple:
-    if args.axes != AXES:
+def _turntable_recording(out: Path, axes: tuple, seed: int, chamber_c,
+                         sample_rate_hz) -> _Simulated:
+    """Simulate the rate-table session; ``chamber_c``, ``sample_rate_hz`` None: its own."""
+    if axes != AXES:
         raise UserError('--turntable simulates a 3-axis gyro: --axes must be x,y,z')
     protocol = TurntableProtocol()
-    if args.cycle_c:
-        protocol = dataclasses.replace(protocol, chamber_temperatures_c=tuple(args.cycle_c))
-    if args.rate_hz_given:
-        protocol = dataclasses.replace(protocol, sample_rate_hz=args.rate_hz)
+    if chamber_c:
+        protocol = dataclasses.replace(protocol, chamber_temperatures_c=tuple(chamber_c))
+    if sample_rate_hz is not None:
+        protocol = dataclasses.replace(protocol, sample_rate_hz=sample_rate_hz)
     try:
-        session = simulate_turntable(protocol, seed=args.seed)
+        session = simulate_turntable(protocol, seed=seed)
     except TempCompError as err:
         raise UserError(f'turntable simulation: {err}') from None
     recording = Recording(source=str(out), time_s=session.time_s,
@@ -246,7 +314,7 @@ def _turntable_recording(args, out: Path) -> tuple:
                              for key, value in chain.to_parameters().items()},
         'plateaus': int(session.plateau_id.max()) + 1,
     }
-    return recording, None, None, truth
+    return _Simulated(recording, None, None, truth)
 
 
 def _write_csv(path: Path, recording: Recording, target: Path) -> None:
@@ -270,69 +338,71 @@ def _write_csv(path: Path, recording: Recording, target: Path) -> None:
         raise UserError(msg) from None
 
 
-def _check_turntable_options(args: argparse.Namespace) -> None:
-    effects = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v', 'bias_step',
-               'orientation_period_s', 'bias_random_walk_dps_rt_s')
-    given = [name for name in effects if getattr(args, name)]
-    if any(args.acceleration_dps_per_m_s2):
-        given.append('acceleration_dps_per_m_s2')
-    if args.supply_v_given:
-        given.append('supply_v')
-    if given:
-        names = ', '.join('--' + name.replace('_', '-') for name in given)
-        msg = f'{names}: effects apply to the chip simulation, not to --turntable'
-        raise UserError(msg)
+# Options of the chip simulation that --turntable refuses.
+_CHIP_ONLY = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v', 'bias_step',
+              'orientation_period_s', 'bias_random_walk_dps_rt_s')
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    args.rate_hz_given = args.rate_hz is not None
-    args.supply_v_given = args.supply_v is not None
-    if args.supply_v is None:
-        args.supply_v = [str(NOMINAL_SUPPLY_V)]
-    if args.rate_hz is None:
-        args.rate_hz = 10.0
+    rate_hz = 10.0 if args.rate_hz is None else args.rate_hz
+    progress = args.progress or None
     if args.turntable:
-        _check_turntable_options(args)
+        given = [name for name in _CHIP_ONLY if getattr(args, name)]
+        if any(args.acceleration_dps_per_m_s2):
+            given.append('acceleration_dps_per_m_s2')
+        if args.supply_v is not None:
+            given.append('supply_v')
+        if given:
+            names = ', '.join('--' + name.replace('_', '-') for name in given)
+            msg = f'{names}: effects apply to the chip simulation, not to --turntable'
+            raise UserError(msg)
     if args.fleet is not None:
         if args.turntable or args.fleet == 0:
             raise UserError('--fleet takes at least one unit, and simulates chips, not '
                             '--turntable')
-        return _simulate_fleet(args)
-    out, fmt, truth_path = _output_paths(args)
-    for line in _simulate_one(args, out, fmt, truth_path, args.progress or None):
+        folder = Path(args.out)
+        check_output_folder(folder, '--out', new=True)
+        _simulate_fleet(folder, args.format or 'csv', _chip_run(args, rate_hz), args.fleet,
+                        args.fleet_outliers, args.outputs, progress)
+        return 0
+    out, fmt, truth_path = _output_paths(args.out, args.format)
+    if args.turntable:
+        simulated = _turntable_recording(out, args.axes, args.seed, args.cycle_c, args.rate_hz)
+    else:
+        simulated = _device_recording(_chip_run(args, rate_hz), out, progress)
+    for line in _write_simulated(simulated, out, fmt, truth_path, rate_hz, args.outputs,
+                                 progress):
         print(line)
     return 0
 
 
-def _simulate_one(args, out: Path, fmt: str, truth_path: Path, progress_enabled,
-                  zro_slope_shift_dps_per_c=0.0) -> list:
-    """Simulate one recording and write it with its truth; give the lines to print."""
-    if args.turntable:
-        recording, axis_temperatures_c, images, truth = _turntable_recording(args, out)
-    else:
-        recording, axis_temperatures_c, images, truth = _device_recording(
-            args, out, progress_enabled, zro_slope_shift_dps_per_c)
+def _write_simulated(simulated: _Simulated, out: Path, fmt: str, truth_path: Path,
+                     rate_hz: float, outputs, progress_enabled) -> list:
+    """Write a simulated recording and its truth (staged in ``outputs``); give lines to print."""
+    recording = simulated.recording
+    truth = simulated.truth
     if fmt == 'csv':
-        _write_csv(args.outputs.file(out), recording, out)
+        _write_csv(outputs.file(out), recording, out)
         what = 'CSV'
     else:
-        messages = write_raw_bag(args.outputs.folder(out, create=False, replace=False), fmt,
-                                 recording, axis_temperatures_c, images, progress_enabled, out)
+        messages = write_raw_bag(outputs.folder(out, create=False, replace=False), fmt,
+                                 recording, simulated.axis_temperatures_c, simulated.images,
+                                 progress_enabled, out)
         what = f'{fmt} bag, {messages} messages on /imu/data_raw, /imu/temperature_raw'
         if recording.temperature_2_c is not None:
             what += ', /imu/temperature_2_raw'
         if recording.supply_voltage_v is not None:
             what += ', /imu/supply_voltage'
-        if images is not None:
+        if simulated.images is not None:
             what += ', /imu/eeprom'
         if recording.reference_rad_s is not None:
             what += '; the reference rate has no topic: evaluate the CSV form'
     truth['recording'] = {'path': str(out), 'format': fmt, 'samples': len(recording),
                           'duration_s': recording.duration_s,
-                          'rate_hz': args.rate_hz,
+                          'rate_hz': rate_hz,
                           'skipped': dict(recording.skipped)}
     try:
-        write_json(args.outputs.file(truth_path), truth)
+        write_json(outputs.file(truth_path), truth)
     except OSError as err:
         msg = f'cannot write {truth_path}: {err.strerror}'
         raise UserError(msg) from None
@@ -346,62 +416,69 @@ def _simulate_one(args, out: Path, fmt: str, truth_path: Path, progress_enabled,
             f'truth in {truth_path}']
 
 
-def _fleet_units(args: argparse.Namespace) -> list:
+def _fleet_units(seed: int, count: int, outliers, effects: Effects) -> list:
     """
-    Draw each unit of ``--fleet``: its seed, effect sizes and whether it is an outlier.
+    Draw each of ``count`` units: its seed, effect sizes and whether it is an outlier.
 
     Every chip coefficient varies through the seed (`GyroTruth.random`); each
     effect coefficient given (and each of the three g-sensitivities) by a
-    factor 1 + 0.2 N(0, 1) kept within 0.5 to 1.5.
+    factor 1 + 0.2 N(0, 1) kept within 0.5 to 1.5. ``outliers`` None: one
+    unit in `FLEET_UNITS_PER_OUTLIER`, at least one.
     """
     def factor(rng) -> float:
         return float(np.clip(1.0 + FLEET_EFFECT_SPREAD * rng.standard_normal(), 0.5, 1.5))
 
-    rng = np.random.default_rng([args.seed, args.fleet])
-    later = np.random.default_rng([args.seed, args.fleet, 1])
-    count = max(1, args.fleet // FLEET_UNITS_PER_OUTLIER) if args.fleet_outliers is None \
-        else min(args.fleet_outliers, args.fleet)
-    outliers = set(rng.choice(args.fleet, size=count, replace=False).tolist())
+    rng = np.random.default_rng([seed, count])
+    later = np.random.default_rng([seed, count, 1])
+    drawn = max(1, count // FLEET_UNITS_PER_OUTLIER) if outliers is None \
+        else min(outliers, count)
+    chosen = set(rng.choice(count, size=drawn, replace=False).tolist())
     units = []
-    for k in range(args.fleet):
-        effects = {name: getattr(args, name) * factor(rng) for name in FLEET_VARIED_EFFECTS}
+    for k in range(count):
+        varied = {name: getattr(effects, name) * factor(rng) for name in FLEET_VARIED_EFFECTS}
         # Varied too, from a stream of their own (the fleets drawn before them stay as
         # they were).
-        effects['hysteresis_width_c'] = args.hysteresis_width_c * factor(later)
-        effects['acceleration_dps_per_m_s2'] = [g * factor(later)
-                                                for g in args.acceleration_dps_per_m_s2]
-        units.append({'unit': f'unit-{k:03d}', 'seed': args.seed * FLEET_SEED_STRIDE + k,
-                      'effects': effects,
-                      'outlier': k in outliers,
+        varied['hysteresis_width_c'] = effects.hysteresis_width_c * factor(later)
+        varied['acceleration_dps_per_m_s2'] = [g * factor(later)
+                                               for g in effects.acceleration_dps_per_m_s2]
+        units.append({'unit': f'unit-{k:03d}', 'seed': seed * FLEET_SEED_STRIDE + k,
+                      'effects': varied,
+                      'outlier': k in chosen,
                       'zro_slope_shift_dps_per_c': OUTLIER_ZRO_SLOPE_DPS_PER_C
-                      if k in outliers else 0.0})
+                      if k in chosen else 0.0})
     return units
 
 
-def _simulate_fleet(args: argparse.Namespace) -> int:
-    """Write ``--fleet`` unit recordings, their truths, a manifest and fleet_truth.json."""
-    folder = Path(args.out)
-    check_output_folder(folder, '--out', new=True)
-    fmt = args.format or 'csv'
-    args.outputs.folder(folder, replace=False)   # the units go in with it, when all are done
-    units = _fleet_units(args)
+def _unit_run(run: _ChipRun, unit: dict) -> _ChipRun:
+    """Give the chip run of one unit of `_fleet_units`: its seed, effects and ZRO slope."""
+    varied = {**unit['effects'], 'acceleration_dps_per_m_s2':
+              tuple(unit['effects']['acceleration_dps_per_m_s2'])}
+    config = dataclasses.replace(run.config, seed=unit['seed'],
+                                 effects=dataclasses.replace(run.config.effects, **varied))
+    return dataclasses.replace(run, config=config,
+                               zro_slope_shift_dps_per_c=unit['zro_slope_shift_dps_per_c'])
+
+
+def _simulate_fleet(folder: Path, fmt: str, run: _ChipRun, count: int, outliers, outputs,
+                    progress_enabled) -> None:
+    """Write ``count`` unit recordings, their truths, a manifest and fleet_truth.json."""
+    outputs.folder(folder, replace=False)   # the units go in with it, when all are done
+    units = _fleet_units(run.config.seed, count, outliers, run.config.effects)
     rows = ['unit,path']
-    with Progress(len(units), f'simulating {len(units)} units', args.progress or None) as bar:
+    with Progress(len(units), f'simulating {len(units)} units', progress_enabled) as bar:
         for done, unit in enumerate(units):
-            unit_args = argparse.Namespace(**{**vars(args), 'seed': unit['seed'],
-                                              **unit['effects']})
             name = unit['unit'] + ('.csv' if fmt == 'csv' else '')
             out = folder / name
             unit['path'] = name
             unit['truth'] = unit['unit'] + '.truth.json'
-            _simulate_one(unit_args, out, fmt, folder / unit['truth'], False,
-                          unit['zro_slope_shift_dps_per_c'])
+            _write_simulated(_device_recording(_unit_run(run, unit), out, False), out, fmt,
+                             folder / unit['truth'], run.rate_hz, outputs, False)
             rows.append(f'{unit["unit"]},{name}')
             bar.update(done + 1)
     try:
-        write_result(args.outputs.file(folder / 'units.csv'), '\n'.join(rows) + '\n')
-        write_json(args.outputs.file(folder / 'fleet_truth.json'), {
-            'units': units, 'base_seed': args.seed,
+        write_result(outputs.file(folder / 'units.csv'), '\n'.join(rows) + '\n')
+        write_json(outputs.file(folder / 'fleet_truth.json'), {
+            'units': units, 'base_seed': run.config.seed,
             'notes': 'each unit is mlx-tempcomp simulate with its seed (chip coefficients '
                      'drawn by GyroTruth.random) and its effect sizes; an outlier unit has '
                      f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C added to every chip ZRO slope. '
@@ -409,10 +486,9 @@ def _simulate_fleet(args: argparse.Namespace) -> int:
     except OSError as err:
         msg = f'cannot write to {folder}: {err.strerror}'
         raise UserError(msg) from None
-    outliers = ', '.join(u['unit'] for u in units if u['outlier']) or 'none'
+    outliers_drawn = ', '.join(u['unit'] for u in units if u['outlier']) or 'none'
     print(f'wrote {len(units)} units into {folder} (manifest units.csv, fleet_truth.json); '
-          f'outliers: {outliers}')
-    return 0
+          f'outliers: {outliers_drawn}')
 
 
 def add_parser(commands) -> None:
@@ -447,6 +523,19 @@ def add_parser(commands) -> None:
                           help='multiply the datasheet noise (0: no noise; default: 1)')
     simulate.add_argument('--rate-dps', type=float, nargs='+', default=[0.0], metavar='DPS',
                           help='true rate, one value or one per axis (default: 0)')
+    _add_thermal_options(simulate)
+    _add_effect_options(simulate)
+    simulate.add_argument('--turntable', action='store_true',
+                          help='rate plateaus on each axis at several chamber temperatures '
+                               'with a reference rate and a second temperature, for fit --model '
+                               'chain')
+    _add_fleet_options(simulate)
+    add_progress_option(simulate)
+    simulate.set_defaults(handler=simulate_command)
+
+
+def _add_thermal_options(simulate) -> None:
+    """Add the thermal profile: start, cycle, ramp, holds, die lag."""
     thermal = simulate.add_argument_group('thermal profile')
     thermal.add_argument('--start-c', type=float, default=25.0, metavar='C',
                          help='chamber temperature at start (default: %(default)s)')
@@ -459,6 +548,10 @@ def add_parser(commands) -> None:
                          help='hold at each cycle temperature (default: %(default)s)')
     thermal.add_argument('--die-time-constant-s', type=non_negative_float, default=0.0,
                          metavar='S', help='die follows the chamber with this lag')
+
+
+def _add_effect_options(simulate) -> None:
+    """Add the effects of the chip simulation (not of --turntable)."""
     effects = simulate.add_argument_group('effects (chip simulation only)')
     effects.add_argument('--thermal-lag-s', type=non_negative_float, default=0.0, metavar='S',
                          help='temperature sensor lags the die (first order)')
@@ -482,10 +575,10 @@ def add_parser(commands) -> None:
                          help='supply: one voltage, or waypoints T:V ... (linear between); '
                               'given, the recording carries it (supply_voltage, '
                               '/imu/supply_voltage); default 5')
-    simulate.add_argument('--turntable', action='store_true',
-                          help='rate plateaus on each axis at several chamber temperatures '
-                               'with a reference rate and a second temperature, for fit --model '
-                               'chain')
+
+
+def _add_fleet_options(simulate) -> None:
+    """Add --fleet and its outliers."""
     fleet = simulate.add_argument_group('fleet')
     fleet.add_argument('--fleet', type=non_negative_int, metavar='N',
                        help='simulate N units into the new folder --out: unit-to-unit '
@@ -495,5 +588,3 @@ def add_parser(commands) -> None:
                        help=f'units of --fleet whose ZRO slope is off by '
                             f'{OUTLIER_ZRO_SLOPE_DPS_PER_C} deg/s/C (default: one in '
                             f'{FLEET_UNITS_PER_OUTLIER}, at least one)')
-    add_progress_option(simulate)
-    simulate.set_defaults(handler=simulate_command)

@@ -103,19 +103,22 @@ def _gain(without: np.ndarray, with_: np.ndarray) -> float:
 
 
 def _axis_report(without: np.ndarray, with_: np.ndarray, moving, starts) -> dict:
-    averaged = [bin_means(error, starts)[0] for error in (without, with_)]
+    (averaged_without, _), (averaged_with, _) = (bin_means(error, starts)
+                                                 for error in (without, with_))
     report = {'without': _statistics(without), 'with': _statistics(with_),
               'gain': _gain(without, with_),
-              'averaged_rms': {'without': _rms(averaged[0]), 'with': _rms(averaged[1])},
-              'averaged_gain': _gain(*averaged)}
+              'averaged_rms': {'without': _rms(averaged_without),
+                               'with': _rms(averaged_with)},
+              'averaged_gain': _gain(averaged_without, averaged_with)}
     if moving is not None:
         report['still_rms'] = {'without': _rms(without[~moving]), 'with': _rms(with_[~moving])}
         report['moving_rms'] = {'without': _rms(without[moving]), 'with': _rms(with_[moving])}
         ratios = [(_rms(with_[a:b]) / _rms(without[a:b]), a, b) for a, b in _runs(moving)
                   if _rms(without[a:b]) > 0.0]
-        worst = max(ratios, default=None)
-        report['worst_moving_segment'] = None if worst is None else {
-            'ratio': worst[0], 'rows': [worst[1], worst[2]]}
+        report['worst_moving_segment'] = None
+        if ratios:
+            ratio, first, end = max(ratios)
+            report['worst_moving_segment'] = {'ratio': ratio, 'rows': [first, end]}
     return report
 
 
