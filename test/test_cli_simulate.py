@@ -79,6 +79,9 @@ def test_bag_holds_the_csv_samples_on_the_raw_topics(tmp_path, capsys, storage):
     np.testing.assert_allclose(from_bag.gyro_rad_s, from_csv.gyro_rad_s, rtol=1e-11,
                                atol=1e-15)
     np.testing.assert_allclose(from_bag.temperature_c, from_csv.temperature_c, rtol=1e-11)
+    # The bag was staged, under its own name: its storage file is named after it.
+    assert sorted(p.name for p in bag_path.iterdir())[0].startswith('bag.')
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith('.')]
     with RawBagReader(bag_path) as bag:
         assert set(bag.bag_topics) == {'/imu/data_raw', '/imu/temperature_raw', '/imu/eeprom',
                                        '/imu/temperature_raw/x', '/imu/temperature_raw/y',
@@ -159,6 +162,11 @@ def test_simulate_bad_requests_are_user_errors(tmp_path, capsys):
         main(['simulate', '--out', str(tmp_path / 's.csv'), '--bias-step', 'soon'])
     assert exit_info.value.code == 2
     assert 'expected TIME_S:VALUE' in capsys.readouterr().err
+    for supply, needle in (('abc', "--supply-v: expected a positive number, got 'abc'"),
+                           ('0:abc', '--supply-v: expected TIME_S:VALUE')):
+        code = main(['simulate', '--out', str(tmp_path / 'v.csv'), '--supply-v', supply])
+        assert_user_error(code, capsys, needle)
+    assert not list(tmp_path.glob('*v.csv*'))
 
 
 def test_convert_skips_and_counts_bad_rows(tmp_path, capsys):

@@ -13,6 +13,7 @@ import functools
 import io
 import json
 import math
+import warnings
 
 from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
@@ -27,6 +28,7 @@ from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
 from mlx_tempcomp.parameters.compensation import model_error_of
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
+from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.recordings.recording import Recording
 from mlx_tempcomp.simulation.chamber import chamber_profile, CHAMBER_ZRO_DPS, device_offsets
 from mlx_tempcomp.simulation.physics import Effects, GyroTruth, Noise, Scenario
@@ -686,3 +688,15 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
         main(['diagnose', half, '--out', out, '--test', 'last'])
     assert "expected a number in [0, 1), got 'last'" in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_board_turned_through_all_six_faces_moved(tmp_path):
+    """The specific force's directions cancel out: it turned, with no NaN on the way."""
+    path = tmp_path / 'faces.csv'
+    stdout, _ = run_cli(['simulate', '--out', path, '--orientation-period-s', 600,
+                         '--cycle-c', 60, -20, '--rate-hz', 1, '--axes', 'z'])
+    recording = load_recording(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        result = diagnose(recording, DiagnosisSettings(max_order=4))
+    assert 'acceleration_sensitivity' not in dict(result.skipped)

@@ -4,7 +4,9 @@ A command's outputs, written whole or not at all: staged beside their targets, r
 `staged_outputs` gives an `Outputs` for one command run. Each output (a
 file, a folder, a bag folder its writer creates) is written under a staging
 name beside its target, in the same folder (a rename is atomic only within
-one file system) and hidden: ``.<name>.<random>.partial``. An output whose
+one file system) and hidden: ``.<name>.<random>.partial``; a folder its writer
+creates (a bag, which names its files after its folder) is written under
+its own name inside such a hidden folder, which goes once it is renamed out. An output whose
 target lies in a folder staged in the same run is written straight into that
 staging folder and moves with it. When the run ends normally, every target
 is replaced by its staged output: a previous folder is renamed aside first, a
@@ -70,6 +72,8 @@ class Outputs:
     def __init__(self):
         # (staging path, target, replace: whether a previous target may be replaced)
         self.pending = []
+        # Hidden folders holding a staged output under its own name, removed at the end.
+        self.holders = []
 
     def _in_staged_folder(self, target: Path):
         for staging, folder, _ in self.pending:
@@ -102,8 +106,10 @@ class Outputs:
                 inside.mkdir()
             return inside
         staging = _hidden(target, 'partial')
-        if create:
-            staging.mkdir()
+        staging.mkdir()
+        if not create:   # the writer creates it, named as the target
+            self.holders.append(staging)
+            staging = staging / target.name
         self.pending.append((staging, target, replace))
         return staging
 
@@ -112,6 +118,12 @@ class Outputs:
         for staging, _, _ in self.pending:
             _remove(staging)
         self.pending = []
+        self._remove_holders()
+
+    def _remove_holders(self) -> None:
+        for holder in self.holders:
+            _remove(holder)
+        self.holders = []
 
     def commit(self) -> None:
         """Put every staged output in its target's place, all or none (OSError if none)."""
@@ -128,6 +140,7 @@ class Outputs:
                 self.discard()
                 raise
         self.pending = []
+        self._remove_holders()
         for _, kept in done:
             if kept is not None:
                 _remove(kept)

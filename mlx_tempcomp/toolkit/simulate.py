@@ -75,9 +75,12 @@ def _time_value(text: str) -> tuple:
 
 def _supply(items) -> tuple:
     """Give supply waypoints ``(times_s, volts)`` from ``V`` or ``T:V ...``."""
-    if len(items) == 1 and ':' not in items[0]:
-        return (0.0,), (positive_float(items[0]),)
-    points = sorted(_time_value(item) for item in items)
+    try:
+        if len(items) == 1 and ':' not in items[0]:
+            return (0.0,), (positive_float(items[0]),)
+        points = sorted(_time_value(item) for item in items)
+    except argparse.ArgumentTypeError as err:
+        raise UserError(f'--supply-v: {err}') from None
     if any(v <= 0.0 for _, v in points):
         raise UserError('--supply-v: volts must be positive')
     return tuple(t for t, _ in points), tuple(v for _, v in points)

@@ -602,17 +602,24 @@ class DiagnosisProblem:
                             float(np.sum(self.counts[outside]) / np.sum(self.counts[held])))
 
     def motion(self) -> tuple:
-        """Return (turn of the specific force in deg, change of its magnitude in m/s^2)."""
+        """
+        Return (turn of the specific force in deg, change of its magnitude in m/s^2).
+
+        The turn is measured from the median direction; where the directions
+        cancel out (a board turned through all six faces), it turned 180 deg.
+        """
         means = self.acceleration_means()
         magnitude = np.linalg.norm(means, axis=1)
         usable = magnitude > 0.0
         if not usable.any():
             return 0.0, 0.0
         direction = means[usable] / magnitude[usable, None]
+        low, high = np.percentile(magnitude[usable], (1.0, 99.0))
         centre = np.median(direction, axis=0)
+        if np.linalg.norm(centre) < 1e-6:
+            return 180.0, float(high - low)
         centre /= np.linalg.norm(centre)
         angle = np.degrees(np.arccos(np.clip(direction @ centre, -1.0, 1.0)))
-        low, high = np.percentile(magnitude[usable], (1.0, 99.0))
         return float(np.percentile(angle, 99.0)), float(high - low)
 
     def report(self, done: int, total: int, label: str) -> None:
