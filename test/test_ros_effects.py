@@ -24,8 +24,9 @@ from mlx_tempcomp.simulation.turntable import (simulate_turntable, TurntableProt
 import numpy as np
 import pytest
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
-                         first_line_with, parse_list, Probe, rates, simulated_driver_params,
-                         start_model_replay, status_values)
+                         first_line_with, parse_list, Probe, rates, reliable,
+                         RELIABLE_RECORD_QOS, simulated_driver_params, start_model_replay,
+                         status_values)
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_srvs.srv import Trigger
 
@@ -346,17 +347,25 @@ def supply_model() -> EffectModel:
                        supply_reference_v=5.0)
 
 
-def start_supply_node(launcher, probe, tmp_path, model, **params):
-    """Start compensation_node on ``model``; give the probe's raw and supply publishers."""
+SUPPLY_INPUTS = ('imu/data_raw', 'imu/temperature_raw', 'imu/supply_voltage')
+
+
+def start_supply_node(launcher, probe, tmp_path, model, lossless=False, **params):
+    """
+    Start compensation_node on ``model``; give the probe's raw and supply publishers.
+
+    ``lossless``: the node's inputs and the probe's publishers reliable, for a test
+    that counts every sample (best effort drops some on a loaded machine).
+    """
     model_file = write_model_file(tmp_path / 'effects.yaml', effect_parameters(model, ('z',)))
+    qos_overrides = reliable(SUPPLY_INPUTS, 'subscription') if lossless else {}
     launcher.start('compensation_node', 'compensation_node',
-                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **params},
+                   {'recalibration.state_file': str(tmp_path / 'zro.yaml'), **qos_overrides,
+                    **params},
                    extra_args=['--params-file', model_file])
-    publishers = (probe.node.create_publisher(Imu, 'imu/data_raw', SENSOR_INPUT_QOS),
-                  probe.node.create_publisher(Temperature, 'imu/temperature_raw',
-                                              SENSOR_INPUT_QOS),
-                  probe.node.create_publisher(BatteryState, 'imu/supply_voltage',
-                                              SENSOR_INPUT_QOS))
+    qos = RELIABLE_RECORD_QOS if lossless else SENSOR_INPUT_QOS
+    publishers = tuple(probe.node.create_publisher(kind, topic, qos) for kind, topic in
+                       zip((Imu, Temperature, BatteryState), SUPPLY_INPUTS))
     probe.spin_until(lambda: all(p.get_subscription_count() for p in publishers) and
                      probe.node.count_publishers('imu/data'),
                      TIMEOUT_S, 'the compensation node', launcher)
@@ -422,7 +431,7 @@ def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_sample
     received = probe.subscribe(Imu, 'imu/data')
     probe.subscribe_diagnostics()
     imu_publisher, temperature_publisher, supply_publisher = start_supply_node(
-        launcher, probe, tmp_path, model, **{'supply_voltage.max_age_s': 1.0})
+        launcher, probe, tmp_path, model, lossless=True, **{'supply_voltage.max_age_s': 1.0})
     samples = 80
     stamps_ns = [T0_NS + i * PERIOD_NS for i in range(samples)]
     rate_rad_s = 0.1 + 0.01 * np.sin(np.arange(samples))
@@ -430,12 +439,7 @@ def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_sample
     # A monitor at 2 Hz on stamps of its own (70 ms before every fifth sample), silent after
     # 2.43 s: held until 3.43 s, so the 45 samples from 3.5 s on have no voltage.
     monitor = [(T0_NS + k * 500_000_000 - 70_000_000, 4.75 + k / 16) for k in range(6)]
-    # Best effort may lose the first messages after matching: the first voltage goes a few
-    # times (a repeated stamp replaces its voltage), so no sample lacks it for that reason.
-    for _ in range(5):
-        supply_publisher.publish(supply_message(*monitor[0]))
-        probe.spin_once(0.02)
-    pending = list(monitor[1:])
+    pending = list(monitor)
     for i, stamp_ns in enumerate(stamps_ns):
         # The hold goes by stamps, not arrival: a voltage sent 0.3 s of stamps early is
         # taken by the samples after it whatever the order the node gets the topics in.
@@ -463,7 +467,6 @@ def test_supply_voltage_of_a_slower_monitor_is_held_and_a_stale_one_skips_sample
     assert reported.level == DiagnosticStatus.ERROR
     assert 'needs the supply voltage but imu/supply_voltage gave none within ' \
         'supply_voltage.max_age_s (1 s)' in reported.message, reported.message
-    # Best effort may lose a first sample; none of those is stale.
     assert skipped(reported) == stale
     probe.drain()
     got = by_stamp(received)
