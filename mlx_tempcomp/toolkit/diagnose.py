@@ -35,7 +35,8 @@ from .uncertainty import (console_lines, error_by_temperature_json, error_lines,
                           outside_lines, outside_range_json, params_model_error,
                           plot_error_by_temperature)
 from ..core.diagnosis import (DEFAULT_REZERO_S, default_rezero_s, diagnose as run_diagnosis,
-                              DiagnosisSettings, METHODS, rezero_window_rows, SCORING)
+                              DiagnosisSettings, METHODS, RECORD_SEARCH, rezero_window_rows,
+                              SCORING, SEARCH_EFFECTS)
 from ..core.effects import RECORD_EFFECTS
 from ..core.errors import TempCompError
 from ..core.records import join_records
@@ -82,9 +83,8 @@ def add_parser(commands) -> None:
     parser = commands.add_parser(
         'diagnose', help='find the effects a temperature polynomial misses, add them, report',
         description='Fit a temperature polynomial (order by held-out blocks), then test '
-                    'each effect it lacks (thermal lag, hysteresis, time drift, bias step, '
-                    'second temperature, acceleration, scale factor, rate nonlinearity, '
-                    'cross-axis) on held-out blocks and add the best significant one, until '
+                    f'each effect it lacks ({", ".join(SEARCH_EFFECTS + RECORD_SEARCH)}) on '
+                    'held-out blocks and add the best significant one, until '
                     'none helps. Blocks are judged forward in time by default (each predicted '
                     'by a fit on the blocks before it). Several records of one unit are '
                     'fitted as one, each with its own history and bias offset (params.yaml '
