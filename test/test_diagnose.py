@@ -119,8 +119,13 @@ def diagnosed(name: str, record_effects: bool = False):
     return diagnose(recording(name), settings)
 
 
-# Every live effect this record can show (its simulated form in EFFECTS), and what diagnose
-# must have fitted for it, from the step's parameters and the model.
+# Live effects these records cannot show: the polynomial itself, a second gradient (one is
+# found), and those that need a second temperature, motion, a reference rate or axes.
+NOT_SHOWN = {'temperature_polynomial', 'thermal_gradient_2', 'secondary_temperature',
+             'acceleration_sensitivity', 'scale_factor_temperature', 'rate_nonlinearity',
+             'cross_axis'}
+# Every other live effect (its simulated form in EFFECTS), and what diagnose must have fitted
+# for it, from the step's parameters and the model.
 RECOVERED = {
     'thermal_lag': lambda parameters, model: parameters['thermal_lag_s'] == pytest.approx(
         LAG_S, rel=0.15),
@@ -175,9 +180,7 @@ def test_diagnose_adds_nothing_without_an_undeclared_effect(name):
     assert axis.cause is None or axis.cause.effect in RECORD_EFFECTS
     # Every live effect this record can support was tried, and refused; each is found where
     # the record shows it (RECOVERED).
-    live = set(LIVE_EFFECTS) - {'temperature_polynomial', 'thermal_gradient_2',
-                                'secondary_temperature', 'acceleration_sensitivity',
-                                'scale_factor_temperature', 'rate_nonlinearity', 'cross_axis'}
+    live = set(LIVE_EFFECTS) - NOT_SHOWN
     assert {c.effect for c in axis.rejected} == live
     assert live == set(RECOVERED)
     assert all(c.reason for c in axis.rejected)

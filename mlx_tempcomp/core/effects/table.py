@@ -31,8 +31,9 @@ and last the ZRO offset learned at rest: corrected = w - offset.
 
 Each effect is one `Effect` of the table `EFFECTS`, in the order above: its
 coefficient fields, the descriptions of its node parameters, the inputs it
-needs, live or not, and its bias term; the model, the diagnosis and the
-node parameters read it. ``time_drift`` and ``bias_step`` are tied to the
+needs, live or not, whether its bias term reads dT/dt, and its bias term;
+the model, the diagnosis and the node parameters read it
+(docs/architecture.md, "How to add an effect"). ``time_drift`` and ``bias_step`` are tied to the
 clock of the record they were found in (`RECORD_EFFECTS`); every other
 effect runs causally on a live stream (`LIVE_EFFECTS`).
 
