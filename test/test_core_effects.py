@@ -2,10 +2,12 @@
 
 from dataclasses import fields, replace
 import math
+from pathlib import Path
+import re
 
 from mlx_tempcomp.core.effects import (AxisTerms, EFFECT_NAMES, EffectModel, EFFECTS,
                                        FirstOrderLag, LIVE_EFFECTS, PARAMETER_DESCRIPTIONS,
-                                       play_state, PlayOperator, RECORD_EFFECTS,
+                                       play_state, PlayOperator, RECORD_EFFECTS, table,
                                        temperature_rate_c_s, TemperatureSlope)
 from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.model_interface import ModelInputs
@@ -248,3 +250,16 @@ def test_each_effect_is_present_and_needs_its_inputs_when_its_coefficients_are_s
                                         hysteresis_rad_s=0.1),)).inputs == frozenset()
     assert _full_model().live().record_effects == ()
     assert set(_full_model().record_effects) == RECORD_EFFECTS
+
+
+def test_every_effect_and_parameter_is_documented():
+    """The table's docstring and docs/diagnose.md give each effect, docs/ros.md each parameter."""
+    docs = Path(__file__).resolve().parents[1] / 'docs'
+    effects = (docs / 'diagnose.md').read_text().partition('\n## Effects\n')[2].partition(
+        '\n## ')[0]
+    for name in EFFECT_NAMES:
+        assert f'``{name}``' in table.__doc__, name
+        assert f'`{name}`' in effects, name
+    parameters = (docs / 'ros.md').read_text().partition('\n### `effects` and `chain`\n')[2]
+    for name in PARAMETER_DESCRIPTIONS:
+        assert re.search(rf'`effects\.{name}(\.<a>)?`', parameters), name

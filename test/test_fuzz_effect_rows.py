@@ -46,11 +46,11 @@ def _coefficients(low: int, high: int, coefficient=COEFFICIENT):
 def axis_terms(draw, axis: int, axes: int, coefficient) -> AxisTerms:
     """Give one axis's terms: a few effects (often none or one), so signed zeros survive."""
     terms = {'bias': draw(_coefficients(1, 5, coefficient))}
+    # An effect with shapes, signs or lengths to vary is drawn here; any other in its form of
+    # one coefficient (ONE_EFFECT), the coefficient drawn.
     for name in draw(st.sets(st.sampled_from(sorted(EFFECT_NAMES)))):
         if name == 'thermal_lag':
             terms['thermal_lag_s'] = draw(st.one_of(POSITIVE, POSITIVE.map(lambda v: -v)))
-        elif name == 'temperature_rate':
-            terms['temperature_rate_rad_s_per_c_s'] = draw(coefficient)
         elif name.startswith('thermal_gradient'):
             count = 2 if name.endswith('_2') else 1
             terms['gradient_time_constants_s'] = tuple(
@@ -61,8 +61,6 @@ def axis_terms(draw, axis: int, axes: int, coefficient) -> AxisTerms:
             terms['hysteresis_rad_s'] = draw(coefficient)
         elif name == 'supply_voltage':
             terms['supply_voltage'] = draw(_coefficients(1, 3, coefficient))
-        elif name == 'time_drift':
-            terms['time_drift_rad_s_per_s'] = draw(coefficient)
         elif name == 'bias_step':
             terms['bias_steps'] = draw(st.lists(st.tuples(st.floats(-10.0, 100.0), coefficient),
                                                 min_size=1, max_size=2).map(tuple))
@@ -75,10 +73,13 @@ def axis_terms(draw, axis: int, axes: int, coefficient) -> AxisTerms:
             terms['scale'] = draw(st.one_of(_coefficients(1, 3, coefficient), st.just((-1.0,))))
         elif name == 'rate_nonlinearity':
             terms['nonlinearity'] = draw(_coefficients(1, 2, coefficient))
-        elif name == 'cross_axis' and axes > 1:
-            cross = list(draw(_coefficients(axes, axes, coefficient)))
-            cross[axis] = 0.0
-            terms['cross_axis'] = tuple(cross)
+        elif name == 'cross_axis':
+            if axes > 1:
+                cross = list(draw(_coefficients(axes, axes, coefficient)))
+                cross[axis] = 0.0
+                terms['cross_axis'] = tuple(cross)
+        elif name != 'temperature_polynomial':
+            terms.update(ONE_EFFECT[name](draw(coefficient))[axis % 2])
     return AxisTerms(**terms)
 
 

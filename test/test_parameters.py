@@ -11,7 +11,7 @@ from pathlib import Path
 from hypothesis import given, strategies as st
 from mlx_tempcomp.core.model_error import ModelErrorTable
 from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS, limits_of, model_error_of
-from mlx_tempcomp.parameters.driver import DRIVER_SPECS
+from mlx_tempcomp.parameters.driver import DEVICES, DRIVER_SPECS
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.parameters.models import build_model, MODELS
 from mlx_tempcomp.parameters.specs import NoDefault, ParameterError, type_of
@@ -68,6 +68,20 @@ def test_the_shipped_config_lists_every_parameter():
     for name in commented - listed:
         key = name.removesuffix('.x').removesuffix('.y').removesuffix('.z').split('.')[-1]
         assert key in text.replace('#', ''), name
+
+
+def test_every_device_is_listed_where_a_user_looks():
+    """The config's device line, the README's device row and docs/ros.md's device table."""
+    root = Path(__file__).resolve().parents[1]
+    config = (root / 'config' / 'mlx_tempcomp.yaml').read_text()
+    (device_line,) = [line for line in config.splitlines() if line.strip().startswith('device:')]
+    readme = (root / 'README.md').read_text()
+    (readme_row,) = [line for line in readme.splitlines() if line.startswith('| `device` |')]
+    ros = (root / 'docs' / 'ros.md').read_text().partition('## Devices (`device`)')[2]
+    for device in DEVICES:
+        assert device in device_line.partition('#')[2], device
+        assert f'`{device}`' in readme_row, device
+        assert f'\n| `{device}`' in ros.partition('\n## ')[0], device
 
 
 def test_a_file_s_integer_for_a_double_is_read_as_the_nodes_take_it(tmp_path):

@@ -1,5 +1,6 @@
 """Every simulated part the driver streams satisfies the source protocol of `sources.protocol`."""
 
+from mlx_tempcomp.parameters.driver import DEVICES
 from mlx_tempcomp.sources import adis16130, mlx90609
 from mlx_tempcomp.sources.mpu6000 import SimulatedMpuSource
 from mlx_tempcomp.sources.protocol import Reading, SampleSource, SimulatedSource
@@ -17,6 +18,10 @@ SOURCES = {
     'adis16130': lambda: adis16130.SimulatedSensor(),
     'mpu6000': _mpu,
 }
+
+
+def test_every_device_has_its_simulated_source_here():
+    assert sorted(SOURCES) == sorted(DEVICES)
 
 
 @pytest.mark.parametrize('device', sorted(SOURCES))

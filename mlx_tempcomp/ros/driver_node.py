@@ -1,10 +1,10 @@
 """
 Driver node: raw rate and temperature from a simulated or SPI gyro, or a bag.
 
-``device`` picks the part from `STREAMS`: ``mlx90609`` (default,
-`mlx_tempcomp.ros.mlx90609_stream`), ``adis16130`` or ``mpu6000``
-(`adis16130_stream`, `mpu6000_stream`: no EEPROM topic, one temperature; the
-MPU adds linear acceleration); ``source`` ``bag`` replays a bag instead.
+``device`` picks the part's stream from `STREAMS` (a ``<part>_stream``
+module each; only the MLX90609 has an EEPROM topic and a temperature per
+chip, only the MPU-6000 linear acceleration); ``source`` ``bag`` replays a bag
+instead.
 
 Publishes (REP-145): ``imu/data_raw`` (sensor_msgs/Imu, nominal conversion,
 rad/s), ``imu/temperature_raw`` (sensor_msgs/Temperature, degC; with several

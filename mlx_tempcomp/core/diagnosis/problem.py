@@ -22,7 +22,8 @@ from .folds import cut_bins, Folds, weighted_rms
 from .results import HeldOutError
 from .settings import DiagnosisSettings, Progress
 from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, solve_cubic
-from ..effects import AxisTerms, EffectModel, FirstOrderLag, temperature_rate_c_s
+from ..effects import (AxisTerms, EffectModel, FirstOrderLag, SLOPE_EFFECTS,
+                       temperature_rate_c_s)
 from ..errors import CalibrationError
 from ..fitting import MIN_SPAN_C
 from ..metrics import temperature_branches
@@ -230,7 +231,7 @@ class DiagnosisProblem:
     def memory_s(self, spec: AxisSpec) -> float:
         """Give how far back the spec's history states reach: its longest time constant."""
         memory = [abs(spec.thermal_lag_s), *spec.gradient_s]
-        if spec.thermal_lag_s > 0.0 or spec.get('temperature_rate'):
+        if spec.thermal_lag_s > 0.0 or any(spec.get(effect.name) for effect in SLOPE_EFFECTS):
             memory.append(self.settings.rate_window_s)
         return max(memory)
 

@@ -6,7 +6,7 @@ from typing import Callable, Optional
 
 from .folds import INSIDE_ROWS, SCORING
 from ..baseline import PX4_ORDER
-from ..effects import DEFAULT_RATE_WINDOW_S, LIVE_EFFECTS
+from ..effects import DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, LIVE_EFFECTS, RECORD_EFFECTS
 from ..errors import CalibrationError
 from ..recalibration import RecalibrationLimits
 from ..validation import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
@@ -14,7 +14,7 @@ from ..validation import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAUL
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)
-RECORD_SEARCH = ('time_drift', 'bias_step')
+RECORD_SEARCH = tuple(e for e in EFFECT_NAMES if e in RECORD_EFFECTS)
 # The node's imu/recalibrate_zro: its default window (recalibration.duration_s) and the
 # fewest samples it accepts in it.
 DEFAULT_REZERO_S = 5.0

@@ -22,10 +22,10 @@ from .model import (AxisTerms, DEFAULT_SUPPLY_REFERENCE_V, EffectModel, LinearBt
                     MAX_GRADIENT_TERMS, MODEL_NAMES, polynomial_model)
 from .stream import EffectStream
 from .table import (Effect, EFFECT_NAMES, EFFECTS, LIVE_EFFECTS, PARAMETER_DESCRIPTIONS,
-                    RECORD_EFFECTS)
+                    RECORD_EFFECTS, SLOPE_EFFECTS)
 
 __all__ = ['AxisTerms', 'DEFAULT_RATE_WINDOW_S', 'DEFAULT_SUPPLY_REFERENCE_V', 'Effect',
            'EFFECT_NAMES', 'EffectModel', 'EFFECTS', 'EffectStream', 'FirstOrderLag',
            'LinearBtc', 'LIVE_EFFECTS', 'MAX_GRADIENT_TERMS', 'MODEL_NAMES',
            'PARAMETER_DESCRIPTIONS', 'play_state', 'PlayOperator', 'polynomial_model',
-           'RECORD_EFFECTS', 'temperature_rate_c_s', 'TemperatureSlope']
+           'RECORD_EFFECTS', 'SLOPE_EFFECTS', 'temperature_rate_c_s', 'TemperatureSlope']

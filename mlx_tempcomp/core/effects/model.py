@@ -25,7 +25,7 @@ import numpy as np
 
 from .history import DEFAULT_RATE_WINDOW_S, FirstOrderLag, History, play_state, TemperatureSlope
 from .stream import EffectStream
-from .table import clip, EFFECTS, polyval, quotient, RECORD_EFFECTS
+from .table import clip, EFFECTS, polyval, quotient, RECORD_EFFECTS, SLOPE_EFFECTS
 from ..errors import ConfigError
 from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
 from ..models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel,
@@ -118,7 +118,7 @@ class AxisTerms:
 
     @property
     def needs_slope(self) -> bool:
-        return self.thermal_lag_s > 0.0 or self.temperature_rate_rad_s_per_c_s != 0.0
+        return self.thermal_lag_s > 0.0 or any(effect.present(self) for effect in SLOPE_EFFECTS)
 
 
 @dataclass(frozen=True)

@@ -31,8 +31,9 @@ and last the ZRO offset learned at rest: corrected = w - offset.
 
 Each effect is one `Effect` of the table `EFFECTS`, in the order above: its
 coefficient fields, the descriptions of its node parameters, the inputs it
-needs, live or not, and its bias term; the model, the diagnosis and the
-node parameters read it. ``time_drift`` and ``bias_step`` are tied to the
+needs, live or not, whether its bias term reads dT/dt, and its bias term;
+the model, the diagnosis and the node parameters read it
+(docs/architecture.md, "How to add an effect"). ``time_drift`` and ``bias_step`` are tied to the
 clock of the record they were found in (`RECORD_EFFECTS`); every other
 effect runs causally on a live stream (`LIVE_EFFECTS`).
 
@@ -59,7 +60,8 @@ class Effect:
     when its ``marker`` field (its first field unless given) is non-zero,
     or holds at least ``count`` values when ``count`` is given. ``inputs``
     are the `ModelInputs` fields it needs; ``live`` is False when it is tied
-    to the clock of the record it was found in. ``bias(term, model, inputs,
+    to the clock of the record it was found in; ``slope`` says its bias term
+    reads the windowed dT/dt (``history.slope``). ``bias(term, model, inputs,
     history, total)`` adds its term to the bias of an axis (None: the effect
     acts elsewhere in `EffectModel.correct_axes`); its values are columns of
     a block or one row's floats, with the same operations for both.
@@ -73,6 +75,7 @@ class Effect:
     count: int = 0
     inputs: frozenset = frozenset()
     live: bool = True
+    slope: bool = False
     bias: Optional[Callable] = None
 
     def __post_init__(self) -> None:
@@ -180,7 +183,7 @@ EFFECTS = (
                'temperature_rate_window_s': 'dT/dt of thermal lag and temperature rate: the '
                                             'slope over this window (s)'}),
     Effect('temperature_rate', fields=('temperature_rate_rad_s_per_c_s',), inputs=_TIME,
-           bias=_rate_bias,
+           slope=True, bias=_rate_bias,
            descriptions={'temperature_rate_rad_s_per_c_s': 'axis {axis}: bias + c x dT/dt'}),
     Effect('thermal_gradient', fields=('gradient_time_constants_s', 'gradient_rad_s_per_c'),
            count=1, inputs=_TIME, bias=_gradient_bias,
@@ -237,6 +240,8 @@ EFFECT_NAMES = tuple(effect.name for effect in EFFECTS)
 # Effects that need the clock of the record they were fitted on: not for a live node.
 RECORD_EFFECTS = frozenset(effect.name for effect in EFFECTS if not effect.live)
 LIVE_EFFECTS = tuple(effect.name for effect in EFFECTS if effect.live)
+# Effects whose bias term reads the windowed dT/dt (the thermal lag's T_eff reads it too).
+SLOPE_EFFECTS = tuple(effect for effect in EFFECTS if effect.slope)
 # The description of every effects.* node parameter, by its name without the axis.
 PARAMETER_DESCRIPTIONS = {name: text for effect in EFFECTS
                           for name, text in effect.descriptions.items()}

@@ -18,7 +18,8 @@ from ..exports import (add_export_options, check_export_outputs, check_export_re
 from ..progress import add_progress_option
 from ..tracking import tracking_section
 from ..uncertainty import params_model_error
-from ...core.diagnosis import DEFAULT_REZERO_S, DiagnosisSettings, SCORING
+from ...core.diagnosis import (DEFAULT_REZERO_S, DiagnosisSettings, RECORD_SEARCH, SCORING,
+                               SEARCH_EFFECTS)
 from ...core.errors import TempCompError
 from ...parameters.files import effect_parameters, parameter_file, write_parameter_file
 
@@ -48,11 +49,11 @@ def add_parser(commands) -> None:
     parser = commands.add_parser(
         'diagnose', help='find the effects a temperature polynomial misses, add them, report',
         description='Fit a temperature polynomial (order by held-out blocks), then test '
-                    'each effect it lacks (thermal lag, hysteresis, time drift, bias step, '
-                    'second temperature, acceleration, scale factor, rate nonlinearity, '
-                    'cross-axis) on held-out blocks and add the best significant one, until '
-                    'none helps. Blocks are judged forward in time by default (each predicted '
-                    'by a fit on the blocks before it). Several records of one unit are '
+                    f'each effect it lacks ({", ".join(SEARCH_EFFECTS + RECORD_SEARCH)}) on '
+                    'held-out blocks and add the best significant one, until '
+                    'none helps. By default each block is predicted by a fit on the others '
+                    '(round-robin), scoring only the rows inside their fit\'s temperature '
+                    'range (extrapolation reported apart). Several records of one unit are '
                     'fitted as one, each with its own history and bias offset (params.yaml '
                     "carries the last record's). Writes report.md, report.json, PNG plots and "
                     'params.yaml for the compensation node into --out.')
