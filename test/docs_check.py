@@ -59,7 +59,6 @@ from dataclasses import dataclass, field
 import os
 from pathlib import Path
 import re
-import shlex
 import shutil
 import subprocess
 import sys
@@ -113,7 +112,7 @@ class Mismatch:
 
 def _options(block: Block, text: str) -> None:
     """Read the mark ``text`` (what follows ``docs-check``) into ``block``."""
-    parts = [part.strip() for part in text.split(';')] if text else []
+    parts = [part.strip() for part in re.findall(r"(?:[^;']|'[^']*')+", text)]
     head = parts[0] if parts else ''
     if head.startswith('by hand'):
         block.mark, block.reason = 'by hand', head.partition(':')[2].strip()
@@ -128,10 +127,9 @@ def _options(block: Block, text: str) -> None:
         name, _, value = part.partition(' ')
         value = value.strip()
         if name == 'ignore':
-            words = shlex.split(value)
-            if len(words) != 1:
+            if len(value) < 2 or value[0] != "'" or value[-1] != "'":
                 raise MarkError(f"{block.where}: ignore takes one quoted regex: ignore 'REGEX'")
-            block.ignore.append(re.compile(words[0]))
+            block.ignore.append(re.compile(value[1:-1]))
         elif name == 'exit' and value.isdigit():
             block.exit_code = int(value)
         elif name == 'timeout' and value.replace('.', '', 1).isdigit():
