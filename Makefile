@@ -14,7 +14,7 @@ PYTEST_ARGS ?=
 # start-up and DDS, which the other process fills. TEST_WORKERS=0 runs it in this process.
 TEST_WORKERS ?= 2
 
-.PHONY: venv demo test test-fast bench clean
+.PHONY: venv demo test test-fast docs-check bench clean
 
 venv: $(STAMP)
 
@@ -43,6 +43,11 @@ test: venv
 test-fast: venv
 	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile -m 'not ros and not slow' \
 		$(PYTEST_ARGS)
+
+# The marked commands of README.md and docs/, run from README's set-up, what they print compared
+# with the docs (test/docs_check.py; make test runs it too, test/test_docs.py).
+docs-check: venv
+	$(VENV_PY) test/docs_check.py
 
 bench: venv
 	@set -e; for script in bench/*.py; do \

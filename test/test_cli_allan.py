@@ -98,6 +98,8 @@ def test_kalibr_yaml_gives_the_known_densities(tmp_path, capsys):
                        ('accelerometer_random_walk', ACCEL_K)):
         print(f'{key}: {imu[key]:.4e}, true {truth:.4e} ({imu[key] / truth - 1:+.1%})')
         assert imu[key] == pytest.approx(truth, rel=0.10), key
+    print(''.join(line for line in target.read_text().splitlines(True)
+                  if not line.startswith('#')), end='')   # the file, for docs/toolkit-allan.md
     assert imu['rostopic'] == '/imu/data' and imu['update_rate'] == KALIBR_RATE_HZ
     assert f'wrote {target}' in out and 'upper bound' not in target.read_text()
 
