@@ -19,7 +19,7 @@ The marks, one per block, with options after ``;``:
 - ``docs-check`` before a ``sh`` block: run it (``bash -e -o pipefail``); it
   must exit with 0, or with ``exit N``.
 - ``docs-check`` before a ``console`` block: its ``$ `` lines (and their
-  ``\\`` continuations) are run, every other line is what they print.
+  ``\`` continuations) are run, every other line is what they print.
 - ``docs-check: output`` before any block: what the last run block printed.
 - ``docs-check: figures`` before a table or paragraph: every number in it
   with a decimal point is one the last run block printed, to its digits.
