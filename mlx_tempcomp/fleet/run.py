@@ -29,11 +29,9 @@ from ..toolkit.progress import Progress
 
 UNITS_FOLDER = 'units'
 SCHEDULER_VARIABLE = 'DASK_SCHEDULER_ADDRESS'
-# The local cluster's workers: without Dask's statistical profiler (it sampled the task's
-# stack every 10 ms: about 0.09 s of CPU per diagnosed unit, 12 %), and with the event
-# loop's tick and the memory and system monitors at 1 s, 1 s and 5 s instead of 20 ms,
-# 100 ms and 500 ms (their wake-ups took the task thread 3 to 7 % longer per unit, with
-# one worker on an idle core; bench/bench_fleet.py, docs/fleet.md).
+# The local cluster's workers: Dask's statistical profiler (a stack sample every 10 ms) off,
+# and the event loop's tick and monitors slowed, since each wake-up takes the interpreter
+# lock from the unit's task (docs/fleet.md, "Where the fleet's time goes").
 WORKER_SETTINGS = {
     'distributed.worker.profile.enabled': False,
     'distributed.admin.tick.interval': '1s',
