@@ -106,10 +106,13 @@ def connect(scheduler, workers):
             msg = f'scheduler {address}: cannot connect: {one_line(err)}'
             raise UserError(msg) from None
     # One thread per worker process: the commands are numpy and Python, and a worker
-    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME).
+    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME). No dashboard; the
+    # scheduler's HTTP server, started regardless, takes a free local port: on Dask's
+    # default one, a job beside another Dask cluster warned that the port was in use.
     with dask.config.set(WORKER_SETTINGS):
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None,
+                               scheduler_kwargs={'dashboard_address': '127.0.0.1:0'},
                                silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
