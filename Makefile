@@ -45,7 +45,7 @@ test-fast: venv
 		$(PYTEST_ARGS)
 
 # The marked commands of README.md and docs/, run from README's set-up, what they print compared
-# with the docs (test/docs_check.py; make test runs it too, test/test_docs.py).
+# with the docs (test/docs_check.py; .ci/run runs it after make test).
 docs-check: venv
 	$(VENV_PY) test/docs_check.py
 

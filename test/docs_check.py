@@ -1,4 +1,4 @@
-"""
+r"""
 Run the marked command blocks of README.md and docs/*.md and compare what they print.
 
 A fenced block is marked by an HTML comment on the line before it (blank lines
@@ -19,7 +19,7 @@ The marks, one per block, with options after ``;``:
 - ``docs-check`` before a ``sh`` block: run it (``bash -e -o pipefail``); it
   must exit with 0, or with ``exit N``.
 - ``docs-check`` before a ``console`` block: its ``$ `` lines (and their
-  ``\\`` continuations) are run, every other line is what they print.
+  ``\`` continuations) are run, every other line is what they print.
 - ``docs-check: output`` before any block: what the last run block printed.
 - ``docs-check: figures`` before a table or paragraph: every number in it
   with a decimal point is one the last run block printed, to its digits.
@@ -201,7 +201,8 @@ def _check_marks(blocks: list) -> None:
 
 
 def commands_and_output(block: Block) -> tuple:
-    """Give the script a block runs, and the output it shows with the doc's line numbers.
+    """
+    Give the script a block runs, and the output it shows with the doc's line numbers.
 
     A ``sh`` block shows no output of its own (None); a ``console`` block's
     ``$ `` lines and their continuations are the script, the other lines its output.
@@ -267,7 +268,8 @@ def line_matches(expected: str, actual: str, ignore: list = ()) -> bool:
 
 
 def compare(expected: list, actual: list, ignore: list = (), numbers: list = None) -> list:
-    """Give the mismatches between the doc's lines and the printed ones ([] when they agree).
+    """
+    Give the mismatches between the doc's lines and the printed ones ([] when they agree).
 
     ``numbers`` are the doc's line numbers of ``expected`` (1, 2, ... if not given); a
     line of only ``...`` matches any number of printed lines.
@@ -387,7 +389,8 @@ def check_doc(doc: Path, temp_root: Path, report=print) -> list:
         if block.mark == 'run':
             script, expected, numbers = commands_and_output(block)
             if _uses_shared(script) and not session.shared:
-                report(f'{block.where}: skipped: the shared data is missing ({session.env["SHARED"]})')
+                report(f'{block.where}: skipped: the shared data is missing '
+                       f'({session.env["SHARED"]})')
                 printed = None
                 continue
             code, printed, seconds = run(script, session, block.timeout_s)

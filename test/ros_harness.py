@@ -480,6 +480,18 @@ def by_stamp(msgs) -> dict:
     return {messages.stamp_to_ns(m.header.stamp): m for m in msgs}
 
 
+def paired(probe) -> tuple:
+    """
+    Give the stamps of imu/data the probe saw with their raw inputs, and the three by stamp.
+
+    The raw streams are best effort: on a loaded machine the probe may miss some, so tests
+    wait for the pairs themselves.
+    """
+    out, raw = by_stamp(probe.received['imu/data']), by_stamp(probe.received['imu/data_raw'])
+    temperature = by_stamp(probe.received['imu/temperature_raw'])
+    return [s for s in out if s in raw and s in temperature], out, raw, temperature
+
+
 def rates(msg: Imu) -> list:
     v = msg.angular_velocity
     return [v.x, v.y, v.z]

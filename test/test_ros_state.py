@@ -16,7 +16,7 @@ from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import write_state
 import numpy as np
 import pytest
-from ros_harness import (by_stamp, first_line_with, simulated_driver_params, UNTRACKED,
+from ros_harness import (first_line_with, paired, simulated_driver_params, UNTRACKED,
                          write_params)
 import yaml
 
@@ -75,13 +75,6 @@ CASES = {
                       ['zro.yaml'], 0.0),
     'leftover tmp': ('[WARN]', 'removed 1 temporary file(s) an interrupted save of', [], 0.0),
 }
-
-
-def paired(probe) -> tuple:
-    """Give the stamps of imu/data seen with their raw inputs, and the three by stamp."""
-    out, raw = by_stamp(probe.received['imu/data']), by_stamp(probe.received['imu/data_raw'])
-    temperature = by_stamp(probe.received['imu/temperature_raw'])
-    return [s for s in out if s in raw and s in temperature], out, raw, temperature
 
 
 def test_unusable_state_files_are_refused_and_the_node_compensates_without_them(

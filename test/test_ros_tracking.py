@@ -33,7 +33,7 @@ import pytest
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rest_records import rest_record
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
-                         first_line_with, Probe, simulated_driver_params,
+                         first_line_with, paired, Probe, simulated_driver_params,
                          start_model_replay, status_values, write_params)
 from std_srvs.srv import Trigger
 import yaml
@@ -298,13 +298,6 @@ def prepare(case: str, path, fingerprint: str) -> None:
             '0123456789abcdef')})
 
 
-def _paired_stamps(probe) -> list:
-    """Give the stamps of imu/data whose raw rate and temperature the probe saw as well."""
-    raw = by_stamp(probe.received['imu/data_raw'])
-    temperature = by_stamp(probe.received['imu/temperature_raw'])
-    return [s for s in by_stamp(probe.received['imu/data']) if s in raw and s in temperature]
-
-
 @pytest.mark.slow
 def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offset(
         launcher, probe, tmp_path):
@@ -323,13 +316,9 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
         node = launcher.compensation({**MODEL, 'recalibration.state_file': str(path)},
                                      label=case)
         probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
-        # Outputs with their raw inputs seen too (the raw streams are best effort: on a
-        # loaded machine the probe may miss some, so wait for the pairs themselves).
-        probe.spin_until(lambda: len(_paired_stamps(probe)) >= 20, TIMEOUT_S,
+        probe.spin_until(lambda: len(paired(probe)[0]) >= 20, TIMEOUT_S,
                          '20 compensated samples with their raw inputs', launcher)
-        out = list(probe.received['imu/data'])
-        raw = by_stamp(probe.received['imu/data_raw'])
-        temperature = by_stamp(probe.received['imu/temperature_raw'])
+        stamps, out, raw, temperature = paired(probe)
         node.signal(signal.SIGINT)
         assert node.stop() == 0
         probe.wait_quiet(['imu/data'], 0.3, TIMEOUT_S, launcher)
@@ -342,9 +331,8 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
         # Nothing learnt, so nothing written: the file is as it was.
         assert path.read_bytes() == before, case
         # Within the first window: the offset as saved, not yet carried forward.
-        stamps = [s for s in by_stamp(out) if s in raw and s in temperature][:20]
-        assert len(stamps) >= 10, case
-        got = np.array([by_stamp(out)[s].angular_velocity.z for s in stamps])
+        stamps = stamps[:20]
+        got = np.array([out[s].angular_velocity.z for s in stamps])
         expected = model.correct(np.array([[raw[s].angular_velocity.z] for s in stamps]),
                                  np.array([temperature[s].temperature for s in stamps]))
         # The saved offset fades toward the model by 1e-4 of itself a window: abs 1e-6.

@@ -2,7 +2,7 @@
 Recorded files for the toolkit and the driver's replay: CSV, rosbag2 bags, flight-controller logs.
 
 `recording` is what the toolkit works on (`Recording`); `load` loads one by
-the path's extension; `columns` and `csv_reader` read CSV files; `bag`,
+the path's extension; `columns` and `csv_reader` read CSV files, `csv_writer` writes them; `bag`,
 `bag_reader` and `bag_writer` our raw topics in rosbag2 bags; `flightlog`
 PX4 ULog (`ulog`) and ArduPilot DataFlash (`dataflash`) logs. No rclpy.
 

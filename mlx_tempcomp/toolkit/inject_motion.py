@@ -16,32 +16,14 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-import numpy as np
-
 from .common import (add_recording_options, check_output_file, load, non_negative_int,
                      read_options, UserError, write_json)
 from ..core.errors import TempCompError
-from ..recordings.recording import AXES
+from ..recordings.csv_writer import write_csv
 from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings
 
 SCHEDULES = ('cycle', 'mixed')
 _CSV_FORMAT = '%.17g'   # round trip: the reference is exact
-
-
-def _columns(recording, injected) -> dict:
-    columns = {'time': recording.time_s, 'temperature': recording.temperature_c}
-    columns.update((f'gyro_{a}', injected.gyro_rad_s[:, i])
-                   for i, a in enumerate(recording.axes))
-    columns.update((f'ref_{a}', injected.reference_rad_s[:, i])
-                   for i, a in enumerate(recording.axes))
-    if injected.acceleration_m_s2 is not None:
-        columns.update((f'acc_{a}', injected.acceleration_m_s2[:, i])
-                       for i, a in enumerate(AXES))
-    if recording.temperature_2_c is not None:
-        columns['temperature_2'] = recording.temperature_2_c
-    if recording.supply_voltage_v is not None:
-        columns['supply_voltage'] = recording.supply_voltage_v
-    return columns
 
 
 def inject_motion_command(args: argparse.Namespace) -> int:
@@ -60,10 +42,11 @@ def inject_motion_command(args: argparse.Namespace) -> int:
                                  schedule, recording.acceleration_m_s2)
     except TempCompError as err:
         raise UserError(f'{args.input}: {err}') from None
-    columns = _columns(recording, injected)
+    moved = dataclasses.replace(recording, gyro_rad_s=injected.gyro_rad_s,
+                                reference_rad_s=injected.reference_rad_s,
+                                acceleration_m_s2=injected.acceleration_m_s2)
     try:
-        np.savetxt(args.outputs.file(out), np.column_stack(list(columns.values())),
-                   fmt=_CSV_FORMAT, delimiter=',', header=','.join(columns), comments='')
+        write_csv(args.outputs.file(out), moved, _CSV_FORMAT)
         write_json(args.outputs.file(schedule_path), {
             'input': args.input, 'schedule': args.schedule, 'seed': args.seed,
             'settings': dataclasses.asdict(settings),

@@ -32,6 +32,7 @@ from ..core.errors import TempCompError
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
 from ..recordings.bag import STORAGES
+from ..recordings.csv_writer import write_csv
 from ..recordings.recording import AXES, Recording
 from ..simulation.physics import Effects, GRAVITY_M_S2, GyroTruth, Noise, NOMINAL_SUPPLY_V
 from ..simulation.turntable import simulate_turntable, TurntableProtocol
@@ -321,21 +322,8 @@ def _turntable_recording(out: Path, axes: tuple, seed: int, chamber_c,
 
 
 def _write_csv(path: Path, recording: Recording, target: Path) -> None:
-    columns = {'time': recording.time_s, 'temperature': recording.temperature_c}
-    columns.update((f'gyro_{a}', recording.gyro_rad_s[:, i]) for i, a in enumerate(recording.axes))
-    if recording.reference_rad_s is not None:
-        columns.update((f'ref_{a}', recording.reference_rad_s[:, i])
-                       for i, a in enumerate(recording.axes))
-    if recording.acceleration_m_s2 is not None:
-        columns.update((f'acc_{a}', recording.acceleration_m_s2[:, i])
-                       for i, a in enumerate(AXES))
-    if recording.temperature_2_c is not None:
-        columns['temperature_2'] = recording.temperature_2_c
-    if recording.supply_voltage_v is not None:
-        columns['supply_voltage'] = recording.supply_voltage_v
     try:
-        np.savetxt(path, np.column_stack(list(columns.values())), fmt=_CSV_FORMAT,
-                   delimiter=',', header=','.join(columns), comments='')
+        write_csv(path, recording, _CSV_FORMAT)
     except OSError as err:
         msg = f'cannot write {target}: {err.strerror}'
         raise UserError(msg) from None

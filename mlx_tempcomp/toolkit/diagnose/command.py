@@ -52,7 +52,7 @@ def add_parser(commands) -> None:
                     f'each effect it lacks ({", ".join(SEARCH_EFFECTS + RECORD_SEARCH)}) on '
                     'held-out blocks and add the best significant one, until '
                     'none helps. By default each block is predicted by a fit on the others '
-                    '(round-robin), scoring only the rows inside their fit\'s temperature '
+                    "(round-robin), scoring only the rows inside their fit's temperature "
                     'range (extrapolation reported apart). Several records of one unit are '
                     'fitted as one, each with its own history and bias offset (params.yaml '
                     "carries the last record's). Writes report.md, report.json, PNG plots and "
