@@ -45,9 +45,10 @@ block (run from the repository root: the virtual environment on PATH,
 ``$REPO`` the repository, ``$SHARED`` the shared data, then ``cd`` into a
 new temporary folder); its blocks run there in order, sharing files but not
 shell variables, and the nodes they start in a localhost-only ROS domain that
-no test session holds (claimed as test/conftest.py claims one). When the set-up's ``$SHARED`` does not exist (a worktree),
-the shared folder is looked up as the tests do (test/measured_data.py), and
-without it the blocks that name ``$SHARED`` are skipped, saying so.
+no test session holds (claimed as test/conftest.py claims one). When the
+set-up's ``$SHARED`` does not exist (a worktree), the shared folder is looked
+up as the tests do (test/measured_data.py), and without it the blocks that
+name ``$SHARED`` are skipped, saying so.
 
 Usage (from anywhere; after ``make venv``)::
 
