@@ -409,6 +409,8 @@ def check_doc(doc: Path, temp_root: Path, report=print) -> list:
                 found = [Mismatch(str(block.line + offset), number, 'not printed')
                          for offset, number in missing_figures(block.lines, printed)]
         else:
+            if block.mark == 'by hand':
+                printed = None    # what follows shows its output, not the last run block's
             continue
         for mismatch in found:
             mismatch.where = f'{block.where.rpartition(":")[0]}:{mismatch.where}'
