@@ -44,9 +44,11 @@ Each doc runs in a scratch folder of its own, made by README's set-up
 block (run from the repository root: the virtual environment on PATH,
 ``$REPO`` the repository, ``$SHARED`` the shared data, then ``cd`` into a
 new temporary folder); its blocks run there in order, sharing files but not
-shell variables. When the set-up's ``$SHARED`` does not exist (a worktree),
-the shared folder is looked up as the tests do (test/measured_data.py), and
-without it the blocks that name ``$SHARED`` are skipped, saying so.
+shell variables, and the nodes they start in a localhost-only ROS domain that
+no test session holds (claimed as test/conftest.py claims one). When the
+set-up's ``$SHARED`` does not exist (a worktree), the shared folder is looked
+up as the tests do (test/measured_data.py), and without it the blocks that
+name ``$SHARED`` are skipped, saying so.
 
 Usage (from anywhere; after ``make venv``)::
 
@@ -334,6 +336,10 @@ def set_up(temp_root: Path) -> Session:
     steps = [block for block in read_blocks(ROOT / 'README.md') if block.mark == 'set-up']
     if len(steps) != 1:
         raise MarkError(f'README.md: {len(steps)} blocks marked docs-check: set-up, not 1')
+    # The docs' nodes get a localhost-only ROS domain no test session or other check holds,
+    # as the tests' do: importing the tests' conftest claims one into os.environ.
+    sys.path.insert(0, str(ROOT / 'test'))
+    import conftest  # noqa: F401
     state = Path(tempfile.mkdtemp(prefix='set-up-', dir=temp_root))
     script = '\n'.join(steps[0].lines) + \
         f'\npwd > {state}/pwd\nenv -0 > {state}/env\n'
@@ -348,7 +354,6 @@ def set_up(temp_root: Path) -> Session:
     env['PYTHONUNBUFFERED'] = '1'    # stdout and stderr in the order a terminal shows them
     shared = Path(env.get('SHARED', ''))
     if not (shared / 'data').is_dir():
-        sys.path.insert(0, str(ROOT / 'test'))
         from measured_data import FLIGHT_LOGS
         shared = FLIGHT_LOGS.parent.parent
         env['SHARED'] = env['MLX_TEMPCOMP_SHARED'] = str(shared)
@@ -404,6 +409,8 @@ def check_doc(doc: Path, temp_root: Path, report=print) -> list:
                 found = [Mismatch(str(block.line + offset), number, 'not printed')
                          for offset, number in missing_figures(block.lines, printed)]
         else:
+            if block.mark == 'by hand':
+                printed = None    # what follows shows its output, not the last run block's
             continue
         for mismatch in found:
             mismatch.where = f'{block.where.rpartition(":")[0]}:{mismatch.where}'

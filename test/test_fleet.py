@@ -517,6 +517,21 @@ def test_the_local_clusters_workers_run_with_the_fleet_settings(monkeypatch):
     assert list(seen.values()) == [WORKER_SETTINGS]
 
 
+def test_a_local_cluster_beside_another_warns_of_no_port(monkeypatch, recwarn):
+    """Two fleet jobs at once: the second's scheduler takes a free port, and says nothing."""
+    import socket
+    monkeypatch.delenv('DASK_SCHEDULER_ADDRESS', raising=False)
+    with socket.socket() as holder:   # Dask's default HTTP port, as another cluster holds it
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        with contextlib.suppress(OSError):   # already held: all the better
+            holder.bind(('', 8787))
+            holder.listen()
+        client, cluster = connect(None, 1)
+        client.close()
+        cluster.close()
+    assert [str(w.message) for w in recwarn if 'already in use' in str(w.message)] == []
+
+
 @pytest.mark.slow
 def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(tmp_path):
     """

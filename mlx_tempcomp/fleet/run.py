@@ -29,11 +29,9 @@ from ..toolkit.progress import Progress
 
 UNITS_FOLDER = 'units'
 SCHEDULER_VARIABLE = 'DASK_SCHEDULER_ADDRESS'
-# The local cluster's workers: without Dask's statistical profiler (it sampled the task's
-# stack every 10 ms: about 0.09 s of CPU per diagnosed unit, 12 %), and with the event
-# loop's tick and the memory and system monitors at 1 s, 1 s and 5 s instead of 20 ms,
-# 100 ms and 500 ms (their wake-ups took the task thread 3 to 7 % longer per unit, with
-# one worker on an idle core; bench/bench_fleet.py, docs/fleet.md).
+# The local cluster's workers: Dask's statistical profiler (a stack sample every 10 ms) off,
+# and the event loop's tick and monitors slowed, since each wake-up takes the interpreter
+# lock from the unit's task (docs/fleet.md, "Where the fleet's time goes").
 WORKER_SETTINGS = {
     'distributed.worker.profile.enabled': False,
     'distributed.admin.tick.interval': '1s',
@@ -108,10 +106,13 @@ def connect(scheduler, workers):
             msg = f'scheduler {address}: cannot connect: {one_line(err)}'
             raise UserError(msg) from None
     # One thread per worker process: the commands are numpy and Python, and a worker
-    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME).
+    # process runs one unit at a time anyway (unit._ONE_AT_A_TIME). No dashboard; the
+    # scheduler's HTTP server, started regardless, takes a free local port: on Dask's
+    # default one, a job beside another Dask cluster warned that the port was in use.
     with dask.config.set(WORKER_SETTINGS):
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None,
+                               scheduler_kwargs={'dashboard_address': '127.0.0.1:0'},
                                silence_logs=logging.ERROR)
     return Client(cluster), cluster
 

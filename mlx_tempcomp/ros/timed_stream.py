@@ -143,10 +143,8 @@ class TimedStream:
         self.start_wall = time.monotonic()
         tick = 1.0 / publish_rate_hz / (real_time_factor or 1.0)
         self.timer = self.ports.node.create_timer(max(tick, MIN_TICK_S), self.tick)
-        # What start-up allocated (rclpy, numpy, the part and its tables: about 90,000
-        # objects) lives as long as the process: out of the collector's sight, a full
-        # collection takes well under 1 ms instead of about 60 ms of CPU, which on a busy
-        # machine stretched past MAX_BACKLOG_S and cost device reads.
+        # What start-up allocated lives as long as the process: frozen, a full collection
+        # skips it and stays short enough not to stretch a tick past MAX_BACKLOG_S.
         gc.freeze()
 
     @property
