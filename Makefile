@@ -47,7 +47,7 @@ test-fast: venv
 # The marked commands of README.md and docs/, run from README's set-up, what they print compared
 # with the docs (test/docs_check.py; .ci/run runs it after make test).
 docs-check: venv
-	$(VENV_PY) test/docs_check.py
+	$(VENV_PY) test/docs_check.py --jobs 2
 
 bench: venv
 	@set -e; for script in bench/*.py; do \
