@@ -144,3 +144,9 @@ def test_the_checks_see_a_long_function_and_a_circle():
 
 def test_only_cli_errors_and_init_sit_at_the_top_of_the_package():
     assert sorted(path.name for path in PACKAGE.glob('*.py')) == sorted(TOP_LEVEL)
+
+
+def test_the_readme_stays_under_160_lines():
+    """A newcomer's first page: the rest belongs in docs/."""
+    lines = (PACKAGE.parent / 'README.md').read_text(encoding='utf-8').splitlines()
+    assert len(lines) < 160, f'README.md has {len(lines)} lines'
