@@ -262,7 +262,9 @@ class TimedStream:
 
 
 class DeviceStream(TimedStream):
-    """One ADIS16130 or MPU-6000 part, simulated (a `SimulatedSource`) or on spidev."""
+    """One ADIS16130 or MPU-6000 part, simulated (a `SimulatedSource`) or on spidev or i2c-dev."""
+
+    bus_name = 'SPI'            # the bus the part is read over, as the diagnostics name it
 
     def __init__(self, ports: StreamPorts, source: SampleSource, hardware_id: str,
                  simulated: bool, natural_rate_hz: float):
@@ -303,7 +305,8 @@ class DeviceStream(TimedStream):
                   **self.source.counters, **self.extra_status(), 'last_error': self.last_error}
         missed = self.missing_reads()
         if self.consecutive_failures:
-            return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
+            return (DiagnosticStatus.ERROR, f'{self.bus_name} reads failing: {self.last_error}',
+                    values)
         if missed:
             return DiagnosticStatus.WARN, missed, values
         if self.saturated:
