@@ -162,6 +162,9 @@ def open_i2c(bus: int, address: int) -> SmbusTransport:
         msg = (f'cannot open {path}: no such I2C bus (ls /dev/i2c-* lists those there are; '
                'enable the bus and load the i2c-dev module)')
         raise TransportError(msg) from None
+    except PermissionError:
+        msg = f'cannot open {path}: permission denied (add the user to the i2c group)'
+        raise TransportError(msg) from None
     except OSError as err:
         msg = f'cannot open {path}: {err}'
         raise TransportError(msg) from None

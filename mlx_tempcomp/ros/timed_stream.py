@@ -3,9 +3,10 @@ Driver streams: a part sampled at its own rate on a timer, published as means at
 
 `TimedStream` is the schedule every part shares (`mlx_tempcomp.ros.mlx90609_stream`,
 `adis16130_stream`, `mpu6000_stream`); `DeviceStream` adds what the one-part
-SPI devices share: a source of `mlx_tempcomp.sources.protocol`, MISO faults
-and the diagnostics. A stream gets `StreamPorts` from the driver node: what it
-may use of it, no more.
+devices (SPI, or I2C for the MPU) share: a source of
+`mlx_tempcomp.sources.protocol`, data-line faults and the diagnostics. A
+stream gets `StreamPorts` from the driver node: what it may use of it, no
+more.
 """
 
 import collections
