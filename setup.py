@@ -23,6 +23,7 @@ setup(
             'numpy>=1.24',
             'pyyaml',
             'spidev',
+            'smbus2',   # the MPU-6000 family on I2C (source i2c)
             'rosbags>=0.11',
             'ros-jazzy-rclpy[fastrtps]',
             'ros-jazzy-common-interfaces',

@@ -51,13 +51,15 @@ settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
 def pytest_collection_modifyitems(config, items):
-    """Skip tests marked ``hardware`` on a machine without an SPI device."""
-    if glob.glob('/dev/spidev*'):
-        return
-    skip = pytest.mark.skip(reason='needs an SPI device (/dev/spidev*)')
+    """Skip tests marked ``hardware`` on a machine without the device nodes they need."""
     for item in items:
-        if 'hardware' in item.keywords:
-            item.add_marker(skip)
+        marker = item.get_closest_marker('hardware')
+        if marker is None:
+            continue
+        # hardware(devices='/dev/i2c-*') for an I2C part; an SPI device by default.
+        pattern = marker.kwargs.get('devices', '/dev/spidev*')
+        if not glob.glob(pattern):
+            item.add_marker(pytest.mark.skip(reason=f'needs a device node ({pattern})'))
 
 
 # Fixtures of the ROS tests (launcher: node subprocesses, probe: an rclpy node with its own

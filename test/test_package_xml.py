@@ -26,7 +26,8 @@ SOURCES = {'mlx_tempcomp': 'exec', 'launch': 'exec', 'test': 'test'}
 # Top-level module -> its rosdep key, or None where rosdep has none (then the pip name).
 # Keys checked against rosdep's base lists (ros/rosdistro rosdep/python.yaml): the python3-*
 # keys below are defined there; rosbags, allantools, pyulog, pymavlink, dask (distributed),
-# fsspec and apsw have no key of any name; spidev only as python3-spidev-pip.
+# fsspec and apsw have no key of any name; spidev only as python3-spidev-pip, smbus2 only as
+# python3-smbus2-pip (python3-smbus is another package, the i2c-tools binding).
 ROSDEP_KEYS = {
     # ROS 2 packages: the package name is the key.
     'rclpy': 'rclpy',
@@ -47,6 +48,7 @@ ROSDEP_KEYS = {
     'yaml': 'python3-yaml',
     'matplotlib': 'python3-matplotlib',
     'spidev': 'python3-spidev-pip',
+    'smbus2': 'python3-smbus2-pip',
     'pytest': 'python3-pytest',
     'hypothesis': 'python3-hypothesis',
     # No rosdep key: pip (docs/ros.md, setup.py extras).

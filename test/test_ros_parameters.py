@@ -24,7 +24,7 @@ INVALID = {
                         'invalid parameter oversample: Invalid parameter value (0) for parameter. '
                         'Reason: Parameter oversample out of range. Min: 1, Max: 256'),
     'source_usb': ('driver_node', {'source': 'usb'},
-                   "invalid parameter source: 'usb' is not one of simulated, spidev, bag"),
+                   "invalid parameter source: 'usb' is not one of simulated, spidev, i2c, bag"),
     'axes_w': ('driver_node', {'axes': ['w']},
                "invalid parameter axes: ['w'], give 1 to 3 distinct of 'x', 'y', 'z'"),
     'model_cubic': ('compensation_node', {'model': 'cubic'},

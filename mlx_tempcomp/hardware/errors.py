@@ -14,7 +14,11 @@ class TransportError(HardwareError):
 
 
 class SilentBusError(HardwareError):
-    """Every answer bit is the same (all ones or all zeros): nothing drives MISO."""
+    """Nothing answers: every SPI answer bit the same (no part drives MISO), or no I2C ACK."""
+
+
+class NackError(SilentBusError):
+    """No device acknowledged its I2C address: absent, unpowered, or at another address."""
 
 
 class RefusalError(HardwareError):

@@ -1,32 +1,39 @@
 """
-MPU-6000 / MPU-6500 SPI protocol: register map, start-up, data and offset registers.
+MPU-6000 / MPU-6050 / MPU-6500 protocol over SPI or I2C: register map, start-up, data, offsets.
 
-One SPI frame is an address byte then data bytes, MSB first. Bit 7 of the
-address byte set means read; the register address auto-increments, so one
-frame reads a whole block (burst read) or writes several registers.
+The register map is the same on both buses. One SPI frame is an address byte
+then data bytes, MSB first; bit 7 of the address byte set means read. On I2C
+(a `RegisterTransport`) the register address has no read flag: the bus's own
+read bit does that; the part answers at 0x68 (AD0 low) or 0x69 (AD0 high).
+Either way the register address auto-increments, so one transfer reads a
+whole block (burst read) or writes several registers. The MPU-6050 has no
+SPI; over SPI the I2C interface is disabled at start (I2C_IF_DIS), over I2C
+it is not.
 
 Register map and scales: MPU-6000/6050 and MPU-6500 register maps (SPI mode 0
-or 3, at most 1 MHz for configuration registers). The offset registers and
+or 3, at most 1 MHz for configuration registers; I2C at most 400 kHz). The offset registers and
 their formats are those of the application note "Using Hardware Offset Registers for
 Calibration": gyro
 XG/YG/ZG_OFFS_USR at 0x13..0x18 on both variants, accelerometer
 XA/YA/ZA_OFFS_USR at 0x06..0x0B (MPU-6000/6050) or 0x77/0x7A/0x7D (MPU-6500;
 the note's 0x0E for ZA_OFFS_USRL is a typo for 0x7E, its own code reads two
 bytes from 0x7D). Temperature conversions are UNCONFIRMED (datasheets, not
-the seed): MPU-6000 T = raw / 340 + 36.53, MPU-6500 T = raw / 333.87 + 21.
+the seed): MPU-6000/6050 T = raw / 340 + 36.53, MPU-6500 T = raw / 333.87 + 21.
 """
 
 from dataclasses import dataclass
-from typing import Optional, Sequence, Tuple
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from .errors import FaultCounters, HardwareError, ProtocolError, SilentBusError
-from .transport import Transport
+from .errors import FaultCounters, HardwareError, NackError, ProtocolError, SilentBusError
+from .transport import RegisterTransport, Transport
 from ..core.errors import CalibrationError
 from ..core.offsets import from_twos_complement, merge_preserving_bit0, STANDARD_GRAVITY_M_S2
 
 READ_FLAG = 0x80
+# 7-bit I2C addresses: AD0 low, AD0 high.
+I2C_ADDRESSES = (0x68, 0x69)
 
 # Registers.
 XG_OFFS_USRH = 0x13            # then YG at 0x15, ZG at 0x17 (high byte first)
@@ -69,14 +76,16 @@ class Variant:
     accel_offset_registers: Tuple[int, int, int]    # high byte of XA, YA, ZA_OFFS_USR
     temperature_lsb_per_c: float
     temperature_offset_c: float
+    spi: bool = True                                # the MPU-6050 speaks I2C only
 
     def temperature_c(self, raw: int) -> float:
         return raw / self.temperature_lsb_per_c + self.temperature_offset_c
 
 
 MPU6000 = Variant('mpu6000', 0x68, (0x06, 0x08, 0x0A), 340.0, 36.53)
+MPU6050 = Variant('mpu6050', 0x68, (0x06, 0x08, 0x0A), 340.0, 36.53, spi=False)
 MPU6500 = Variant('mpu6500', 0x70, (0x77, 0x7A, 0x7D), 333.87, 21.0)
-VARIANTS = {variant.name: variant for variant in (MPU6000, MPU6500)}
+VARIANTS = {variant.name: variant for variant in (MPU6000, MPU6050, MPU6500)}
 
 
 def variant_named(name: str) -> Variant:
@@ -140,7 +149,7 @@ def _three_ints(values: Sequence[int], what: str) -> Tuple[int, int, int]:
 
 class Mpu6000:
     """
-    One MPU-6000 or MPU-6500 behind a `Transport`.
+    One MPU-6000, MPU-6050 or MPU-6500 behind a `Transport` (SPI) or `RegisterTransport` (I2C).
 
     `start` resets and configures the part and reads the factory accelerometer
     offsets; `read` gives gyro rad/s, acceleration m/s^2 and temperature.
@@ -148,7 +157,8 @@ class Mpu6000:
     saturated output, a flag on the reading.
     """
 
-    def __init__(self, transport: Transport, variant: Variant = MPU6000, *,
+    def __init__(self, transport: Union[Transport, RegisterTransport],
+                 variant: Variant = MPU6000, *,
                  gyro_full_scale_dps: int = 250, accel_full_scale_g: int = 2,
                  dlpf_config: int = 3, sample_rate_divider: int = 0, settle_s: float = 0.1):
         if gyro_full_scale_dps not in GYRO_LSB_PER_DPS:
@@ -165,6 +175,10 @@ class Mpu6000:
         if not 0 <= sample_rate_divider <= 255:
             msg = f'sample_rate_divider must be 0..255, got {sample_rate_divider}'
             raise HardwareError(msg)
+        self.bus = 'i2c' if isinstance(transport, RegisterTransport) else 'spi'
+        if self.bus == 'spi' and not variant.spi:
+            msg = f'the {variant.name} has no SPI interface: read it over I2C'
+            raise HardwareError(msg)
         self.transport = transport
         self.variant = variant
         self.gyro_full_scale_dps = gyro_full_scale_dps
@@ -176,17 +190,33 @@ class Mpu6000:
         self.factory_accel_lsb: Optional[Tuple[int, int, int]] = None
 
     def read_registers(self, address: int, count: int) -> bytes:
-        """Burst-read ``count`` registers from ``address`` in one frame."""
-        rx = self.transport.transfer(bytes((address | READ_FLAG,)) + bytes(count))
-        if len(rx) != count + 1:
+        """Burst-read ``count`` registers from ``address`` (one SPI frame, I2C block reads)."""
+        if self.bus == 'spi':
+            rx = self.transport.transfer(bytes((address | READ_FLAG,)) + bytes(count))
+            what, data, expected = 'SPI frame', rx[1:], count + 1
+        else:
+            try:
+                rx = data = self.transport.read_registers(address, count)
+            except NackError:
+                self.counters.silent_bus += 1
+                raise
+            what, expected = 'I2C block read', count
+        if len(rx) != expected:
             self.counters.protocol_errors += 1
-            msg = f'SPI frame returned {len(rx)} bytes, expected {count + 1}'
+            msg = f'{what} returned {len(rx)} bytes, expected {expected}'
             raise ProtocolError(msg)
-        return rx[1:]
+        return data
 
     def write_registers(self, address: int, data: bytes) -> None:
-        """Write ``data`` to consecutive registers from ``address`` in one frame."""
-        self.transport.transfer(bytes((address & 0x7F,)) + bytes(data))
+        """Write ``data`` to consecutive registers from ``address`` (one frame, or block)."""
+        if self.bus == 'spi':
+            self.transport.transfer(bytes((address & 0x7F,)) + bytes(data))
+            return
+        try:
+            self.transport.write_registers(address, bytes(data))
+        except NackError:
+            self.counters.silent_bus += 1
+            raise
 
     def _write_checked(self, address: int, data: bytes) -> None:
         self.write_registers(address, data)
@@ -198,16 +228,22 @@ class Mpu6000:
             raise ProtocolError(msg)
 
     def who_am_i(self) -> int:
-        return self.read_registers(WHO_AM_I, 1)[0]
+        try:
+            return self.read_registers(WHO_AM_I, 1)[0]
+        except NackError as err:
+            msg = (f'WHO_AM_I: {err}; an MPU answers at 0x{I2C_ADDRESSES[0]:02X} with AD0 low, '
+                   f'0x{I2C_ADDRESSES[1]:02X} with AD0 high')
+            raise NackError(msg) from None
 
     def start(self) -> None:
         """
         Identify, reset and configure the part; read the factory accel offsets.
 
         Sequence: WHO_AM_I; DEVICE_RESET, wait; SIGNAL_PATH_RESET, wait (the
-        register map asks for both over SPI); I2C_IF_DIS; wake on the X gyro
-        PLL, wait; DLPF, sample rate divider and full-scale ranges, each read
-        back. The reset clears the user offset registers: write them after.
+        register map asks for both over SPI); I2C_IF_DIS (SPI only: over I2C it
+        would cut the bus it speaks on); wake on the X gyro PLL, wait; DLPF,
+        sample rate divider and full-scale ranges, each read back. The reset
+        clears the user offset registers: write them after.
         """
         identity = self.who_am_i()
         if identity in (0x00, 0xFF):
@@ -217,7 +253,7 @@ class Mpu6000:
         if identity != self.variant.who_am_i:
             self.counters.protocol_errors += 1
             others = [v.name for v in VARIANTS.values() if v.who_am_i == identity]
-            hint = f' (an {others[0]}?)' if others else ''
+            hint = f' (an {" or ".join(others)}?)' if others else ''
             msg = (f'WHO_AM_I read 0x{identity:02X}, expected 0x{self.variant.who_am_i:02X} '
                    f'for {self.variant.name}{hint}')
             raise ProtocolError(msg)
@@ -225,7 +261,8 @@ class Mpu6000:
         self.transport.wait(self.settle_s)
         self.write_registers(SIGNAL_PATH_RESET, bytes((SIGNAL_PATH_RESET_ALL,)))
         self.transport.wait(self.settle_s)
-        self._write_checked(USER_CTRL, bytes((I2C_IF_DIS,)))
+        if self.bus == 'spi':
+            self._write_checked(USER_CTRL, bytes((I2C_IF_DIS,)))
         self._write_checked(PWR_MGMT_1, bytes((CLKSEL_PLL_X,)))
         self.transport.wait(self.settle_s)
         # SMPLRT_DIV, CONFIG, GYRO_CONFIG, ACCEL_CONFIG are consecutive: one burst write.

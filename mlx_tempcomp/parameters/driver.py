@@ -2,22 +2,27 @@
 The driver node's parameters: its specs per device and source, and the simulated effects.
 
 `DEVICES` names the parts the driver reads (a test holds it equal to the
-driver's ``STREAMS``); `DRIVER_SPECS` are the parameters both nodes share
-(`specs.COMMON_SPECS`), then the driver's: the source, SPI, bag replay, the
-simulated part, and one group per device (``adis16130.*``, ``mpu6000.*``).
+driver's ``STREAMS``), `I2C_DEVICES` those of them that also speak I2C;
+`DRIVER_SPECS` are the parameters both nodes share (`specs.COMMON_SPECS`),
+then the driver's: the source, SPI, I2C, bag replay, the simulated part, and
+one group per device (``adis16130.*``, ``mpu6000.*``). `bus_of` gives the bus
+a part is read over and refuses I2C for a part that has none.
 """
 
-from .specs import COMMON_SPECS, NoDefault, Spec
+from .specs import COMMON_SPECS, NoDefault, ParameterError, Spec
 from ..simulation.mlx90609 import Fault
 from ..simulation.physics import Effects
 
 DEVICES = ('mlx90609', 'adis16130', 'mpu6000')
+# The parts with an I2C interface; the others speak SPI only.
+I2C_DEVICES = ('mpu6000',)
 
 DRIVER_SPECS = COMMON_SPECS + (
-    Spec('device', 'mlx90609', 'sensor read by the simulated and spidev sources', read_only=True,
-         choices=DEVICES),
-    Spec('source', 'simulated', 'where raw data comes from', read_only=True,
-         choices=('simulated', 'spidev', 'bag')),
+    Spec('device', 'mlx90609', 'sensor read by the simulated, spidev and i2c sources',
+         read_only=True, choices=DEVICES),
+    Spec('source', 'simulated', 'where raw data comes from: simulated, spidev (Linux SPI), i2c '
+         '(Linux i2c-dev; the mpu6000 family only) or bag', read_only=True,
+         choices=('simulated', 'spidev', 'i2c', 'bag')),
     Spec('frame_id', 'imu_link', 'frame_id of published messages (REP-145)'),
     Spec('publish_rate_hz', 100.0, 'publish rate in Hz (simulated time for the simulated '
          'source); each message is the mean of the device samples of its interval',
@@ -36,6 +41,10 @@ DRIVER_SPECS = COMMON_SPECS + (
          read_only=True, low=0, high=20000000),
     Spec('spi.mode', 3, 'SPI mode (0 or 3 work: data latched on the rising edge)',
          read_only=True, low=0, high=3),
+    Spec('i2c.bus', 1, 'i2c-dev bus number (/dev/i2c-<bus>); the adapter sets the clock '
+         '(device tree), at most 400 kHz for the MPU', read_only=True, low=0, high=255),
+    Spec('i2c.address', 0x68, '7-bit I2C address of the part; the MPU: 0x68 (104) with AD0 '
+         'low, 0x69 (105) with AD0 high', read_only=True, low=0x08, high=0x77),
     Spec('bag.path', '', 'rosbag2 folder (sqlite3 or mcap) to replay', read_only=True),
     Spec('bag.rate_factor', 1.0,
          'replay speed: 1 = recorded rate, 2 = twice as fast, 0 = as fast as the consumer '
@@ -61,6 +70,9 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('bag.temperature_2_topic', '',
          "second-temperature topic in the bag, replayed as imu/temperature_2_raw ('' = none)",
          read_only=True),
+    Spec('simulation.bus', 'spi', 'bus the simulated part is read over: spi (frames) or i2c '
+         '(block reads at i2c.address; the mpu6000 family only)', read_only=True,
+         choices=('spi', 'i2c')),
     Spec('simulation.seed', 0, 'seed of the simulated chips and their noise', read_only=True,
          low=0, high=2**31 - 1),
     Spec('simulation.real_time_factor', 1.0,
@@ -133,8 +145,8 @@ DRIVER_SPECS = COMMON_SPECS + (
          "linear_btc parameter file ('' = ~/.ros/mlx_tempcomp/<node name>_linear_btc.yaml)"),
     Spec('adis16130.bias_procedure.node_name', 'compensation_node',
          'node section of the parameter file'),
-    Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000 (or 6050 register map) or MPU-6500',
-         read_only=True, choices=('mpu6000', 'mpu6500')),
+    Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000, MPU-6050 (I2C only, the registers of '
+         'the MPU-6000) or MPU-6500', read_only=True, choices=('mpu6000', 'mpu6050', 'mpu6500')),
     Spec('mpu6000.gyro_full_scale_dps', 250, 'gyro range: 250, 500, 1000 or 2000 deg/s',
          read_only=True, low=250, high=2000),
     Spec('mpu6000.accel_full_scale_g', 2, 'accelerometer range: 2, 4, 8 or 16 g',
@@ -165,6 +177,18 @@ DRIVER_SPECS = COMMON_SPECS + (
          'rewrite the gyro offset registers when the temperature moved this much since the '
          'last write', read_only=True, low=0.001, high=100.0),
 )
+
+
+def bus_of(values: dict) -> str:
+    """Give the bus the part is read over, 'spi' or 'i2c' (the bag source: 'spi', unused)."""
+    name = {'i2c': 'source', 'simulated': 'simulation.bus'}.get(values['source'])
+    if name is None or values[name] != 'i2c':
+        return 'spi'
+    if values['device'] not in I2C_DEVICES:
+        msg = (f'invalid parameter {name}: the {values["device"]} speaks SPI only; i2c is for '
+               f'the {", ".join(I2C_DEVICES)}')
+        raise ParameterError(msg)
+    return 'i2c'
 
 
 def effects_of(values: dict) -> Effects:

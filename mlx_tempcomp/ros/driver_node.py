@@ -1,5 +1,5 @@
 """
-Driver node: raw rate and temperature from a simulated or SPI gyro, or a bag.
+Driver node: raw rate and temperature from a simulated, SPI or I2C gyro, or a bag.
 
 ``device`` picks the part's stream from `STREAMS` (a ``<part>_stream``
 module each; only the MLX90609 has an EEPROM topic and a temperature per
@@ -35,7 +35,7 @@ from .mpu6000_stream import MpuStream
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, stream_publisher
 from .runner import run
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..parameters.driver import DRIVER_SPECS
+from ..parameters.driver import bus_of, DRIVER_SPECS
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
 from ..recordings.bag import (absolute_topic, ImuRecord, RawTopics, SupplyVoltageRecord,
                               TemperatureRecord)
@@ -69,6 +69,8 @@ class DriverNode(Node):
         self.indices = messages.axis_indices(self.axes)
         # Every device refuses bad sensor.* values at start, though only the MLX90609 uses them.
         transfer_of(self.values)
+        # A part that speaks SPI only refuses source i2c (and simulation.bus i2c).
+        bus_of(self.values)
         self.frame_id = self.values['frame_id']
         self.covariance = messages.rate_covariance(self.indices,
                                                    self.values['rate_noise_rad_s'])

@@ -1,5 +1,5 @@
 """
-The MPU-6000/6500 driver stream and its ``imu/calibrate_offsets`` service.
+The MPU-6000/6050/6500 driver stream, on SPI or I2C, and its ``imu/calibrate_offsets`` service.
 
 Gyro, accelerometer and one temperature, no EEPROM. The stream writes the
 offset registers saved in its state file at start, offers
@@ -25,7 +25,8 @@ from ..core.models import AXIS_NAMES
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
-from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
+from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
+from ..parameters.driver import bus_of
 from ..parameters.files import node_values
 from ..parameters.models import build_model
 from ..parameters.specs import axes_of, ParameterError
@@ -118,7 +119,7 @@ class _OffsetRefresh(OffsetRefresh):
 
 class MpuStream(DeviceStream):
     """
-    An MPU-6000/6500: gyro, accelerometer and temperature; hardware offset registers.
+    An MPU-6000/6050/6500 on SPI or I2C: gyro, accelerometer and temperature; offset registers.
 
     The offsets live in the part only until power-off, so the ones saved by
     ``imu/calibrate_offsets`` are written again at every start. With
@@ -144,22 +145,7 @@ class MpuStream(DeviceStream):
                        f'{", ".join(str(v) for v in sorted(allowed))}, got {options[name]}')
                 raise ParameterError(msg)
         variant = values['mpu6000.variant']
-        if values['source'] == 'simulated':
-            if values['simulation.die_time_constant_s'] != 0.0:
-                msg = ('invalid parameter simulation.die_time_constant_s: the simulated mpu6000 '
-                       'follows its thermal profile directly, give 0')
-                raise ParameterError(msg)
-            source = mpu6000.SimulatedMpuSource(
-                MpuTruth.random(np.random.default_rng(values['simulation.seed']),
-                                rate_dps=self._true_rate_dps(values, ports.axes),
-                                thermal=thermal_profile(values, 0.0)),
-                variant, values['simulation.seed'], **options)
-            hardware_id = f'simulated {variant.upper()} (seed {values["simulation.seed"]})'
-        else:
-            cs = chip_select(values, 'mpu6000')
-            source = mpu6000.spidev_mpu(values['spi.bus'], cs, speed_hz(values, 1_000_000),
-                                        values['spi.mode'], variant, **options)
-            hardware_id = f'{variant.upper()} on /dev/spidev{values["spi.bus"]}.{cs}'
+        source, hardware_id = self._open(values, ports.axes, options)
         source.start()
         self.variant = variant
         self.acceleration_covariance = messages.acceleration_covariance(
@@ -183,6 +169,41 @@ class MpuStream(DeviceStream):
         gyro_rate_hz = 8000.0 if options['dlpf_config'] in (0, 7) else 1000.0
         super().__init__(ports, source, hardware_id, values['source'] == 'simulated',
                          gyro_rate_hz / (1 + options['sample_rate_divider']))
+
+    def _open(self, values: dict, axes, options: dict) -> tuple:
+        """Open the part on its bus (`bus_of`): give the source and its hardware id."""
+        variant = values['mpu6000.variant']
+        self.bus_name = bus_of(values).upper()
+        bus_parameter = 'source' if values['source'] != 'simulated' else 'simulation.bus'
+        if self.bus_name == 'SPI' and not variant_named(variant).spi:
+            msg = (f'invalid parameter {bus_parameter}: the {variant} speaks I2C only, give i2c '
+                   '(and i2c.bus, i2c.address)')
+            raise ParameterError(msg)
+        address = values['i2c.address']
+        if self.bus_name == 'I2C' and address not in I2C_ADDRESSES:
+            msg = (f'invalid parameter i2c.address: an MPU answers at 0x68 (104, AD0 low) or '
+                   f'0x69 (105, AD0 high), got 0x{address:02X} ({address})')
+            raise ParameterError(msg)
+        at = f' on I2C at 0x{address:02X}' if self.bus_name == 'I2C' else ''
+        if values['source'] == 'simulated':
+            if values['simulation.die_time_constant_s'] != 0.0:
+                msg = ('invalid parameter simulation.die_time_constant_s: the simulated mpu6000 '
+                       'follows its thermal profile directly, give 0')
+                raise ParameterError(msg)
+            seed = values['simulation.seed']
+            source = mpu6000.SimulatedMpuSource(
+                MpuTruth.random(np.random.default_rng(seed),
+                                rate_dps=self._true_rate_dps(values, axes),
+                                thermal=thermal_profile(values, 0.0)),
+                variant, seed, self.bus_name.lower(), address, **options)
+            return source, f'simulated {variant.upper()}{at} (seed {seed})'
+        if self.bus_name == 'I2C':
+            source = mpu6000.i2c_mpu(values['i2c.bus'], address, variant, **options)
+            return source, f'{variant.upper()} on /dev/i2c-{values["i2c.bus"]} at 0x{address:02X}'
+        cs = chip_select(values, 'mpu6000')
+        source = mpu6000.spidev_mpu(values['spi.bus'], cs, speed_hz(values, 1_000_000),
+                                    values['spi.mode'], variant, **options)
+        return source, f'{variant.upper()} on /dev/spidev{values["spi.bus"]}.{cs}'
 
     @staticmethod
     def _true_rate_dps(values: dict, axes) -> tuple:

@@ -3,9 +3,10 @@ Driver streams: a part sampled at its own rate on a timer, published as means at
 
 `TimedStream` is the schedule every part shares (`mlx_tempcomp.ros.mlx90609_stream`,
 `adis16130_stream`, `mpu6000_stream`); `DeviceStream` adds what the one-part
-SPI devices share: a source of `mlx_tempcomp.sources.protocol`, MISO faults
-and the diagnostics. A stream gets `StreamPorts` from the driver node: what it
-may use of it, no more.
+devices (SPI, or I2C for the MPU) share: a source of
+`mlx_tempcomp.sources.protocol`, data-line faults and the diagnostics. A
+stream gets `StreamPorts` from the driver node: what it may use of it, no
+more.
 """
 
 import collections
@@ -262,7 +263,9 @@ class TimedStream:
 
 
 class DeviceStream(TimedStream):
-    """One ADIS16130 or MPU-6000 part, simulated (a `SimulatedSource`) or on spidev."""
+    """One ADIS16130 or MPU-6000 part, simulated (a `SimulatedSource`) or on spidev or i2c-dev."""
+
+    bus_name = 'SPI'            # the bus the part is read over, as the diagnostics name it
 
     def __init__(self, ports: StreamPorts, source: SampleSource, hardware_id: str,
                  simulated: bool, natural_rate_hz: float):
@@ -303,7 +306,8 @@ class DeviceStream(TimedStream):
                   **self.source.counters, **self.extra_status(), 'last_error': self.last_error}
         missed = self.missing_reads()
         if self.consecutive_failures:
-            return DiagnosticStatus.ERROR, f'SPI reads failing: {self.last_error}', values
+            return (DiagnosticStatus.ERROR, f'{self.bus_name} reads failing: {self.last_error}',
+                    values)
         if missed:
             return DiagnosticStatus.WARN, missed, values
         if self.saturated:

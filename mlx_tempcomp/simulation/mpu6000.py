@@ -1,8 +1,13 @@
 """
-A simulated MPU-6000 / MPU-6500 that answers at the SPI register level.
+A simulated MPU-6000 / MPU-6050 / MPU-6500 that answers at the register level, on SPI or I2C.
 
-It speaks the frames of `mlx_tempcomp.hardware.mpu6000`: bit 7 of the first
-byte selects read, the address auto-increments over the 128 registers. The
+Its SPI face speaks the frames of `mlx_tempcomp.hardware.mpu6000`: bit 7 of
+the first byte selects read, the address auto-increments over the 128
+registers. Its I2C face (`i2c_read`, `i2c_write`, on a
+`mlx_tempcomp.simulation.i2c.SimulatedI2cBus` at ``i2c_address``) reads and
+writes the same registers without a read flag; it stops acknowledging once
+I2C_IF_DIS is set on a part that has SPI (the MPU-6050 has none: its SPI
+face drives nothing, every byte reads 0xFF). The
 outputs come from `MpuTruth` and pass through the offset registers as on the
 part: the gyro offset adds offset x 0.031 deg/s (the note's +-1000 dps format),
 the accelerometer offset adds (register & ~1) / 2048 g, where the factory
@@ -12,14 +17,18 @@ and the accelerometer offsets hold the factory values.
 """
 
 from dataclasses import dataclass
+import errno
+import os
 from typing import Optional
 
 import numpy as np
 
 from .clock import SimClock
+from .i2c import SimulatedI2cBus
 from .physics import ThermalProfile
 from ..core.offsets import ACCEL_OFFSET_LSB_PER_G, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB
 from ..hardware import mpu6000 as protocol
+from ..hardware.transport import SmbusTransport
 
 REGISTER_COUNT = 128
 _DATA = range(protocol.ACCEL_XOUT_H, protocol.ACCEL_XOUT_H + protocol.DATA_BYTES)
@@ -65,11 +74,12 @@ class MpuTruth:
 
 
 class SimulatedMpu6000:
-    """Register-level model of the part's SPI interface."""
+    """Register-level model of the part's SPI and I2C interfaces."""
 
     def __init__(self, truth: MpuTruth = MpuTruth(), variant: protocol.Variant = protocol.MPU6000,
                  clock: Optional[SimClock] = None, seed: int = 0, sclk_hz: float = 1e6,
-                 gyro_offset_dps_per_lsb: float = GYRO_OFFSET_DPS_PER_LSB):
+                 gyro_offset_dps_per_lsb: float = GYRO_OFFSET_DPS_PER_LSB,
+                 i2c_address: int = protocol.I2C_ADDRESSES[0]):
         if truth.thermal.time_constant_s != 0.0:
             msg = 'the simulated MPU follows its thermal profile directly (time_constant_s 0)'
             raise ValueError(msg)
@@ -78,7 +88,10 @@ class SimulatedMpu6000:
         self.clock = clock or SimClock()
         self.bit_time_s = 1.0 / sclk_hz
         self.gyro_offset_dps_per_lsb = gyro_offset_dps_per_lsb
-        self.stuck_miso: Optional[int] = None      # 0x00 or 0xFF: nothing drives MISO
+        self.i2c_address = i2c_address              # the AD0 pin: 0x68 low, 0x69 high
+        # 0x00 or 0xFF: the data line stuck (MISO; on I2C, SDA: held low, or never pulled
+        # low to acknowledge).
+        self.stuck_miso: Optional[int] = None
         self._rng = np.random.default_rng(seed)
         self.registers = bytearray(REGISTER_COUNT)
         self._data = bytes(protocol.DATA_BYTES)
@@ -123,23 +136,52 @@ class SimulatedMpu6000:
         return b''.join(protocol.word_bytes(int(v))
                         for v in np.clip(np.round(counts), low, high))
 
-    def frame(self, tx: bytes) -> bytes:
-        """Execute one SPI frame, an address byte then data; return the MISO bytes."""
-        address = tx[0] & 0x7F
-        span = range(address, address + len(tx) - 1)
+    def _latch(self, address: int, count: int) -> range:
+        """Give the registers an access spans; a span over the outputs takes a new sample."""
+        span = range(address, address + count)
         if not self.registers[protocol.PWR_MGMT_1] & protocol.SLEEP and \
                 any(a in _DATA for a in span):
             self._data = self._sample()
+        return span
+
+    def frame(self, tx: bytes) -> bytes:
+        """Execute one SPI frame, an address byte then data; return the MISO bytes."""
+        if not self.variant.spi:
+            return b'\xff' * len(tx)                # no SPI pins: nothing drives MISO
+        address = tx[0] & 0x7F
+        span = self._latch(address, len(tx) - 1)
         self.clock.advance(8 * len(tx) * self.bit_time_s)
         if tx[0] & protocol.READ_FLAG:
             rx = bytes((0,)) + bytes(self._read(a % REGISTER_COUNT) for a in span)
         else:
-            for offset, value in enumerate(tx[1:]):
-                self._write((address + offset) % REGISTER_COUNT, value)
+            self._write_block(address, tx[1:])
             rx = bytes(len(tx))
         if self.stuck_miso is not None:
             return bytes((self.stuck_miso,)) * len(tx)
         return rx
+
+    def _i2c_answers(self) -> None:
+        """Raise the ``OSError`` i2c-dev gives when the part does not take part in a transfer."""
+        if self.stuck_miso == 0x00:
+            raise OSError(errno.ETIMEDOUT, os.strerror(errno.ETIMEDOUT))
+        if self.stuck_miso == 0xFF or (self.variant.spi and self.registers[protocol.USER_CTRL]
+                                       & protocol.I2C_IF_DIS):
+            raise OSError(errno.ENXIO, os.strerror(errno.ENXIO))
+
+    def i2c_read(self, register: int, count: int) -> bytes:
+        """Execute one I2C register read: the register address, then ``count`` bytes."""
+        self._i2c_answers()
+        return bytes(self._read(a % REGISTER_COUNT) for a in self._latch(register, count))
+
+    def i2c_write(self, register: int, data: bytes) -> None:
+        """Execute one I2C register write: the register address, then ``data``."""
+        self._i2c_answers()
+        self._latch(register, len(data))
+        self._write_block(register, data)
+
+    def _write_block(self, address: int, data: bytes) -> None:
+        for offset, value in enumerate(data):
+            self._write((address + offset) % REGISTER_COUNT, value)
 
     def _read(self, address: int) -> int:
         if address in _DATA:
@@ -158,6 +200,13 @@ class SimulatedMpu6000:
 
     def transport(self) -> 'SimulatedMpuTransport':
         return SimulatedMpuTransport(self)
+
+    def i2c_transport(self, address: Optional[int] = None) -> SmbusTransport:
+        """Give the I2C transport to ``address`` (default: this part's) on a bus of its own."""
+        bus = SimulatedI2cBus(self.clock)
+        bus.attach(self.i2c_address, self)
+        return SmbusTransport(bus, self.i2c_address if address is None else address,
+                              'the simulated I2C bus', self.clock.advance)
 
 
 class SimulatedMpuTransport:

@@ -1,5 +1,5 @@
 """
-An MPU-6000 / MPU-6500 read as a 3-axis source, over spidev or simulated.
+An MPU-6000 / MPU-6050 / MPU-6500 read as a 3-axis source: over spidev or i2c-dev, or simulated.
 
 Each sample carries gyro rad/s, acceleration m/s^2, the die temperature and
 a stamp on the source's clock (simulated seconds, or monotonic seconds on
@@ -15,8 +15,8 @@ import numpy as np
 
 from ..core.offsets import accel_offset_lsb, gyro_offset_lsb, rest_bias, RestBias
 from ..hardware.errors import HardwareError
-from ..hardware.mpu6000 import Mpu6000, variant_named
-from ..hardware.transport import SpidevTransport
+from ..hardware.mpu6000 import I2C_ADDRESSES, Mpu6000, variant_named
+from ..hardware.transport import open_i2c, SpidevTransport
 from ..simulation.clock import SimClock
 from ..simulation.mpu6000 import MpuTruth, SimulatedMpu6000
 
@@ -126,13 +126,19 @@ class MpuSource:
 
 
 class SimulatedMpuSource(MpuSource):
-    """A `SimulatedMpu6000` on its own simulated clock."""
+    """A `SimulatedMpu6000` on its own simulated clock, read over SPI or I2C (``bus``)."""
 
     def __init__(self, truth: MpuTruth = MpuTruth(), variant: str = 'mpu6000', seed: int = 0,
-                 **options):
+                 bus: str = 'spi', i2c_address: int = I2C_ADDRESSES[0], **options):
         self.clock = SimClock()
-        self.simulated = SimulatedMpu6000(truth, variant_named(variant), self.clock, seed)
-        super().__init__(Mpu6000(self.simulated.transport(), variant_named(variant), **options),
+        self.simulated = SimulatedMpu6000(truth, variant_named(variant), self.clock, seed,
+                                          i2c_address=i2c_address)
+        if bus not in ('spi', 'i2c'):
+            msg = f'bus must be spi or i2c, got {bus!r}'
+            raise HardwareError(msg)
+        transport = self.simulated.transport() if bus == 'spi' else \
+            self.simulated.i2c_transport()
+        super().__init__(Mpu6000(transport, variant_named(variant), **options),
                          lambda: self.clock.now_s)
 
     def advance_to(self, time_s: float) -> None:
@@ -145,6 +151,19 @@ def spidev_mpu(bus: int, chip_select: int, speed_hz: int = 1_000_000, mode: int 
     """Open the part on ``/dev/spidev<bus>.<chip_select>``, stamped in monotonic seconds."""
     part = variant_named(variant)
     transport = SpidevTransport(bus, chip_select, speed_hz, mode)
+    try:
+        device = Mpu6000(transport, part, **options)
+    except HardwareError:
+        transport.close()
+        raise
+    return MpuSource(device, time.monotonic)
+
+
+def i2c_mpu(bus: int, address: int = I2C_ADDRESSES[0], variant: str = 'mpu6000',
+            **options) -> MpuSource:
+    """Open the part at ``address`` on ``/dev/i2c-<bus>``, stamped in monotonic seconds."""
+    part = variant_named(variant)
+    transport = open_i2c(bus, address)
     try:
         device = Mpu6000(transport, part, **options)
     except HardwareError:
