@@ -158,7 +158,8 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
     columns.add_argument('--preset', metavar='NAME',
                          help='column map of a known data set (CSV only)')
     columns.add_argument('--columns', metavar='SPEC',
-                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
+                         help='column map, canonical=column[:scale to its unit], e.g. '
+                              'time=timestamp:1e-6,gyro_z=gz_dps:0.0174533 (CSV only)')
     parser.add_argument('--imu-topic', default=RAW_IMU_TOPIC, metavar='TOPIC',
                         help="Imu topic read from a bag (default: %(default)s, the driver's raw "
                              'output, which every bag the package writes holds; calibration '
