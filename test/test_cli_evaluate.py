@@ -217,7 +217,8 @@ def test_a_misspelled_key_is_named_with_the_closest_one(tmp_path):
     assert 'model polynomial from' in result.stdout
     result = subprocess.run([CLI, 'evaluate', csv_path, '--params', str(windows), '--strict'],
                             capture_output=True, text=True, timeout=60)
-    assert (result.returncode, result.stderr) == (2, f'error: {warning} (--strict)\n')
+    assert (result.returncode, result.stderr) == \
+        (2, f'error: {warning}; --strict refuses the file\n')
     assert result.stdout == ''
 
 

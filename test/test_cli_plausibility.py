@@ -90,7 +90,7 @@ def test_a_column_no_gyro_record_holds_warns_in_one_line_and_strict_refuses(
     assert out.exists()
     out.unlink()
     code = main(['fit', path, *columns, '--out', str(out), '--strict'])
-    assert_user_error(code, capsys, f'error: {warning}', ' (--strict)\n')
+    assert_user_error(code, capsys, f'error: {warning}; --strict refuses the record\n')
     assert not out.exists()
     if fixed is not None:   # the map the line gives reads the file without a warning
         assert main(['fit', path, '--columns', fixed, '--out', str(out), '--strict']) == 0
@@ -123,7 +123,7 @@ def test_every_command_that_reads_a_record_warns_or_refuses(tmp_path, capsys, ca
     if rest_only:
         assert code == 0 and capsys.readouterr().err == ''
         return
-    assert_user_error(code, capsys, f'error: {warning} (--strict)\n')
+    assert_user_error(code, capsys, f'error: {warning}; --strict refuses the record\n')
     code = main(argv)
     err = capsys.readouterr().err
     assert code == 0, err

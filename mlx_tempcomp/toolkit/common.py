@@ -339,7 +339,7 @@ def _check_plausible(path: str, recording: Recording, options: ReadOptions) -> N
             columns = None
     lines = implausible_columns(recording, options.at_rest, columns)
     if lines and options.strict:
-        raise UserError(lines[0] + ' (--strict)')
+        raise UserError(f'{lines[0]}; --strict refuses the record')
     for line in lines:
         print(f'warning: {line}', file=sys.stderr)
 

@@ -111,7 +111,7 @@ def _chip_temperatures(path: str, imu_topic: str, temperature_topic: str, axes: 
 def _unknown_name(line: str, strict: bool) -> None:
     """Warn of a name of the parameter file no node has (``--strict``: refuse the file)."""
     if strict:
-        raise UserError(f'{line} (--strict)')
+        raise UserError(f'{line}; --strict refuses the file')
     print(f'warning: {line}', file=sys.stderr)
 
 
