@@ -194,6 +194,34 @@ def test_bad_parameter_files_are_user_errors(tmp_path, capsys, content, needle):
     assert_user_error(main(['evaluate', csv_path, '--params', str(params)]), capsys, needle)
 
 
+def test_a_misspelled_key_is_named_with_the_closest_one(tmp_path):
+    # Before: `modle:` ran the default eeprom model, which "needs the factory tables".
+    csv_path, _ = sweep(tmp_path)
+    written = Path(polynomial_params(tmp_path)).read_text()
+    modle = tmp_path / 'modle.yaml'
+    modle.write_text(written.replace("'model':", "'modle':"))
+    result = subprocess.run([CLI, 'evaluate', csv_path, '--params', str(modle)],
+                            capture_output=True, text=True, timeout=60)
+    assert (result.returncode, result.stderr) == (2, (
+        f'error: {modle}: unknown parameter modle: no node of mlx_tempcomp has it, and the '
+        'model would be built without it; did you mean model?\n'))
+    # A name the model is not built from is warned of, as the node does, and ignored.
+    windows = tmp_path / 'windows.yaml'
+    windows.write_text(written + '    bias_tracking:\n      temperature_rate_windows_s: 30.0\n')
+    warning = (f'{windows}: unknown parameter bias_tracking.temperature_rate_windows_s '
+               'ignored: no node of mlx_tempcomp has it; did you mean '
+               'bias_tracking.max_temperature_rate_c_s?')
+    result = subprocess.run([CLI, 'evaluate', csv_path, '--params', str(windows)],
+                            capture_output=True, text=True, timeout=60)
+    assert (result.returncode, result.stderr) == (0, f'warning: {warning}\n')
+    assert 'model polynomial from' in result.stdout
+    result = subprocess.run([CLI, 'evaluate', csv_path, '--params', str(windows), '--strict'],
+                            capture_output=True, text=True, timeout=60)
+    assert (result.returncode, result.stderr) == \
+        (2, f'error: {warning}; --strict refuses the file\n')
+    assert result.stdout == ''
+
+
 def test_bad_recordings_are_user_errors_or_counted(tmp_path, capsys):
     params = polynomial_params(tmp_path)
     missing = write_csv(tmp_path / 'missing.csv', {'time': [0.0, 1.0], 'temperature':

@@ -100,6 +100,47 @@ def test_a_file_s_integer_for_a_double_is_read_as_the_nodes_take_it(tmp_path):
         node_values(str(path), 'compensation_node')
 
 
+NODE_FILE = 'compensation_node:\n  ros__parameters:\n{}'
+
+
+@pytest.mark.parametrize('key, message', [
+    ('modle: polynomial', 'unknown parameter modle: no node of mlx_tempcomp has it, and the '
+                          'model would be built without it; did you mean model?'),
+    ("axis: ['x']", 'unknown parameter axis: no node of mlx_tempcomp has it, and the model '
+                    'would be built without it; did you mean axes?'),
+    ('polynomial: {bais: {z: [0.01]}}',
+     'unknown parameter polynomial.bais.z: no node of mlx_tempcomp has it, and the model '
+     'would be built without it; did you mean polynomial.bias.z?'),
+    ('sensor: {full_scale: 300.0}',
+     'unknown parameter sensor.full_scale: no node of mlx_tempcomp has it, and the model '
+     'would be built without it; did you mean sensor.full_scale_dps?'),
+])
+def test_a_misspelled_name_of_the_model_is_refused_naming_it(tmp_path, key, message):
+    path = tmp_path / 'typo.yaml'
+    path.write_text(NODE_FILE.format(f'    {key}\n'))
+    with pytest.raises(ParameterError) as raised:
+        node_values(str(path), 'compensation_node')
+    assert str(raised.value) == f'{path}: {message}'
+
+
+def test_other_unknown_names_are_warned_of_as_the_node_does(tmp_path):
+    path = tmp_path / 'typo.yaml'
+    path.write_text(NODE_FILE.format(
+        '    bias_tracking: {temperature_rate_windows_s: 30.0, window_s: 20.0}\n'
+        '    stale_timout_s: 2.0\n    publish_rate_hz: 50.0\n    use_sim_time: true\n'
+        '    qos_overrides: {/imu/data_raw: {subscription: {depth: 10}}}\n'))
+    warnings = []
+    values = node_values(str(path), 'compensation_node', warnings.append)
+    assert warnings == [
+        f'{path}: unknown parameter bias_tracking.temperature_rate_windows_s ignored: no node '
+        'of mlx_tempcomp has it; did you mean bias_tracking.max_temperature_rate_c_s?',
+        f'{path}: unknown parameter stale_timout_s ignored: no node of mlx_tempcomp has it; '
+        'did you mean stale_timeout_s?']
+    # The known ones are read; the driver's (a /** section serves both) and rclpy's are known.
+    assert values['bias_tracking.window_s'] == 20.0
+    assert node_values(str(path), 'compensation_node') == values
+
+
 def model_error_values(**given) -> dict:
     values = {spec.name: spec.initial_value for spec in COMPENSATION_SPECS}
     values.update({'axes': ['x', 'z'], **given})

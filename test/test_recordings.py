@@ -276,6 +276,46 @@ def test_time_scale_and_skip_rows(tmp_path):
     assert dict(recording.skipped) == {SKIP_PRESET: 1}
 
 
+def test_every_column_takes_a_scale(tmp_path):
+    # A logger in deg/s, centi-degrees, g and mV: each column scaled to its canonical unit.
+    path = write_csv(tmp_path / 'units.csv',
+                     ['t_ms', 'temp_cc', 'gx_dps', 'gz_dps', 'ax_g', 'ay_g', 'az_g', 'mv'],
+                     [[0, 2500, 1.0, -90.0, 0.0, 0.0, 1.0, 5000],
+                      [10, 2510, 2.0, 180.0, 0.5, 0.0, -1.0, 4900]])
+    columns = parse_column_map(
+        'time=t_ms:1e-3,temperature=temp_cc:0.01,gyro_x=gx_dps:0.0174533,'
+        'gyro_z=gz_dps:-0.0174533,acc_x=ax_g:9.80665,acc_y=ay_g:9.80665,acc_z=az_g:9.80665,'
+        'supply_voltage=mv:0.001')
+    assert dict(columns.scales) == {'time': 1e-3, 'temperature': 0.01, 'gyro_x': 0.0174533,
+                                    'gyro_z': -0.0174533, 'acc_x': 9.80665,
+                                    'acc_y': 9.80665, 'acc_z': 9.80665,
+                                    'supply_voltage': 0.001}
+    recording = load_csv(path, columns)
+    np.testing.assert_allclose(recording.time_s, [0.0, 0.01])
+    np.testing.assert_allclose(recording.temperature_c, [25.0, 25.1])
+    np.testing.assert_allclose(recording.gyro_rad_s, [[0.0174533, 1.5707970],
+                                                      [0.0349066, -3.1415940]])
+    np.testing.assert_allclose(recording.acceleration_m_s2[:, 2], [9.80665, -9.80665])
+    np.testing.assert_allclose(recording.supply_voltage_v, [5.0, 4.9])
+    # A column without a scale is read as it is: 2500 C is no temperature.
+    with pytest.raises(RecordingError, match='values out of range 2'):
+        load_csv(path, parse_column_map('time=t_ms,temperature=temp_cc,gyro_x=gx_dps'))
+    plain = load_csv(path, parse_column_map('time=t_ms,temperature=temp_cc:0.01,gyro_x=gx_dps'))
+    np.testing.assert_array_equal(plain.gyro_rad_s[:, 0], [1.0, 2.0])
+
+
+@pytest.mark.parametrize('spec, words', [
+    ('gyro_z=gz:0', 'the gyro_z scale after ":" must be a non-zero number '
+                    r'\(rad/s per unit, e.g. 0.0174533 for deg/s\)'),
+    ('temperature=t:x', 'the temperature scale after ":" must be a non-zero number '
+                        r'\(degC per unit\)'),
+    ('acc_x=:9.8', 'acc_x needs a column name before ":"'),
+])
+def test_bad_column_scale(spec, words):
+    with pytest.raises(RecordingError, match=words):
+        parse_column_map(spec)
+
+
 @pytest.mark.parametrize('content, words', [
     (b'', 'is empty'),
     (b'\n\n', 'is empty'),

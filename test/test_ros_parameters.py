@@ -167,6 +167,34 @@ def test_an_integer_is_taken_where_a_double_is_meant(launcher, probe, tmp_path):
     assert isinstance(compensation['stale_timeout_s'], float)
 
 
+def test_an_integer_set_at_run_time_is_taken_where_a_double_is_meant(launcher, probe,
+                                                                     tmp_path):
+    # What `ros2 param set /compensation_node bias_tracking.window_s 5` sends: an INTEGER,
+    # which rclpy alone refuses for a DOUBLE parameter.
+    launcher.driver(simulated_driver_params())
+    launcher.compensation({'recalibration.state_file': str(tmp_path / 'zro.yaml'),
+                           'model': 'polynomial', 'polynomial.bias.z': [0.0]})
+    for node, values, expected in (
+            ('compensation_node', {'bias_tracking.window_s': 5, 'polynomial.bias.z': [0, 1]},
+             {'bias_tracking.window_s': 5.0, 'polynomial.bias.z': [0.0, 1.0]}),
+            ('driver_node', {'simulation.supply_v': 4}, {'simulation.supply_v': 4.0})):
+        results = probe.set_parameters(node, values)
+        assert [r.successful for r in results] == [True] * len(values), \
+            [r.reason for r in results]
+        got = probe.get_parameters(node, list(values))
+        assert got == expected
+        assert all(isinstance(v, float) for value in got.values()
+                   for v in (value if isinstance(value, list) else [value]))
+    # Still checked: an integer out of range is refused, and so is a string.
+    results = probe.set_parameters('compensation_node', {'stale_timeout_s': 0,
+                                                         'bias_tracking.window_s': 'long'})
+    assert [r.successful for r in results] == [False, False]
+    assert 'stale_timeout_s out of range' in results[0].reason, results[0].reason
+    assert probe.get_parameters('compensation_node', ['stale_timeout_s',
+                                                      'bias_tracking.window_s']) == \
+        {'stale_timeout_s': 1.0, 'bias_tracking.window_s': 5.0}
+
+
 def test_qos_overrides_make_the_streams_reliable(launcher, probe, tmp_path):
     # The standard qos_overrides parameters: best effort by default (REP-2003), reliable
     # and deep where a replay must lose nothing.

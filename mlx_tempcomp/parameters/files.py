@@ -3,7 +3,9 @@ ROS 2 parameter files: reading a node's values from one, and writing a fitted mo
 
 Reading: `node_values` gives every compensation-node parameter with a node's
 sections of a file (``/**`` first, then the node's), type and range checked as
-rcl checks them (`flat_parameters` gives a file's keys as rcl names them).
+rcl checks them, unknown names warned of as the node does (a misspelled name
+of the model refused: `command_line.file_names_check`); `flat_parameters` gives
+a file's keys as rcl names them.
 
 Writing: one function per model the toolkit fits builds its
 ``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
@@ -19,6 +21,7 @@ strings (YAML 1.1 reads a bare y as a boolean).
 
 import yaml
 
+from .command_line import file_names_check
 from .compensation import COMPENSATION_SPECS
 from .specs import check_choices, check_value, ParameterError, widen_integers
 from .state_file import atomic_write
@@ -78,15 +81,18 @@ def _read_overrides(path: str, node_name: str) -> dict:
     return overrides
 
 
-def node_values(path: str, node_name: str) -> dict:
+def node_values(path: str, node_name: str, warn=None) -> dict:
     """
     Give every compensation-node parameter value with ``node_name``'s section of a file.
 
     The node's defaults, overridden by the file's ``/**`` and ``node_name`` sections,
     type and range checked as rcl checks them, then the choices. Raise `ParameterError`
-    (the message starts with ``path``) where the node would refuse to start.
+    (the message starts with ``path``) where the node would refuse to start, and for
+    a misspelled name of the model; ``warn`` takes a line per other unknown name
+    (`file_names_check`).
     """
     overrides = _read_overrides(path, node_name)
+    file_names_check(path, overrides, warn)
     values = {}
     for spec in COMPENSATION_SPECS:
         if spec.name not in overrides:

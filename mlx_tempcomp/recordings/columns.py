@@ -5,8 +5,9 @@ CSV files have one header row. Canonical columns: ``time`` (s),
 ``temperature`` (degC), any of ``gyro_x``, ``gyro_y``, ``gyro_z`` (rad/s);
 optional ``ref_x|y|z`` (turntable reference rate, rad/s), ``acc_x|y|z``
 (m/s^2), ``temperature_2`` (degC) and ``supply_voltage`` (V). A `ColumnMap`
-names the file's column for each (`parse_column_map` reads the command-line
-form); `PRESETS` holds the maps of known data sets (`column_preset`). The
+names the file's column for each, and the factor that brings it to the canonical
+unit (`parse_column_map` reads the command-line form, ``gyro_z=gz:0.0174533``
+for a column in deg/s); `PRESETS` holds the maps of known data sets (`column_preset`). The
 delimiter (tab, comma or semicolon) is detected from the header unless the map
 sets it. A map that is wrong raises `RecordingError` saying what is wrong.
 """
@@ -27,6 +28,22 @@ _ALWAYS_REQUIRED = ('time', 'temperature')
 # Optional columns of one value per row, by canonical name.
 _SINGLE_COLUMNS = ('temperature_2', 'supply_voltage')
 _DELIMITER_NAMES = {'tab': '\t', 'comma': ',', 'semicolon': ';'}
+
+
+def _scale(name, value) -> float:
+    """Check a column's scale: finite and non-zero, positive for the time."""
+    if name not in CANONICAL_COLUMNS:
+        msg = f'column map: a scale for unknown column {name!r}'
+        raise RecordingError(msg)
+    try:
+        scale = float(value)
+    except (TypeError, ValueError):
+        scale = math.nan
+    if not (math.isfinite(scale) and (scale > 0 if name == 'time' else scale != 0)):
+        what = 'a positive number' if name == 'time' else 'a non-zero number'
+        msg = f'column map: the scale of {name} must be {what}, got {value!r}'
+        raise RecordingError(msg)
+    return scale
 
 
 def _axis_columns(prefix: str) -> Dict[str, str]:
@@ -50,14 +67,16 @@ class ColumnMap:
     ``required`` (canonical names such as ``'gyro_x'``); ``time`` and
     ``temperature`` always are, and at least one gyro column must be found.
     Reference columns, when present, must cover every gyro axis found;
-    acceleration is read only as all three axes. ``time_scale`` multiplies
-    the time column into seconds (1e-6 for microseconds). ``delimiter``
+    acceleration is read only as all three axes. ``scales`` multiplies a
+    column into its canonical unit, by canonical name: ``{'time': 1e-6}`` for
+    microseconds, ``{'gyro_z': 0.0174533}`` for deg/s, -1 to flip an axis; a
+    column not named is taken as it is (``time_scale`` is the time's). ``delimiter``
     None detects tab, comma or semicolon from the header. ``skip_rows`` data
     rows are dropped at the start (counted as ``SKIP_PRESET``).
     """
 
     time: str = 'time'
-    time_scale: float = 1.0
+    scales: Mapping[str, float] = field(default_factory=dict)
     temperature: str = 'temperature'
     gyro: Mapping[str, str] = field(default_factory=functools.partial(_axis_columns, 'gyro'))
     reference: Mapping[str, str] = field(
@@ -87,14 +106,8 @@ class ColumnMap:
         for name in _SINGLE_COLUMNS:
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, _column_name(getattr(self, name), name))
-        try:
-            time_scale = float(self.time_scale)
-        except (TypeError, ValueError):
-            time_scale = math.nan
-        if not (math.isfinite(time_scale) and time_scale > 0):
-            msg = f'column map: time scale must be a positive number, got {self.time_scale!r}'
-            raise RecordingError(msg)
-        object.__setattr__(self, 'time_scale', time_scale)
+        object.__setattr__(self, 'scales', MappingProxyType(
+            {name: _scale(name, value) for name, value in dict(self.scales).items()}))
         if self.delimiter is not None and (not isinstance(self.delimiter, str)
                                            or len(self.delimiter) != 1
                                            or self.delimiter in '\r\n"'):
@@ -109,6 +122,19 @@ class ColumnMap:
             msg = f'column map: required columns not mapped: {", ".join(unmapped)}'
             raise RecordingError(msg)
         object.__setattr__(self, 'required', required | frozenset(_ALWAYS_REQUIRED))
+        unscaled = sorted(set(self.scales) - set(self.sources()))
+        if unscaled:
+            msg = f'column map: a scale for columns not mapped: {", ".join(unscaled)}'
+            raise RecordingError(msg)
+
+    @property
+    def time_scale(self) -> float:
+        """Give the factor from the time column to seconds."""
+        return self.scale('time')
+
+    def scale(self, canonical: str) -> float:
+        """Give the factor from the file's column of ``canonical`` to its canonical unit."""
+        return self.scales.get(canonical, 1.0)
 
     def sources(self) -> Dict[str, str]:
         """Map each canonical column in use (e.g. ``'gyro_x'``) to its column in the file."""
@@ -134,7 +160,7 @@ PRESETS = MappingProxyType({
         {'time': 'timestamp', 'temperature': 'imu.temperature',
          **{f'gyro_{a}': f'imu.gyro.{a}' for a in AXES},
          **{f'acc_{a}': f'imu.acc.{a}' for a in AXES}},
-        time_scale=1e-6, delimiter='\t', skip_rows=1,
+        scales={'time': 1e-6}, delimiter='\t', skip_rows=1,
         required=frozenset(f'{prefix}_{a}' for prefix in ('gyro', 'acc') for a in AXES)),
 })
 
@@ -147,17 +173,31 @@ def column_preset(name: str) -> ColumnMap:
     return PRESETS[name]
 
 
-def _time_source(value: str, item: str):
+# What a scale after ":" brings each column to, for the messages.
+_UNITS = {'time': 'seconds per unit, e.g. 1e-6 for microseconds',
+          'temperature': 'degC per unit', 'temperature_2': 'degC per unit',
+          'gyro': 'rad/s per unit, e.g. 0.0174533 for deg/s',
+          'ref': 'rad/s per unit, e.g. 0.0174533 for deg/s',
+          'acc': 'm/s^2 per unit, e.g. 9.80665 for g', 'supply_voltage': 'V per unit'}
+
+
+def _scaled_source(key: str, value: str, item: str) -> tuple:
+    """Give the column name and scale of ``name[:scale]`` (scale None when not given)."""
     name, colon, scale_text = value.rpartition(':')
     if not colon:
-        return value, 1.0
+        return value, None
     try:
         scale = float(scale_text)
     except ValueError:
         scale = math.nan
-    if not (math.isfinite(scale) and scale > 0):
-        msg = (f'column map {item!r}: the time scale after ":" must be a positive number '
-               f'(seconds per unit, e.g. 1e-6 for microseconds)')
+    if not name:
+        msg = f'column map {item!r}: {key} needs a column name before ":"'
+        raise RecordingError(msg)
+    positive = key == 'time'
+    if not (math.isfinite(scale) and (scale > 0 if positive else scale != 0)):
+        unit = _UNITS.get(key, _UNITS.get(key.rsplit('_', 1)[0]))
+        msg = (f'column map {item!r}: the {key} scale after ":" must be a '
+               f'{"positive" if positive else "non-zero"} number ({unit})')
         raise RecordingError(msg)
     return name, scale
 
@@ -188,7 +228,10 @@ def parse_column_map(spec: str) -> ColumnMap:
         Comma-separated ``canonical=source`` pairs that override the default
         map, e.g. ``time=timestamp:1e-6,temperature=imu.temperature,gyro_z=gz``.
         Canonical names: time, temperature, gyro_x|y|z, ref_x|y|z, acc_x|y|z,
-        temperature_2. Only time takes a scale after ``:`` (seconds per unit).
+        temperature_2, supply_voltage. Each takes a scale after ``:``, the
+        factor to its canonical unit: seconds, degC, rad/s (``gyro_z=gz:0.0174533``
+        for deg/s, ``gyro_y=gy:-1`` to flip an axis), m/s^2, V; the time's must
+        be positive, the others non-zero.
         An empty source (``acc_x=``) leaves an optional column out. Options:
         ``delimiter=tab|comma|semicolon|<char>`` and ``skip_rows=N``. Every
         column named in the spec must be in the file; a default mapping whose
@@ -202,6 +245,7 @@ def parse_column_map(spec: str) -> ColumnMap:
     """
     sources = ColumnMap().sources()
     options = {}
+    scales = {}
     named = set()
     parsers = {'delimiter': _delimiter_option, 'skip_rows': _skip_rows_option}
     items = [item.strip() for item in str(spec).split(',')]
@@ -229,12 +273,12 @@ def parse_column_map(spec: str) -> ColumnMap:
                 raise RecordingError(msg)
             sources.pop(key, None)
             named.discard(key)
-        elif key == 'time':
-            sources['time'], options['time_scale'] = _time_source(value, item)
         else:
-            sources[key] = value
+            sources[key], scale = _scaled_source(key, value, item)
+            if scale is not None:
+                scales[key] = scale
     required = frozenset(named & set(CANONICAL_COLUMNS))
     claimed = {sources[key] for key in required}
     sources = {key: name for key, name in sources.items()
                if key in required or key in _ALWAYS_REQUIRED or name not in claimed}
-    return _map_from_sources(sources, required=required, **options)
+    return _map_from_sources(sources, required=required, scales=scales, **options)

@@ -155,6 +155,6 @@ def load_csv(path: PathLike, columns: ColumnMap = ColumnMap()) -> Recording:
         msg = (f'{path}: no row has numbers in every used column ({used}); '
                f'is the delimiter right and are the values plain numbers?')
         raise RecordingError(msg)
-    data = dict(zip(index, values.T))
-    data['time'] = data['time'] * columns.time_scale
+    data = {name: column * columns.scale(name) if name in columns.scales else column
+            for name, column in zip(index, values.T)}
     return recording_from_columns(str(path), data, skipped, 'line', lines, non_numeric)

@@ -206,11 +206,22 @@ def load_recording(path: PathLike, *, columns: Union[ColumnMap, str, None] = Non
     if columns is not None and preset is not None:
         msg = f'{path}: give a column map or a preset, not both'
         raise RecordingError(msg)
+    return load_csv(path, csv_column_map(columns, preset))
+
+
+def is_csv(path: PathLike) -> bool:
+    """Say whether `load_recording` reads ``path`` as a CSV file."""
+    path = Path(path)
+    return not (path.is_dir() or path.suffix.lower() in BAG_SUFFIXES or is_flight_log(path))
+
+
+def csv_column_map(columns: Union[ColumnMap, str, None], preset: Optional[str]) -> ColumnMap:
+    """Give the column map a CSV file is read with: ``preset``'s, ``columns`` or the default."""
     if preset is not None:
-        columns = column_preset(preset)
-    elif isinstance(columns, str):
-        columns = parse_column_map(columns)
-    return load_csv(path, ColumnMap() if columns is None else columns)
+        return column_preset(preset)
+    if isinstance(columns, str):
+        return parse_column_map(columns)
+    return ColumnMap() if columns is None else columns
 
 
 def load_flight_log(path: PathLike, instance: Optional[int] = None) -> tuple:

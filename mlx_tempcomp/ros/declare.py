@@ -6,7 +6,9 @@ rclpy), and so are the command-line checks on plain values
 (`parameters.command_line`); this is the glue that applies them to a node.
 Each parameter is declared with a descriptor made of its spec (type,
 description, range, read-only for hardware settings); rclpy enforces those.
-Raise `ParameterError` naming the parameter.
+An integer given for a double parameter is taken as the float, from a file, a
+``-p`` or a set_parameters call at run time (`declare`). Raise `ParameterError`
+naming the parameter.
 """
 
 import sys
@@ -46,7 +48,16 @@ def _declared_default(spec: Spec):
 
 
 def declare(node, specs) -> dict:
-    """Declare ``specs`` on ``node``; return their values. Raise `ParameterError`."""
+    """
+    Declare ``specs`` on ``node``; return their values. Raise `ParameterError`.
+
+    An integer for a double parameter is taken as the float: given at start (a file,
+    a ``-p``), and set at run time (``ros2 param set /node window_s 5``, which rclpy
+    would refuse as an INTEGER for a DOUBLE), by a callback run before the node's own.
+    """
+    by_name = {spec.name: spec for spec in specs}
+    node.add_pre_set_parameters_callback(
+        lambda parameters: [_widened(by_name.get(p.name), p) for p in parameters])
     values = {}
     for spec in specs:
         given = _as_double(spec, node._parameter_overrides.get(spec.name))
@@ -67,19 +78,25 @@ def declare(node, specs) -> dict:
 
 def _as_double(spec: Spec, override):
     """
-    Give an integer file or -p value of a double parameter as a float, else None.
+    Give an integer value (a Parameter) of a double parameter as a float, else None.
 
     YAML reads ``publish_rate_hz: 50`` as an integer, which rclpy refuses for a
     double; ``override`` is what rclpy holds for the parameter (node._parameter_overrides,
-    the only place it keeps them).
+    the only place it keeps them), or a Parameter being set.
     """
-    if override is None or spec.value_type not in ('double', 'double_array'):
+    if override is None or spec is None or spec.value_type not in ('double', 'double_array'):
         return None
     if override.type_ == Parameter.Type.INTEGER:
         return float(override.value)
     if override.type_ == Parameter.Type.INTEGER_ARRAY:
         return [float(v) for v in override.value]
     return None
+
+
+def _widened(spec: Spec, parameter: Parameter) -> Parameter:
+    """Give ``parameter`` being set, an integer for a double ``spec`` made its float."""
+    value = _as_double(spec, parameter)
+    return parameter if value is None else Parameter(parameter.name, value=value)
 
 
 def unknown_parameters(node) -> list:

@@ -7,7 +7,10 @@ asked) raise `UserError`; ``mlx-tempcomp`` prints it in one line starting with
 deg/s beside where a person reads them (`rate_text`); table cells in rad/s use
 ``.3e``. Every subcommand that reads a recording prints the same loading line
 (rows used, rows skipped by reason, rows sorted into time order) through
-`load`. Output paths are checked before the work (`check_output_file`,
+`load`, and warns of a column no gyro record holds (`plausibility`: a
+still gyro beyond any offset, a temperature slewing faster than a part can, a
+sample interval of the wrong time unit), or refuses the record with
+``--strict``. Output paths are checked before the work (`check_output_file`,
 `check_output_folder`), so a typo'd folder fails at once, not after a long
 fit. Every output is staged and put in place when the command is done
 (`run_handler`, `outputs.Outputs`): an interrupted or failed run leaves the
@@ -34,7 +37,8 @@ from ..parameters.files import parameter_file, write_parameter_file
 from ..parameters.state_file import atomic_write
 from ..recordings.flightlog import (FlightLog, FlightLogError, ImuInstance, is_flight_log,
                                     read_flight_log)
-from ..recordings.load import load_flight_log, load_recording
+from ..recordings.load import csv_column_map, is_csv, load_flight_log, load_recording
+from ..recordings.plausibility import implausible_columns
 from ..recordings.recording import Recording, RecordingError
 
 EXIT_USER_ERROR = 2
@@ -158,7 +162,8 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
     columns.add_argument('--preset', metavar='NAME',
                          help='column map of a known data set (CSV only)')
     columns.add_argument('--columns', metavar='SPEC',
-                         help='column map, e.g. time=timestamp:1e-6,gyro_z=gz (CSV only)')
+                         help='column map, canonical=column[:scale to its unit], e.g. '
+                              'time=timestamp:1e-6,gyro_z=gz_dps:0.0174533 (CSV only)')
     parser.add_argument('--imu-topic', default=RAW_IMU_TOPIC, metavar='TOPIC',
                         help="Imu topic read from a bag (default: %(default)s, the driver's raw "
                              'output, which every bag the package writes holds; calibration '
@@ -169,6 +174,11 @@ def add_recording_options(parser: argparse.ArgumentParser, several: bool = False
                         metavar='TOPIC',
                         help='BatteryState topic of a bag, held per sample as the node holds '
                              'it (default: %(default)s)')
+    parser.add_argument('--strict', action='store_true',
+                        help='refuse a record with a column no gyro record holds (exit 2): a '
+                             'gyro at rest beyond any offset, a temperature slewing faster '
+                             'than a part can, a sample interval of the wrong time unit '
+                             '(default: warn and go on)')
 
 
 def node_name(text: str) -> str:
@@ -263,6 +273,8 @@ class ReadOptions:
 
     ``columns`` or ``preset`` map a CSV file's columns; ``instance`` picks the
     IMU of a flight log (None: the first usable one); the topics are a bag's.
+    ``strict`` refuses a record `plausibility` finds fault with (else a warning);
+    ``at_rest``: the command takes a record without a reference as still.
     """
 
     columns: Optional[str] = None
@@ -271,14 +283,17 @@ class ReadOptions:
     imu_topic: str = RAW_IMU_TOPIC
     temperature_topic: str = RAW_TEMPERATURE_TOPIC
     supply_voltage_topic: str = RAW_SUPPLY_VOLTAGE_TOPIC
+    strict: bool = False
+    at_rest: bool = True
 
 
-def read_options(args: argparse.Namespace) -> ReadOptions:
+def read_options(args: argparse.Namespace, at_rest: bool = True) -> ReadOptions:
     """Give the read options of a command line (those `add_recording_options` added)."""
     return ReadOptions(columns=args.columns, preset=args.preset,
                        instance=getattr(args, 'instance', None), imu_topic=args.imu_topic,
                        temperature_topic=args.temperature_topic,
-                       supply_voltage_topic=args.supply_voltage_topic)
+                       supply_voltage_topic=args.supply_voltage_topic,
+                       strict=getattr(args, 'strict', False), at_rest=at_rest)
 
 
 def load(path: str, options: ReadOptions, to_stderr: bool = False) -> Recording:
@@ -286,7 +301,9 @@ def load(path: str, options: ReadOptions, to_stderr: bool = False) -> Recording:
     Load the recording at ``path`` as ``options`` say.
 
     Prints `loading_summary` (for a flight log, after `flight_log_summary`)
-    on stdout, or on stderr (``to_stderr``) when stdout is kept for JSON.
+    on stdout, or on stderr (``to_stderr``) when stdout is kept for JSON; then
+    a ``warning:`` line on stderr per column `implausible_columns` finds, or
+    a UserError of the first with ``options.strict``.
     """
     stream = sys.stderr if to_stderr else sys.stdout
     try:
@@ -308,7 +325,23 @@ def load(path: str, options: ReadOptions, to_stderr: bool = False) -> Recording:
     except RecordingError as err:
         raise UserError(str(err)) from None
     print(loading_summary(recording), file=stream)
+    _check_plausible(path, recording, options)
     return recording
+
+
+def _check_plausible(path: str, recording: Recording, options: ReadOptions) -> None:
+    """Warn of each implausible column of a loaded record, or refuse it (strict)."""
+    columns = None
+    if is_csv(path):   # names the file's columns and the --columns item that fixes one
+        try:
+            columns = csv_column_map(options.columns, options.preset)
+        except RecordingError:
+            columns = None
+    lines = implausible_columns(recording, options.at_rest, columns)
+    if lines and options.strict:
+        raise UserError(f'{lines[0]}; --strict refuses the record')
+    for line in lines:
+        print(f'warning: {line}', file=sys.stderr)
 
 
 def load_records(paths: list, options: ReadOptions) -> list:

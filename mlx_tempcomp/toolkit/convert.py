@@ -108,7 +108,7 @@ def write_raw_bag(path, storage: str, recording: Recording, axis_temperatures_c=
 
 def convert_command(args: argparse.Namespace) -> int:
     check_output_folder(args.out, '--out', new=True)
-    recording = load(args.input, read_options(args))
+    recording = load(args.input, read_options(args, at_rest=False))
     messages = write_raw_bag(args.outputs.folder(args.out, create=False, replace=False),
                              args.storage, recording, progress_enabled=args.progress or None,
                              name=args.out)

@@ -108,10 +108,22 @@ def _chip_temperatures(path: str, imu_topic: str, temperature_topic: str, axes: 
     return np.column_stack(columns)
 
 
-def _node_values(params: str, node_name: str) -> tuple:
-    """Give the node's parameter values in the file ``params`` and the axes they compensate."""
+def _unknown_name(line: str, strict: bool) -> None:
+    """Warn of a name of the parameter file no node has (``--strict``: refuse the file)."""
+    if strict:
+        raise UserError(f'{line}; --strict refuses the file')
+    print(f'warning: {line}', file=sys.stderr)
+
+
+def _node_values(params: str, node_name: str, strict: bool) -> tuple:
+    """
+    Give the node's parameter values in the file ``params`` and the axes they compensate.
+
+    Names no node has are warned of (``strict``: refused), a misspelled name of the
+    model refused, as `node_values` says.
+    """
     try:
-        values = node_values(params, node_name)
+        values = node_values(params, node_name, lambda line: _unknown_name(line, strict))
     except ParameterError as err:
         raise UserError(str(err)) from None
     try:
@@ -180,7 +192,7 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 def evaluate_command(args: argparse.Namespace) -> int:
     if args.out_csv is not None:
         check_output_file(args.out_csv, '--out-csv')
-    values, axes = _node_values(args.params, args.node_name)
+    values, axes = _node_values(args.params, args.node_name, args.strict)
     model = _build(values, args.params, args.eeprom, args.input, args.imu_topic)
     recording = load(args.input, read_options(args), to_stderr=args.json)
     columns = _columns(recording, axes, model, args.params, args.input)
