@@ -27,6 +27,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 import dask
 from dask.distributed import Client, Security
+from mlx_tempcomp.fleet.run import connect
 import pytest
 from test_fleet import _wait_for, DASK, run_cli, write_record
 
@@ -293,3 +294,26 @@ def test_tls_where_it_cannot_apply_is_refused_before_connecting(manifest, certif
                             tmp_path) == \
             "error: scheduler 127.0.0.1:8786: Dask's configuration requires encryption " \
             '(distributed.comm.require-encryption): give it as tls://HOST:PORT\n'
+
+
+def test_a_local_cluster_ignores_the_configured_certificates_and_is_not_tls(
+        manifest, certificates, tmp_path, monkeypatch):
+    """Dask's configuration names the client's certificates: the local cluster runs in clear."""
+    monkeypatch.delenv('DASK_SCHEDULER_ADDRESS', raising=False)
+    configured = {'distributed.comm.tls.ca-file': str(certificates / 'ca.pem'),
+                  'distributed.comm.tls.client.cert': str(certificates / 'node.crt'),
+                  'distributed.comm.tls.client.key': str(certificates / 'node.key')}
+    with dask.config.set(configured):
+        client, cluster = connect(None, 1)
+    try:
+        address = cluster.scheduler_address
+        assert address.startswith('tcp://127.0.0.1:')
+        assert client.submit(sum, [1, 2]).result() == 3
+        tls = address.replace('tcp://', 'tls://')
+        assert refusal_line(['--manifest', manifest, '--scheduler', tls,
+                             *tls_options(certificates)], tmp_path) == \
+            f'error: scheduler {tls} does not speak TLS: give it as tcp://HOST:PORT, without ' \
+            '--tls-ca-file, --tls-cert and --tls-key\n'
+    finally:
+        client.close()
+        cluster.close()

@@ -172,7 +172,8 @@ def refusal(address: str, tls: TlsOptions, err: BaseException) -> str:
         return (f"scheduler {address} refused this client's certificate ({why}): give "
                 f'{_either(tls, ["tls_client_cert", "tls_client_key"])} a certificate signed '
                 "by the scheduler's CA and valid now")
-    if 'WRONG_VERSION_NUMBER' in text:
+    # A scheduler in clear answers a TLS hello with its own bytes, or sends them first.
+    if 'WRONG_VERSION_NUMBER' in text or 'cannot convert to SSL' in text:
         return (f'scheduler {address} does not speak TLS: give it as tcp://HOST:PORT, '
                 f'without {OPTIONS}')
     seconds = parse_timedelta(dask.config.get(CONNECT_TIMEOUT), default='seconds')

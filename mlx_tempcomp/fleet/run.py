@@ -3,7 +3,8 @@ A fleet job on a Dask cluster: one task per unit, results stored as they arrive.
 
 The cluster is an in-process `LocalCluster` (one single-threaded worker
 process per core by default), or an existing one named by ``--scheduler`` or
-``DASK_SCHEDULER_ADDRESS``. Only unit names and options are sent; each worker
+``DASK_SCHEDULER_ADDRESS``, connected to (over TLS with the client's
+certificates, `connection`) before anything is written. Only unit names and options are sent; each worker
 opens its records itself and returns the unit's files, which the client
 stores in ``OUT/units/<unit>/`` by renaming a complete temporary folder into
 place, so a unit folder is whole or absent. A unit whose ``unit.json`` says
