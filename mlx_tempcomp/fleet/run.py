@@ -4,15 +4,16 @@ A fleet job on a Dask cluster: one task per unit, results stored as they arrive.
 The cluster is an in-process `LocalCluster` (one single-threaded worker
 process per core by default), or an existing one named by ``--scheduler`` or
 ``DASK_SCHEDULER_ADDRESS``, connected to (over TLS with the client's
-certificates, `connection`) before anything is written. Only unit names and options are sent; each worker
-opens its records itself and returns the unit's files, which the client
-stores in ``OUT/units/<unit>/`` by renaming a complete temporary folder into
-place, so a unit folder is whole or absent. A unit whose ``unit.json`` says
-it finished with the same command, records and options is skipped (unless
-``force``): a rerun, or a run after Ctrl-C, picks up where the last stopped.
-A worker lost mid-task costs nothing but time: the scheduler runs the task
-again elsewhere (up to ``distributed.scheduler.allowed-failures``). Dask is
-imported inside the functions, so importing this module loads none of it.
+certificates, `connection`) before anything is written. Only unit names and
+options are sent; each worker opens its records itself and returns the
+unit's files, which the client stores in ``OUT/units/<unit>/`` by renaming a
+complete temporary folder into place, so a unit folder is whole or absent. A
+unit whose ``unit.json`` says it finished with the same command, records and
+options is skipped (unless ``force``): a rerun, or a run after Ctrl-C, picks
+up where the last stopped. A worker lost mid-task costs nothing but time:
+the scheduler runs the task again elsewhere (up to
+``distributed.scheduler.allowed-failures``). Dask is imported inside the
+functions, so importing this module loads none of it.
 """
 
 from dataclasses import asdict, dataclass
