@@ -54,6 +54,7 @@ setup(
             'pytest',
             'pytest-xdist',   # make test: two test processes (Makefile TEST_WORKERS)
             'hypothesis==6.170.17',   # property-based tests of the readers and loaders
+            'cryptography',   # test_fleet_tls.py makes its CA and certificates
             'flake8==7.5.0',
             'flake8-builtins==3.1.0',
             'flake8-comprehensions==3.17.0',

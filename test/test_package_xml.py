@@ -51,19 +51,22 @@ ROSDEP_KEYS = {
     'smbus2': 'python3-smbus2-pip',
     'pytest': 'python3-pytest',
     'hypothesis': 'python3-hypothesis',
+    'cryptography': 'python3-cryptography',   # the fleet's TLS test makes its certificates
     # No rosdep key: pip (docs/ros.md, setup.py extras).
     'rosbags': None,
     'allantools': None,
     'pyulog': None,
     'pymavlink': None,
     'dask': None,   # with its distributed scheduler (dask.distributed)
+    'distributed': None,   # the same, by its own name (its Security, its comm layer)
     'fsspec': None,
     # rosbags' sqlite3 back end, installed with it (recordings/bag_*.py fall back to sqlite3).
     'apsw': None,
 }
 # The pip name of each package without a key, as setup.py's extras and docs/ros.md give it.
 PIP_NAMES = {'rosbags': 'rosbags', 'allantools': 'allantools', 'pyulog': 'pyulog',
-             'pymavlink': 'pymavlink', 'dask': 'dask[distributed]', 'fsspec': 'fsspec',
+             'pymavlink': 'pymavlink', 'dask': 'dask[distributed]',
+             'distributed': 'dask[distributed]', 'fsspec': 'fsspec',
              'apsw': 'rosbags'}
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import shlex
 import sys
 
+from .connection import TlsOptions
 from .manifest import find_records, is_url, read_manifest
 from .prior import write_fleet_prior
 from .report import write_fleet_report
@@ -60,7 +61,9 @@ def add_parser(commands) -> None:
                                  "string, e.g. --options='--folds 4'")
         action.add_argument('--scheduler', metavar='ADDRESS',
                             help='Dask scheduler to run on, e.g. tcp://host:8786 (default: '
-                                 '$DASK_SCHEDULER_ADDRESS, else a local cluster)')
+                                 '$DASK_SCHEDULER_ADDRESS, else a local cluster); '
+                                 'tls://host:port for one that requires TLS')
+        add_tls_options(action)
         action.add_argument('--workers', type=non_negative_int, metavar='N',
                             help='worker processes of the local cluster (default: one per '
                                  'core)')
@@ -74,6 +77,18 @@ def add_parser(commands) -> None:
     report.add_argument('--out', required=True, metavar='OUT',
                         help='folder a fleet diagnose or fit wrote')
     report.set_defaults(handler=report_command, needs=_needs)
+
+
+def add_tls_options(action) -> None:
+    """Add the client's TLS files, named as the ``dask`` command line names them."""
+    tls = action.add_argument_group(
+        'TLS', "the certificates a tls:// scheduler wants (default: Dask's configuration, "
+        'distributed.comm.tls.ca-file, .client.cert and .client.key); see docs/fleet.md')
+    tls.add_argument('--tls-ca-file', metavar='PEM',
+                     help="the CA that signed the scheduler's and workers' certificates")
+    tls.add_argument('--tls-cert', metavar='PEM', help="this client's certificate")
+    tls.add_argument('--tls-key', metavar='PEM',
+                     help="its private key (unless the certificate's file holds it)")
 
 
 def _needs(args: argparse.Namespace) -> list:
@@ -137,7 +152,8 @@ def fleet_command(args: argparse.Namespace) -> int:
     folder = Path(args.out).resolve() / 'units'
     jobs = [UnitJob(command, unit, options, str(folder / unit.unit)) for unit in units]
     outcome = run_fleet(jobs, scheduler=args.scheduler, workers=args.workers,
-                        force=args.force, progress=True if args.progress else None)
+                        force=args.force, progress=True if args.progress else None,
+                        tls=TlsOptions(args.tls_ca_file, args.tls_cert, args.tls_key))
     print(f'fleet {command}: {len(jobs)} units: {len(outcome.done)} done, '
           f'{len(outcome.skipped)} finished before (skipped), {len(outcome.failed)} failed'
           + (', the rest interrupted: rerun the same command to resume'

@@ -3,15 +3,17 @@ A fleet job on a Dask cluster: one task per unit, results stored as they arrive.
 
 The cluster is an in-process `LocalCluster` (one single-threaded worker
 process per core by default), or an existing one named by ``--scheduler`` or
-``DASK_SCHEDULER_ADDRESS``. Only unit names and options are sent; each worker
-opens its records itself and returns the unit's files, which the client
-stores in ``OUT/units/<unit>/`` by renaming a complete temporary folder into
-place, so a unit folder is whole or absent. A unit whose ``unit.json`` says
-it finished with the same command, records and options is skipped (unless
-``force``): a rerun, or a run after Ctrl-C, picks up where the last stopped.
-A worker lost mid-task costs nothing but time: the scheduler runs the task
-again elsewhere (up to ``distributed.scheduler.allowed-failures``). Dask is
-imported inside the functions, so importing this module loads none of it.
+``DASK_SCHEDULER_ADDRESS``, connected to (over TLS with the client's
+certificates, `connection`) before anything is written. Only unit names and
+options are sent; each worker opens its records itself and returns the
+unit's files, which the client stores in ``OUT/units/<unit>/`` by renaming a
+complete temporary folder into place, so a unit folder is whole or absent. A
+unit whose ``unit.json`` says it finished with the same command, records and
+options is skipped (unless ``force``): a rerun, or a run after Ctrl-C, picks
+up where the last stopped. A worker lost mid-task costs nothing but time:
+the scheduler runs the task again elsewhere (up to
+``distributed.scheduler.allowed-failures``). Dask is imported inside the
+functions, so importing this module loads none of it.
 """
 
 from dataclasses import asdict, dataclass
@@ -22,8 +24,9 @@ from pathlib import Path
 import shutil
 import uuid
 
+from .connection import check_local, scheduler_client, TlsOptions
 from .unit import LOG_FILE, one_line, run_unit, UNIT_FILE, UnitJob
-from ..toolkit.common import UserError, write_json
+from ..toolkit.common import write_json
 from ..toolkit.outputs import staged_outputs
 from ..toolkit.progress import Progress
 
@@ -94,17 +97,19 @@ def _clear_leftovers(units: Path) -> None:
             shutil.rmtree(path, ignore_errors=True)
 
 
-def connect(scheduler, workers):
-    """Connect to ``scheduler`` or start a LocalCluster; give (client, cluster or None)."""
+def connect(scheduler, workers, tls=TlsOptions()):
+    """
+    Connect to ``scheduler`` or start a LocalCluster; give (client, cluster or None).
+
+    ``tls``: the client's certificates given as options (`connection`); a
+    refused connection, a bad certificate or no answer is one UserError line.
+    """
     import dask
     from dask.distributed import Client, LocalCluster
     address = scheduler or os.environ.get(SCHEDULER_VARIABLE)
     if address:
-        try:
-            return Client(address), None
-        except (OSError, ValueError) as err:  # refused, timed out, or not an address
-            msg = f'scheduler {address}: cannot connect: {one_line(err)}'
-            raise UserError(msg) from None
+        return scheduler_client(address, tls), None
+    check_local(tls)
     # One thread per worker process: the commands are numpy and Python, and a worker
     # process runs one unit at a time anyway (unit._ONE_AT_A_TIME). No dashboard; the
     # scheduler's HTTP server, started regardless, takes a free local port: on Dask's
@@ -117,37 +122,36 @@ def connect(scheduler, workers):
     return Client(cluster), cluster
 
 
-def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
-              progress=None) -> FleetRun:
+def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False, progress=None,
+              tls=TlsOptions()) -> FleetRun:
     """
     Run ``jobs`` (UnitJobs) on a Dask cluster; store each unit as it completes.
 
-    ``progress`` None shows the progress line when stderr is a terminal.
-    Ctrl-C stops the run: what finished is kept, the rest is marked
-    interrupted (rerun to resume).
+    The cluster is connected to first: a refused connection (UserError)
+    leaves nothing written. ``progress`` None shows the progress line when
+    stderr is a terminal. Ctrl-C stops the run: what finished is kept, the
+    rest is marked interrupted (rerun to resume).
     """
     from dask.distributed import as_completed
-    if jobs:
-        Path(jobs[0].folder).parent.mkdir(parents=True, exist_ok=True)
-        _clear_leftovers(Path(jobs[0].folder).parent)
     skipped = tuple(job.unit.unit for job in jobs if not force and finished(job))
     pending = {job.unit.unit: job for job in jobs if job.unit.unit not in skipped}
+    if not pending:
+        return FleetRun((), skipped, (), False)
+    client, cluster = connect(scheduler, workers, tls)
     done, failed = [], []
     label = 'fleet {command}: {done} done, {failed} failed, {remaining} remaining'
-    command = jobs[0].command if jobs else ''
     interrupted = False
-    with Progress(len(pending), '', progress) as bar:
-        def show() -> None:
-            bar.label = label.format(command=command, done=len(done), failed=len(failed),
-                                     remaining=len(pending) - len(done) - len(failed))
-            bar.update(len(done) + len(failed))
-        show()
-        if not pending:
-            return FleetRun((), skipped, (), False)
-        client = cluster = None
-        run_id = uuid.uuid4().hex[:8]
-        try:
-            client, cluster = connect(scheduler, workers)
+    try:
+        Path(jobs[0].folder).parent.mkdir(parents=True, exist_ok=True)
+        _clear_leftovers(Path(jobs[0].folder).parent)
+        with Progress(len(pending), '', progress) as bar:
+            def show() -> None:
+                bar.label = label.format(command=jobs[0].command, done=len(done),
+                                         failed=len(failed),
+                                         remaining=len(pending) - len(done) - len(failed))
+                bar.update(len(done) + len(failed))
+            show()
+            run_id = uuid.uuid4().hex[:8]
             futures = {client.submit(run_unit, job, key=f'fleet-{run_id}-{unit}', pure=False):
                        unit for unit, job in pending.items()}
             for future in as_completed(futures):
@@ -164,11 +168,10 @@ def run_fleet(jobs: list, *, scheduler=None, workers=None, force=False,
                 else:
                     failed.append((unit, outcome['error']))
                 show()
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            if client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
     return FleetRun(tuple(done), skipped, tuple(failed), interrupted)
