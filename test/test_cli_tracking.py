@@ -22,7 +22,7 @@ from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.motion import motion_schedule, ScheduleSettings
 import numpy as np
 import pytest
-from rest_records import NOISE, rest_record
+from rest_records import NOISE, offset_record, rest_record
 import yaml
 
 
@@ -185,15 +185,6 @@ def test_the_measured_cycle_with_the_cycle_schedule(tmp_path, capsys):
     assert max(report['learnt_while_moving']['largest_mean_reference_rad_s']) < 3.5e-4
 
 
-def offset_record(source, target, offset_rad_s: float) -> None:
-    """Copy a CSV record with ``offset_rad_s`` added to its gyro columns (after the fit)."""
-    table = np.genfromtxt(source, delimiter=',', names=True)
-    names = table.dtype.names
-    data = np.column_stack([table[n] + (offset_rad_s if n.startswith('gyro_') else 0.0)
-                            for n in names])
-    np.savetxt(target, data, delimiter=',', header=','.join(names), comments='', fmt='%.17g')
-
-
 def test_evaluate_with_a_rest_hint_takes_an_offset_beyond_the_bound(tmp_path, capsys):
     source = rest_record(tmp_path / 'rest.csv', duration_s=900.0)
     run('inject-motion', source, '--schedule', 'cycle', '--seed', '2',
@@ -243,7 +234,7 @@ def test_a_rest_hint_column_is_checked(tmp_path, capsys):
             ([str(tmp_path / 'moving.csv'), *params, '--rest-hint', 'rest_hint'],
              ['--rest-hint is the bias tracking', 'give --track-bias']),
             ([str(tmp_path / 'moving.csv'), *params, '--track-bias', '--rest-hint', 'hint'],
-             ["--rest-hint hint: ", "column 'hint' is not in the header"]),
+             ['--rest-hint hint: ', "column 'hint' is not in the header"]),
             ([str(tmp_path / 'bad.csv'), *params, '--track-bias', '--rest-hint', 'rest_hint'],
              ['bad.csv: line 6: --rest-hint column', "holds '2'; it takes 0 (moving) or 1"])):
         capsys.readouterr()

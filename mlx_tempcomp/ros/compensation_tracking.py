@@ -41,6 +41,7 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from . import messages, rest_hint
+from .compensation_inputs import waiting_messages
 from .qos import stream_subscription
 from .zro_recalibration import TRACKING_SECTION, ZroRecalibration
 from ..core.bias_tracker import BiasTracking, tracking_state
@@ -138,9 +139,8 @@ class CompensationTracking:
         self.hints_ignored = 0          # unstamped hints before the first sample
         self.zeroed_at_start = False    # the start-up zeroing is done (or not wanted)
         self._hint_limits(values)
-        if self.hint_topic:
-            stream_subscription(node, self.hint_kind.message_type, self.hint_topic,
-                                self.on_hint)
+        self.hint_subscription = None if not self.hint_topic else stream_subscription(
+            node, self.hint_kind.message_type, self.hint_topic, self.on_hint)
 
     # The state file.
 
@@ -259,7 +259,13 @@ class CompensationTracking:
                             values[PREFIX + 'rest_hint_max_angular_rad_s'])
 
     def on_hint(self, msg) -> None:
-        """Take a rest hint: at its stamp, or unstamped at the latest sample tracked."""
+        """Take a rest hint and those waiting behind it (a busy node must not fall behind)."""
+        self._hint(msg)
+        for waiting in waiting_messages(self.hint_subscription):
+            self._hint(waiting)
+
+    def _hint(self, msg) -> None:
+        """Take one rest hint: at its stamp, or unstamped at the latest sample tracked."""
         self.hint_messages += 1
         if self.tracker is None:
             return
