@@ -23,8 +23,9 @@ import math
 import signal
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TwistWithCovarianceStamped
+from geometry_msgs.msg import Twist, TwistStamped, TwistWithCovarianceStamped
 from mlx_tempcomp.cli import main
+from mlx_tempcomp.parameters.compensation import REST_HINT_TYPES
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import read_state, write_state
@@ -32,7 +33,7 @@ from mlx_tempcomp.recordings.bag import RawTopics
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.csv_writer import write_csv
 from mlx_tempcomp.recordings.load import load_recording
-from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros import messages, rest_hint
 from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
 from nav_msgs.msg import Odometry
 import numpy as np
@@ -348,6 +349,31 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
                                     abs=1e-6), case
         print(f'{case}: {line.split("]: ", 1)[-1]}')
         probe.clear()
+
+
+def test_each_hint_type_says_at_rest_by_its_bounds_and_takes_its_stamp():
+    assert tuple(rest_hint.KINDS) == REST_HINT_TYPES
+    limits = (0.001, 0.002)
+    odometry_kind = rest_hint.KINDS['nav_msgs/Odometry']
+    msg = Odometry()
+    msg.twist.twist.linear.x, msg.twist.twist.angular.z = 0.0009, -0.0019
+    assert rest_hint.at_rest(odometry_kind, msg, *limits)
+    assert rest_hint.stamp_ns(odometry_kind, msg) is None        # a zero stamp: none
+    msg.header.stamp = messages.ns_to_stamp(1_795_750_249_871_031_036)
+    assert rest_hint.stamp_ns(odometry_kind, msg) == 1_795_750_249_871_031_036
+    for x, z in ((0.0011, 0.0), (0.0, 0.0021), (math.nan, 0.0)):
+        msg.twist.twist.linear.x, msg.twist.twist.angular.z = x, z
+        assert not rest_hint.at_rest(odometry_kind, msg, *limits)
+    twist = Twist()
+    twist.angular.y = 0.0015
+    assert rest_hint.at_rest(rest_hint.KINDS['geometry_msgs/Twist'], twist, *limits)
+    assert rest_hint.stamp_ns(rest_hint.KINDS['geometry_msgs/Twist'], twist) is None
+    stamped = TwistStamped()
+    stamped.twist.linear.y = 0.5
+    assert not rest_hint.at_rest(rest_hint.KINDS['geometry_msgs/TwistStamped'], stamped,
+                                 *limits)
+    assert rest_hint.at_rest(rest_hint.KINDS['std_msgs/Bool'], Bool(data=True), *limits)
+    assert not rest_hint.at_rest(rest_hint.KINDS['std_msgs/Bool'], Bool(data=False), *limits)
 
 
 HINT_TOPIC = 'odom'
