@@ -2,7 +2,7 @@
 A record at rest for the bias-tracking tests: a cubic in T, a wandering offset, noise, gravity.
 
 Shared by the toolkit's tests (test_cli_tracking.py) and the node's (test_ros_tracking.py),
-which inject the same motion into it.
+which inject the same motion into it; `offset_record` adds an offset the fit never saw.
 """
 
 import math
@@ -29,3 +29,13 @@ def rest_record(path: Path, duration_s: float = 1500.0, rate_hz: float = 10.0,
     np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
                header=','.join(columns), comments='', fmt='%.17g')
     return str(path)
+
+
+def offset_record(source, target, offset_rad_s: float) -> str:
+    """Copy a CSV record with ``offset_rad_s`` added to its gyro columns (after the fit)."""
+    table = np.genfromtxt(source, delimiter=',', names=True)
+    names = table.dtype.names
+    data = np.column_stack([table[n] + (offset_rad_s if n.startswith('gyro_') else 0.0)
+                            for n in names])
+    np.savetxt(target, data, delimiter=',', header=','.join(names), comments='', fmt='%.17g')
+    return str(target)

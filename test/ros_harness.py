@@ -544,12 +544,14 @@ def reliable(topics, entity: str) -> dict:
 
 
 def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
-                       driver_params: dict = None, timeout: float = 60.0, **params):
+                       driver_params: dict = None, timeout: float = 60.0, before_driver=None,
+                       **params):
     """
     Start compensation_node on ``model_file``, then the bag driver at rate factor 0.
 
     ``params`` (and the replay's own: state file, QoS, no bias tracking unless they
-    say) come in a file after ``model_file``, so they win over it.
+    say) come in a file after ``model_file``, so they win over it. ``before_driver()``
+    runs once the node publishes, before the driver starts (e.g. to send it rest hints).
     """
     probe.subscribe(Imu, 'imu/data', RELIABLE_RECORD_QOS)
     probe.subscribe_diagnostics()
@@ -563,6 +565,8 @@ def start_model_replay(launcher, probe, tmp_path, bag, model_file: str,
                    label='compensation')
     probe.spin_until(lambda: probe.node.count_publishers('/imu/data') > 0, timeout,
                      'the compensation node publishing imu/data', launcher)
+    if before_driver is not None:
+        before_driver()
     # hold: the driver stays up after the replay, so finish_model_replay hears 'finished'; a
     # long pace time-out: a node stalled by a loaded machine is waited for, not overrun.
     return launcher.driver({'source': 'bag', 'bag.path': str(bag), 'bag.rate_factor': 0.0,

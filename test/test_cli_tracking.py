@@ -5,7 +5,7 @@ Records at rest (made here, from the simulated sensor, or the measured cycle) ge
 motion with ``mlx-tempcomp inject-motion``; ``fit`` writes the model and its
 ``bias_tracking`` section; ``evaluate --track-bias`` runs the node's tracker over the
 model's output and is compared with the truth and with the tracker run row by row, as
-the node runs it.
+the node runs it; ``--rest-hint`` gives it the schedule's truth as the robot's rest hint.
 """
 
 import json
@@ -22,7 +22,7 @@ from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.motion import motion_schedule, ScheduleSettings
 import numpy as np
 import pytest
-from rest_records import NOISE, rest_record
+from rest_records import NOISE, offset_record, rest_record
 import yaml
 
 
@@ -57,6 +57,15 @@ def test_inject_motion_adds_the_schedule_and_turns_the_specific_force(tmp_path, 
     assert np.allclose(moving.acceleration_m_s2[still, 2], rest.acceleration_m_s2[still, 2],
                        rtol=1e-12, atol=1e-12)
     assert np.max(np.abs(moving.acceleration_m_s2 - rest.acceleration_m_s2)) > 5.0
+    # The rest hint is the schedule's truth: 1 in its rests, 0 in its turns.
+    written = np.genfromtxt(tmp_path / 'moving.csv', delimiter=',', names=True)
+    in_rest = np.zeros(len(written), dtype=bool)
+    for segment in schedule['segments']:
+        if segment['kind'] == 'rest':
+            elapsed = written['time'] - written['time'][0]
+            in_rest |= (elapsed >= segment['start_s']) & (elapsed < segment['end_s'])
+    assert np.array_equal(written['rest_hint'], in_rest.astype(float))
+    assert not np.any(moving.reference_rad_s[in_rest]) and still[~in_rest].sum() < 10
     # A record with motion in it already is refused.
     assert_user_error(main(['inject-motion', str(tmp_path / 'moving.csv'),
                             '--out', str(tmp_path / 'twice.csv')]), capsys,
@@ -174,3 +183,65 @@ def test_the_measured_cycle_with_the_cycle_schedule(tmp_path, capsys):
     # docs/tracking.md: x and y above 1.5; z held back by its first rest (see there).
     assert gains[0] > 2.5 and gains[1] > 1.5 and 1.1 < gains[2] < 1.5
     assert max(report['learnt_while_moving']['largest_mean_reference_rad_s']) < 3.5e-4
+
+
+def test_evaluate_with_a_rest_hint_takes_an_offset_beyond_the_bound(tmp_path, capsys):
+    source = rest_record(tmp_path / 'rest.csv', duration_s=900.0)
+    run('inject-motion', source, '--schedule', 'cycle', '--seed', '2',
+        '--out', tmp_path / 'moving.csv')
+    run('fit', tmp_path / 'moving.csv', '--order', '3', '--out', tmp_path / 'fit.yaml')
+    # An offset of 0.3 deg/s after the fit (a supply, a mounting stress): beyond the bound.
+    offset_record(tmp_path / 'moving.csv', tmp_path / 'offset.csv', math.radians(0.3))
+    args = (tmp_path / 'offset.csv', '--params', tmp_path / 'fit.yaml', '--track-bias')
+    plain = evaluate_json(capsys, *args)['bias_tracking']
+    hinted = evaluate_json(capsys, *args, '--rest-hint', 'rest_hint',
+                           '--out-csv', tmp_path / 'out.csv')['bias_tracking']
+    # Without the hint a gyro alone takes the offset for a turn, but where a turn cancels it.
+    assert plain['hinted_windows'] == 0 and plain['updates'] < hinted['updates'] / 1.5
+    assert hinted['rest_hint'] == {'column': 'rest_hint',
+                                   'at_rest_share': pytest.approx(0.3, abs=0.002)}
+    assert hinted['hinted_windows'] > 40 and hinted['updates'] > 40
+    assert max(hinted['learnt_while_moving']['largest_mean_reference_rad_s']) < 3.5e-4
+    for axis in 'xyz':
+        assert hinted['axes'][axis]['gain'] > max(3.0, 2.5 * plain['axes'][axis]['gain'])
+    # The node's tracker, row by row with each row's hint, gives the file's bits.
+    values = node_values(tmp_path / 'fit.yaml')
+    axes = axes_of(values)
+    record = load_recording(tmp_path / 'offset.csv')
+    hint = np.genfromtxt(tmp_path / 'offset.csv', delimiter=',', names=True)['rest_hint']
+    model_out = build_model(values).correct(record.gyro_rad_s, record.temperature_c).rate_rad_s
+    tracker = BiasTracking(tracking_settings(values, axes, values['rate_noise_rad_s']), axes)
+    rows = [tracker.process_one(t, r, c, a, h == 1.0) for t, r, c, a, h in zip(
+        record.time_s.tolist(), model_out.tolist(), record.temperature_c.tolist(),
+        record.acceleration_m_s2.tolist(), hint.tolist())]
+    written = np.genfromtxt(tmp_path / 'out.csv', delimiter=',', names=True)
+    assert np.array_equal(np.column_stack([written[f'gyro_{a}'] for a in axes]),
+                          [r[0] for r in rows])
+    capsys.readouterr()
+    run('evaluate', *args, '--rest-hint', 'rest_hint')
+    assert 'rest hint rest_hint: at rest 30.0 % of the samples; ' in capsys.readouterr().out
+
+
+def test_a_rest_hint_column_is_checked(tmp_path, capsys):
+    source = rest_record(tmp_path / 'rest.csv', duration_s=120.0)
+    run('inject-motion', source, '--out', tmp_path / 'moving.csv')
+    run('fit', tmp_path / 'moving.csv', '--order', '1', '--out', tmp_path / 'fit.yaml')
+    text = (tmp_path / 'moving.csv').read_text().splitlines()
+    text[5] = text[5].rsplit(',', 1)[0] + ',2'
+    (tmp_path / 'bad.csv').write_text('\n'.join(text) + '\n')
+    params = ['--params', str(tmp_path / 'fit.yaml')]
+    for argv, needles in (
+            ([str(tmp_path / 'moving.csv'), *params, '--rest-hint', 'rest_hint'],
+             ['--rest-hint is the bias tracking', 'give --track-bias']),
+            ([str(tmp_path / 'moving.csv'), *params, '--track-bias', '--rest-hint', 'hint'],
+             ['--rest-hint hint: ', "column 'hint' is not in the header"]),
+            ([str(tmp_path / 'bad.csv'), *params, '--track-bias', '--rest-hint', 'rest_hint'],
+             ['bad.csv: line 6: --rest-hint column', "holds '2'; it takes 0 (moving) or 1"])):
+        capsys.readouterr()
+        assert_user_error(main(['evaluate', *argv]), capsys, *needles)
+    run('convert', tmp_path / 'moving.csv', '--out', tmp_path / 'bag')
+    capsys.readouterr()
+    assert_user_error(main(['evaluate', str(tmp_path / 'bag'), '--imu-topic', '/imu/data_raw',
+                            '--temperature-topic', '/imu/temperature_raw', *params,
+                            '--track-bias', '--rest-hint', 'rest_hint']), capsys,
+                      'reads a 0/1 column of a CSV record')

@@ -36,6 +36,7 @@ ROSDEP_KEYS = {
     'std_srvs': 'std_srvs',
     'diagnostic_msgs': 'diagnostic_msgs',
     'geometry_msgs': 'geometry_msgs',
+    'nav_msgs': 'nav_msgs',
     'rcl_interfaces': 'rcl_interfaces',
     'builtin_interfaces': 'builtin_interfaces',
     'launch': 'launch',

@@ -24,6 +24,17 @@ is learnt: the temperature model carries the shape, the offset stays (and fades)
   provisional: undone unless the run holds it `CONFIRM_WINDOWS` windows more, or twice as
   long as the run before it held when that one drifted out. A ramp, which looks like a
   staircase of steps, is never followed past a provisional step.
+- **Rest hints.** When the robot says it is at rest (`hint`, or a 0/1 column given to
+  `process`; `core.rest_hints` says when a window counts as hinted), the detector holds
+  no axis of a hinted window: an offset of any size is taken. A still run whose windows
+  were all hinted begins with a shift that is not provisional: a turn cannot explain it.
+  The spread, temperature, accelerometer and agreement tests still apply, and so does the
+  drift guard (a run that drifts out starts again, and a hinted one shifts at once).
+  What a hinted window taught becomes the offset's zero: in motion the offset fades back
+  to it, not to the model (a hint says the offset is real, e.g. a supply's shift).
+  ``zero_at_start`` counts every window as hinted until the first still run begins, as a
+  flight controller zeroes its gyro at boot: a robot started while turning slowly takes
+  the turn for its offset.
 
 Every sample goes through the same steps whether it comes in a block (`process`, numpy)
 or alone (`process_one`, plain floats): the offset changes only when a window closes,
@@ -34,13 +45,14 @@ into blocks gives the same bits (``test/test_fuzz_bias_tracking.py``).
 a plain dict for a state file and `tracking_state` checks one read back.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 from typing import Optional
 
 import numpy as np
 
 from .errors import CalibrationError, ConfigError
+from .rest_hints import RestHints
 from .standstill import (per_axis, StandstillDetector, StandstillSettings, WindowStatistics,
                          WindowSums)
 
@@ -53,18 +65,30 @@ class TrackingSettings:
     ``initial_std_rad_s`` (one per axis): the offset's standard deviation before any
     window, and the most its variance grows to in motion. ``stable_std_rad_s``: an
     axis's estimate is stable while its standard deviation is at most this and it has
-    learnt from a window or a seed.
+    learnt from a window or a seed. ``rest_hint_max_age_s``: how long a rest hint says
+    what it says (`core.rest_hints`); ``zero_at_start``: every window counts as hinted
+    until the first still run begins.
     """
 
     standstill: StandstillSettings
     initial_std_rad_s: tuple
     stable_std_rad_s: float = math.radians(0.05)
+    rest_hint_max_age_s: float = 1.0
+    zero_at_start: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'initial_std_rad_s', per_axis(
             'initial_std_rad_s', self.initial_std_rad_s, self.standstill.axes))
         if not (math.isfinite(self.stable_std_rad_s) and self.stable_std_rad_s > 0.0):
             msg = f'stable_std_rad_s must be a positive number, got {self.stable_std_rad_s!r}'
+            raise ConfigError(msg)
+        age = self.rest_hint_max_age_s
+        if isinstance(age, bool) or not isinstance(age, (int, float)) or \
+                not (math.isfinite(age) and age > 0.0):
+            msg = f'rest_hint_max_age_s must be a positive number, got {age!r}'
+            raise ConfigError(msg)
+        if not isinstance(self.zero_at_start, bool):
+            msg = f'zero_at_start must be true or false, got {self.zero_at_start!r}'
             raise ConfigError(msg)
 
 
@@ -91,6 +115,8 @@ class TrackingStatus:
     reason: str
     # Per axis: its mean was beyond the bound in the last window (a turn it may see).
     held: tuple
+    # The last window was hinted (the robot said at rest over all of it).
+    hinted: bool = False
 
 
 @dataclass(frozen=True)
@@ -106,6 +132,7 @@ class WindowRecord:
     learnt: tuple
     reason: str
     offset_rad_s: tuple
+    hinted: bool = False
 
 
 # A still run that began with a shift must hold it this many windows more (at least), or
@@ -139,6 +166,8 @@ class TrackingState:
     time_s: Optional[float]
     updates: int
     last_update_s: Optional[float]
+    # What the offset fades to (set by a hinted window); None: the model (0).
+    zero_rad_s: Optional[tuple] = None
 
 
 def _number(state: dict, key: str, index=None, low=-math.inf, high=math.inf,
@@ -159,14 +188,17 @@ def tracking_state(state, axes: int, max_offset_rad_s: float = math.inf) -> Trac
     Check a state dict read back (`BiasTracking.state`); CalibrationError names the key.
 
     Offsets within +-``max_offset_rad_s`` (the full scale), variances >= 0, times
-    finite (``time_s`` and ``last_update_s`` may be null: never), ``updates`` >= 0.
+    finite (``time_s`` and ``last_update_s`` may be null: never), ``updates`` >= 0;
+    ``zero_rad_s`` (written once a hint taught the tracker) like the offsets, or absent.
     """
     if not isinstance(state, dict):
         raise CalibrationError(f'the tracking state must be a mapping, got {state!r}')
     missing = [key for key in STATE_KEYS if key not in state]
     if missing:
         raise CalibrationError(f'damaged: {", ".join(missing)} missing (truncated?)')
-    for key in ('offset_rad_s', 'variance_rad2_s2'):
+    lists = ('offset_rad_s', 'variance_rad2_s2') + (('zero_rad_s',) if 'zero_rad_s' in state
+                                                    else ())
+    for key in lists:
         if not isinstance(state[key], list) or len(state[key]) != axes:
             raise CalibrationError(f'{key} must be a list of {axes} values, got {state[key]!r}')
     offset = tuple(_number(state, 'offset_rad_s', i, -max_offset_rad_s, max_offset_rad_s)
@@ -174,9 +206,11 @@ def tracking_state(state, axes: int, max_offset_rad_s: float = math.inf) -> Trac
     variance = tuple(_number(state, 'variance_rad2_s2', i, 0.0) for i in range(axes))
     times = [None if state[key] is None else _number(state, key)
              for key in ('time_s', 'last_update_s')]
+    zero = tuple(_number(state, 'zero_rad_s', i, -max_offset_rad_s, max_offset_rad_s)
+                 for i in range(axes)) if 'zero_rad_s' in state else None
     return TrackingState(offset_rad_s=offset, variance_rad2_s2=variance, time_s=times[0],
                          updates=_number(state, 'updates', low=0, integer=True),
-                         last_update_s=times[1])
+                         last_update_s=times[1], zero_rad_s=zero)
 
 
 class BiasTracking:
@@ -185,12 +219,18 @@ class BiasTracking:
 
     ``axes`` names the gyro axes (x, y, z: which specific force axis is which);
     ``state`` a checked `TrackingState` to start from; ``keep_windows`` keeps a
-    `WindowRecord` of every closed window in ``windows`` (the offline twin's report).
+    `WindowRecord` of every closed window in ``windows`` (the offline twin's report);
+    ``hints`` the `RestHints` to judge windows with (the node keeps one across trackers;
+    None: made at the first hint). ``zeroing`` is true until the start-up zeroing is done
+    (``zero_at_start``; the node clears it for a tracker rebuilt after its start).
     """
 
     def __init__(self, settings: TrackingSettings, axes: tuple,
-                 state: Optional[TrackingState] = None, keep_windows: bool = False):
+                 state: Optional[TrackingState] = None, keep_windows: bool = False,
+                 hints: Optional[RestHints] = None):
         self.settings = settings
+        self.hints = hints
+        self.zeroing = settings.zero_at_start
         self.axes = tuple(axes)
         self._detector = StandstillDetector(settings.standstill, self.axes)
         standstill = settings.standstill
@@ -200,6 +240,7 @@ class BiasTracking:
         self._offset = [0.0] * len(self.axes)
         self._variance = list(self._cap)
         self._time_s = None
+        self._zero = None
         self.updates = 0
         self.last_update_s = None
         if state is not None:
@@ -209,6 +250,7 @@ class BiasTracking:
         self._origin_s = None
         self.window_count = 0
         self.held = (False,) * len(self.axes)
+        self.hinted = False
         self._still = False
         self.withdrawn = 0
         self._run = None
@@ -223,6 +265,7 @@ class BiasTracking:
         self._offset = list(state.offset_rad_s)
         self._variance = list(state.variance_rad2_s2)
         self._time_s = state.time_s
+        self._zero = None if state.zero_rad_s is None else list(state.zero_rad_s)
         self.updates = state.updates
         self.last_update_s = state.last_update_s
 
@@ -244,14 +287,20 @@ class BiasTracking:
         self._offset, self._variance = offset, variance
         self._std = [math.sqrt(v) for v in variance]
         self._run = None
+        self._zero = None
+        # An operator's re-zero is the start-up zeroing's job done.
+        self.zeroing = False
         if time_s is not None:
             self._time_s = float(time_s)
 
     def state(self) -> dict:
         """Give the state as plain YAML-safe values (`tracking_state` checks it back)."""
-        return {'offset_rad_s': list(self._offset), 'variance_rad2_s2': list(self._variance),
-                'time_s': self._time_s, 'updates': self.updates,
-                'last_update_s': self.last_update_s}
+        state = {'offset_rad_s': list(self._offset), 'variance_rad2_s2': list(self._variance),
+                 'time_s': self._time_s, 'updates': self.updates,
+                 'last_update_s': self.last_update_s}
+        if self._zero is not None:
+            state['zero_rad_s'] = list(self._zero)
+        return state
 
     def status(self) -> TrackingStatus:
         """Give what the tracker holds now."""
@@ -260,17 +309,24 @@ class BiasTracking:
             still=self.still, offset_rad_s=tuple(self._offset), std_rad_s=tuple(self._std),
             stable=tuple(learnt and s <= self.settings.stable_std_rad_s for s in self._std),
             updates=self.updates, last_update_s=self.last_update_s, windows=self.window_count,
-            reason=self.reason, held=self.held)
+            reason=self.reason, held=self.held, hinted=self.hinted)
+
+    def hint(self, time_s: float, at_rest: bool) -> None:
+        """Take a rest hint at ``time_s`` (sample time, s): at rest or moving from then on."""
+        if self.hints is None:
+            self.hints = RestHints()
+        self.hints.add(time_s, at_rest)
 
     # The stream.
 
-    def process(self, time_s, rate_rad_s, temperature_c, acceleration_m_s2=None
-                ) -> TrackedBlock:
+    def process(self, time_s, rate_rad_s, temperature_c, acceleration_m_s2=None,
+                rest_hint=None) -> TrackedBlock:
         """
         Track over a block of samples in time order; give them less the offset.
 
         ``time_s`` (n,), ``rate_rad_s`` (n, axes) after the temperature model,
-        ``temperature_c`` (n,), ``acceleration_m_s2`` (n, 3) or None (no accelerometer).
+        ``temperature_c`` (n,), ``acceleration_m_s2`` (n, 3) or None (no accelerometer),
+        ``rest_hint`` (n,) booleans or None: each sample's own hint (the offline twin).
         """
         time_s = np.asarray(time_s, dtype=np.float64).reshape(-1)
         rows = time_s.size
@@ -278,6 +334,9 @@ class BiasTracking:
         temperature = np.asarray(temperature_c, dtype=np.float64).reshape(rows)
         acceleration = None if acceleration_m_s2 is None else \
             np.asarray(acceleration_m_s2, dtype=np.float64).reshape(rows, 3)
+        hint = None if rest_hint is None else np.asarray(rest_hint, dtype=bool).reshape(rows)
+        if hint is not None and self.hints is None:
+            self.hints = RestHints()
         out = np.empty_like(rate)
         std = np.empty_like(rate)
         still = np.empty(rows, dtype=bool)
@@ -293,6 +352,8 @@ class BiasTracking:
                 self._roll(float(time_s[first]))
                 continue
             part = slice(first, end)
+            if hint is not None:
+                self.hints.add_block(time_s[part], hint[part])
             out[part] = rate[part] - self._offset
             std[part] = self._std
             still[part] = self._still
@@ -302,13 +363,19 @@ class BiasTracking:
         return TrackedBlock(rate_rad_s=out, std_rad_s=std, still=still)
 
     def process_one(self, time_s: float, rate_rad_s, temperature_c: float,
-                    acceleration_m_s2=None) -> tuple:
-        """Track one sample in plain floats; give (rates less the offset, stds, still)."""
+                    acceleration_m_s2=None, rest_hint: Optional[bool] = None) -> tuple:
+        """
+        Track one sample in plain floats; give (rates less the offset, stds, still).
+
+        ``rest_hint``: the sample's own hint, as a row of `process`'s (None: none).
+        """
         if self._window is None:
             self._open(time_s)
         elif (time_s >= self._window.end_s or time_s < self._window.start_s) and \
                 math.isfinite(time_s):
             self._roll(time_s)
+        if rest_hint is not None:
+            self.hint(time_s, rest_hint)
         out = [r - o for r, o in zip(rate_rad_s, self._offset)]
         self._window.add_row(time_s, out, temperature_c, acceleration_m_s2)
         return out, list(self._std), self._still
@@ -326,6 +393,8 @@ class BiasTracking:
         self._window = WindowSums(index, self._origin_s + index * width,
                                   self._origin_s + (index + 1) * width, tuple(self._offset),
                                   len(self.axes))
+        if self.hints is not None:
+            self.hints.forget_before(self._window.start_s)
 
     def _roll(self, time_s: float) -> None:
         """Close the window and start the one that holds ``time_s``."""
@@ -336,6 +405,8 @@ class BiasTracking:
             self._detector.reset()
             self._end_run()
             self._still = False
+            if self.hints is not None:
+                self.hints.clear()
             self._open(time_s)
             return
         width = self.settings.standstill.window_s
@@ -346,14 +417,26 @@ class BiasTracking:
             index += 1
         self._start_window(index)
 
+    def _hinted(self, w: WindowStatistics) -> WindowStatistics:
+        """Give ``w`` marked hinted when the hints (or the start-up zeroing) cover it."""
+        if self.zeroing or self.hints is not None and self.hints.covers(
+                w.first_s, w.last_s, self.settings.rest_hint_max_age_s):
+            return replace(w, hinted=True)
+        return w
+
     def _close(self, w: WindowStatistics) -> None:
+        w = self._hinted(w)
         verdict = self._detector.judge(w)
         self.window_count += 1
         self.held = tuple(i in verdict.held for i in range(len(self.axes)))
+        self.hinted = w.hinted
         self._predict(w.end_s)
         reason, learnt = verdict.reason, ()
         if verdict.entered:
-            self._begin_run(verdict.learn, w.end_s)
+            hinted = w.hinted and all(v.hinted for v, _ in verdict.learn)
+            self._begin_run(verdict.learn, w.end_s, hinted)
+            if hinted:
+                self._re_zero(frozenset().union(*(axes for _, axes in verdict.learn)))
             learnt = verdict.learn
         elif verdict.learn:
             ((window, axes),) = verdict.learn
@@ -364,6 +447,8 @@ class BiasTracking:
                 self._end_run(drifted=True)
             else:
                 self._learn(window, axes, shift=False)
+                if window.hinted and w.hinted:
+                    self._re_zero(axes)
                 learnt = verdict.learn
                 self._run.windows += 1
                 self._run.unconfirmed = max(self._run.unconfirmed - 1, 0)
@@ -377,15 +462,17 @@ class BiasTracking:
                 start_s=w.start_s, end_s=w.end_s, samples=w.samples, quiet=verdict.quiet,
                 still=self._still,
                 learnt=tuple((v.start_s, v.end_s, tuple(sorted(axes))) for v, axes in learnt),
-                reason=reason, offset_rad_s=tuple(self._offset)))
+                reason=reason, offset_rad_s=tuple(self._offset), hinted=w.hinted))
 
-    def _begin_run(self, learn: tuple, time_s: float) -> None:
+    def _begin_run(self, learn: tuple, time_s: float, hinted: bool = False) -> None:
         """
         Learn the windows that made the gyro still; a shift a turn could explain is provisional.
 
         Without an accelerometer any shift could be a slow turn; with one, only its part
-        about gravity (a turn about another axis tilts the specific force).
+        about gravity (a turn about another axis tilts the specific force). In a run
+        whose every window was hinted no turn explains it: the shift stays.
         """
+        self.zeroing = False
         if self._run is not None:
             self._end_run()
         before = (list(self._offset), list(self._variance))
@@ -395,7 +482,9 @@ class BiasTracking:
         last = learn[-1][0] if learn else None
         vertical = None if last is None or last.acceleration_m_s2 is None else \
             self._detector.vertical(last.acceleration_m_s2)
-        if shifted and vertical is not None:
+        if hinted:
+            shifted = False
+        elif shifted and vertical is not None:
             gate = self.settings.standstill.agreement_multiple
             change = sum(u * (x - b) for u, x, b in zip(vertical, self._offset, before[0]))
             spread = sum(u * u * (v + n / last.samples)
@@ -453,21 +542,32 @@ class BiasTracking:
                 return f'offset drifted {drift:.3g} rad/s {where} since the still run began'
         return ''
 
+    def _re_zero(self, axes) -> None:
+        """Make the offset of ``axes`` their zero: what a hinted window taught stays."""
+        if self._zero is None:
+            self._zero = [0.0] * len(self.axes)
+        for i in axes:
+            self._zero[i] = self._offset[i]
+
     def _predict(self, time_s: float) -> None:
         """
         Carry the offsets from the last time to ``time_s``: a first-order Gauss-Markov process.
 
         Its standard deviation is ``initial_std_rad_s`` (the model's own error: the offset
         stays within it) and its variance grows at first by q dt (the random walk), so its
-        time constant is 2 initial_std^2 / q: the offset fades back to the model over it,
-        and its variance grows back to initial_std^2.
+        time constant is 2 initial_std^2 / q: the offset fades back to the model (or to
+        the zero a hint set) over it, and its variance grows back to initial_std^2.
         """
         if self._time_s is not None and time_s > self._time_s:
             elapsed = time_s - self._time_s
+            zero = self._zero
             for i, (q, cap) in enumerate(zip(self._q, self._cap)):
                 if q > 0.0:
                     decay = math.exp(-elapsed * q / (2.0 * cap))
-                    self._offset[i] *= decay
+                    if zero is None:
+                        self._offset[i] *= decay
+                    else:
+                        self._offset[i] = zero[i] + (self._offset[i] - zero[i]) * decay
                     self._variance[i] = decay * decay * self._variance[i] + \
                         cap * (1.0 - decay * decay)
         if self._time_s is None or time_s > self._time_s:

@@ -18,7 +18,9 @@ block and its rows one by one give the same bits. A closed window gives its
   is the turn it cannot see, and beyond the bound every axis that turn would move by
   more than its window mean's noise is held (the gravity seen counted up to
   `GRAVITY_TILT_RAD` off the true vertical). A held axis learns nothing from the
-  window; a window whose every axis is held is not quiet;
+  window; a window whose every axis is held is not quiet. A **hinted** window (the robot
+  said it was at rest over the whole window, `core.rest_hints`) holds no axis: its mean
+  is an offset, whatever its size; the other tests still apply;
 - **agrees** with the window before it (adjacent and quiet): the offsets they measure
   (the offset in effect plus the window's mean) differ on no axis held in neither by
   more than ``agreement_multiple`` x their standard deviation (the noise of both means
@@ -146,6 +148,8 @@ class WindowStatistics:
     acceleration_m_s2: Optional[tuple] = None
     acceleration_spread_m_s2: Optional[tuple] = None
     acceleration_partial: bool = False
+    # The robot said it was at rest over the whole window (set by the tracker at its close).
+    hinted: bool = False
 
     @property
     def measured_rad_s(self) -> tuple:
@@ -342,12 +346,15 @@ class StandstillDetector:
         """
         Give (held axes, reason): the axes a turn within the window's mean could move.
 
+        None in a hinted window: the robot says it does not turn.
         Without an accelerometer, each axis whose mean (less the offset) is beyond the
         bound. With one, the mean's part about gravity is the turn it cannot see: beyond
         the bound, every axis that turn would move by more than the noise of its window
         mean (so an axis learns from it at most what its noise hides).
         """
         s = self.settings
+        if w.hinted:
+            return frozenset(), ''
         if w.acceleration_m_s2 is None:
             held = frozenset(i for i, m in enumerate(w.mean_rad_s)
                              if not abs(m) <= s.max_mean_rate_rad_s)

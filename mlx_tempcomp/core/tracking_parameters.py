@@ -7,7 +7,9 @@ shipped config and ``mlx-tempcomp evaluate`` share one table. `tracking_settings
 the node's values into `TrackingSettings` (None when tracking is off), checking what a
 descriptor cannot say: per-axis lists of one value or one per axis, each in its range;
 a ConfigError names the parameter. `tracking_parameters` gives the section
-``mlx-tempcomp fit`` and ``diagnose`` write (`core.tracking_bounds` derives its values).
+``mlx-tempcomp fit`` and ``diagnose`` write (`core.tracking_bounds` derives its values):
+the unit's parameters, not the robot's (``unit`` false: the rest hints' age and the
+start-up zeroing, which the robot's configuration sets).
 """
 
 from dataclasses import dataclass
@@ -23,13 +25,18 @@ PREFIX = 'bias_tracking.'
 
 @dataclass(frozen=True)
 class Parameter:
-    """One ``bias_tracking.*`` parameter; ``low``/``high`` bound a scalar (None: a list)."""
+    """
+    One ``bias_tracking.*`` parameter; ``low``/``high`` bound a scalar (None: a list).
+
+    ``unit``: the unit's, written by ``fit`` and ``diagnose``; false: the robot's.
+    """
 
     name: str
     default: Any
     description: str
     low: Optional[float] = None
     high: Optional[float] = None
+    unit: bool = True
 
 
 PARAMETERS = (
@@ -73,8 +80,15 @@ PARAMETERS = (
     Parameter('stable_std_rad_s', math.radians(0.05),
               "an axis's offset is stable while its standard deviation is at most this, "
               'rad/s', 1e-9, 10.0),
+    Parameter('rest_hint_max_age_s', 1.0,
+              'a rest hint says at rest or moving for this long at most (sensor time, s): a '
+              'window is hinted when the hints said at rest over all of it', 1e-3, 3600.0,
+              unit=False),
+    Parameter('zero_at_start', False,
+              'take the first still run after the start as at rest, whatever its mean rate '
+              '(as a flight controller zeroes its gyro at boot): a robot started while turning '
+              'slowly takes the turn for its offset', unit=False),
 )
-_BY_NAME = {p.name: p for p in PARAMETERS}
 
 
 def _axis_values(values: dict, name: str, axes: int, zero: bool) -> tuple:
@@ -108,7 +122,7 @@ def tracking_settings(values: dict, axes: tuple, rate_noise_rad_s: float
             raise ConfigError(msg)
         noise = tuple(v or rate_noise_rad_s for v in noise)
     scalar = {p.name: values[PREFIX + p.name] for p in PARAMETERS
-              if p.low is not None and p.name != 'stable_std_rad_s'}
+              if p.low is not None and p.unit and p.name != 'stable_std_rad_s'}
     standstill = StandstillSettings(
         rate_noise_rad_s=noise,
         random_walk_rad_s_rt_s=_axis_values(values, 'random_walk_rad_s_rt_s', count, zero=True),
@@ -116,7 +130,9 @@ def tracking_settings(values: dict, axes: tuple, rate_noise_rad_s: float
     return TrackingSettings(
         standstill=standstill,
         initial_std_rad_s=_axis_values(values, 'initial_std_rad_s', count, zero=False),
-        stable_std_rad_s=values[PREFIX + 'stable_std_rad_s'])
+        stable_std_rad_s=values[PREFIX + 'stable_std_rad_s'],
+        rest_hint_max_age_s=values[PREFIX + 'rest_hint_max_age_s'],
+        zero_at_start=values[PREFIX + 'zero_at_start'])
 
 
 def tracking_parameters(**given) -> dict:
@@ -124,13 +140,13 @@ def tracking_parameters(**given) -> dict:
     Give the ``bias_tracking`` section of a parameter file: the defaults, updated by ``given``.
 
     Values are plain floats (and the two integers, ``enabled``), lists for the per-axis
-    parameters; an unknown name is a ConfigError.
+    parameters; an unknown name is a ConfigError. The unit's parameters only.
     """
-    unknown = sorted(set(given) - set(_BY_NAME))
+    unknown = sorted(set(given) - {p.name for p in PARAMETERS if p.unit})
     if unknown:
         raise ConfigError(f'unknown bias_tracking parameters: {", ".join(unknown)}')
     section = {}
-    for p in PARAMETERS:
+    for p in (p for p in PARAMETERS if p.unit):
         value = given.get(p.name, p.default)
         if isinstance(p.default, list):
             value = [float(v) for v in value]

@@ -21,6 +21,10 @@ from ..core.models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
 from ..core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
 
+# The messages a rest hint may come as (`ros/rest_hint.py` reads each).
+REST_HINT_TYPES = ('nav_msgs/Odometry', 'geometry_msgs/Twist', 'geometry_msgs/TwistStamped',
+                   'std_msgs/Bool')
+
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model', choices=tuple(MODELS)),
 ) + tuple(spec for kind in MODELS.values() for spec in kind.specs) + (
@@ -62,6 +66,19 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          'the tracked offset is written to the state file at most once per this many '
          'seconds of sensor time, when it learnt since the last write, and at a clean stop',
          low=0.0, high=86400.0),
+    Spec(TRACKING + 'rest_hint_topic', '',
+         "the robot's word that it stands still, e.g. odom or cmd_vel ('' = none): while it "
+         'says so over a whole window, the mean-rate bound is lifted', read_only=True),
+    Spec(TRACKING + 'rest_hint_type', REST_HINT_TYPES[0],
+         'the message type of rest_hint_topic: Odometry and TwistStamped by their stamps, '
+         'Twist and Bool (true = at rest) at the latest sample tracked', read_only=True,
+         choices=REST_HINT_TYPES),
+    Spec(TRACKING + 'rest_hint_max_linear_m_s', 0.001,
+         'a twist (odometry, velocity command) is at rest when its linear speed is at most '
+         'this, m/s', low=0.0, high=100.0),
+    Spec(TRACKING + 'rest_hint_max_angular_rad_s', 0.001,
+         'and its angular speed at most this, rad/s (0.057 deg/s: far below a slow turn)',
+         low=0.0, high=100.0),
 )
 
 

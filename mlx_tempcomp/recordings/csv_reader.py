@@ -158,3 +158,29 @@ def load_csv(path: PathLike, columns: ColumnMap = ColumnMap()) -> Recording:
     data = {name: column * columns.scale(name) if name in columns.scales else column
             for name, column in zip(index, values.T)}
     return recording_from_columns(str(path), data, skipped, 'line', lines, non_numeric)
+
+
+def load_csv_column(path: PathLike, name: str, columns: ColumnMap = ColumnMap()) -> tuple:
+    """
+    Read one more column of a CSV recording, beside its time: (time_s, cells, line numbers).
+
+    The file is read as `load_csv` reads it (delimiter, ``skip_rows``, the time column and
+    its scale); ``cells`` are the column's text. `RecordingError` names a missing column.
+    """
+    path = Path(path)
+    header, rows, lines = _read_csv_rows(path, columns.delimiter)
+    wanted = {}
+    for canonical, column in (('time', columns.time), ('extra', name)):
+        positions = [i for i, cell in enumerate(header) if cell == column]
+        if len(positions) != 1:
+            what = 'appears more than once in' if positions else 'is not in'
+            msg = (f'{path}: column {column!r} {what} the header '
+                   f'({", ".join(repr(n) for n in header)})')
+            raise RecordingError(msg)
+        wanted[canonical] = positions[0]
+    rows, lines = rows[columns.skip_rows:], lines[columns.skip_rows:]
+    cells = np.array([[row[i] if i < len(row) else '' for i in wanted.values()] for row in rows],
+                     dtype=str).reshape(len(rows), 2)
+    time_s, non_numeric = _parse_cells(cells[:, :1])
+    time_s = np.where(non_numeric[:, 0], math.nan, time_s[:, 0] * columns.time_scale)
+    return time_s, cells[:, 1], lines

@@ -25,8 +25,12 @@ def csv_columns(recording: Recording) -> dict:
     return columns
 
 
-def write_csv(path: Path, recording: Recording, number_format: str) -> None:
-    """Write ``recording`` to ``path`` (numbers as ``number_format``); OSError if it cannot."""
-    columns = csv_columns(recording)
+def write_csv(path: Path, recording: Recording, number_format: str, extra=None) -> None:
+    """
+    Write ``recording`` to ``path`` (numbers as ``number_format``); OSError if it cannot.
+
+    ``extra`` (header name -> one value per row) follows the recording's columns.
+    """
+    columns = {**csv_columns(recording), **(extra or {})}
     np.savetxt(path, np.column_stack(list(columns.values())), fmt=number_format,
                delimiter=',', header=','.join(columns), comments='')

@@ -9,7 +9,8 @@ samples by stamp, runs them through the stream of the model named by ``model``
 (which keeps the state of stateful effects) and publishes ``imu/data`` and
 ``imu/temperature``. With ``bias_tracking.enabled`` the rate published is the
 model's less the offset tracked at standstill (`CompensationTracking`), whose
-estimate goes out on ``imu/gyro_bias`` and ``imu/gyro_bias/status``. The angular
+estimate goes out on ``imu/gyro_bias`` and ``imu/gyro_bias/status``; with
+``bias_tracking.rest_hint_topic`` it also subscribes to the robot's rest hint. The angular
 velocity covariance is ``rate_noise_rad_s``^2, plus the tracked offset's variance,
 or without tracking the square of the model's error at the sample's temperature
 when ``model_error.*`` gives a table. The supply voltage is held (the latest at or
@@ -120,8 +121,10 @@ class CompensationNode(Node):
         eeprom = self.values['model'] == 'eeprom'
         inputs = ['raw rate and temperature from the driver in this process'] if \
             self.local_input else []
+        hint = self.tracking.hint_topic
         inputs += [s.topic_name for s in self.subscriptions
-                   if eeprom or s.msg_type is not UInt8MultiArray]
+                   if (eeprom or s.msg_type is not UInt8MultiArray) and
+                   s.msg_type is not self.tracking.hint_kind.message_type]
         outputs = [p.topic_name for p in self.publishers
                    if p.topic_name not in ('/rosout', '/parameter_events')]
         table = self.outputs.model_error
@@ -129,6 +132,10 @@ class CompensationNode(Node):
             if self.tracking.settings is not None else '' if table is None else \
             f' (covariance: rate noise + model error at {len(table.temperature_c)} temperatures)'
         tracking = 'on' if self.tracking.settings is not None else 'off'
+        if hint:
+            tracking += f' (rest hint: {hint}, {self.values["bias_tracking.rest_hint_type"]})'
+        if self.values['bias_tracking.zero_at_start']:
+            tracking += ' (zero at start: the first still run is taken as at rest)'
         return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
                 f'{tracking}; waits for {", ".join(inputs)}; publishes {", ".join(outputs)}'
                 f'{covariance}; state file {self.recalibration.path}: '

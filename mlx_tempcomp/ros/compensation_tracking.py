@@ -21,6 +21,13 @@ fingerprint, axes and ZRO offset it is relative to: written atomically beside th
 state (`ZroRecalibration.write`) when the tracker learnt something since the last
 write, at most once every ``bias_tracking.save_period_s`` of sensor time, and at a clean
 stop; read back at start (`tracking_state`) and applied when the model matches.
+
+With ``bias_tracking.rest_hint_topic`` the node subscribes to the robot's word that it
+stands still (`ros/rest_hint.py`: Odometry, Twist, TwistStamped or Bool) and hands each
+message to the tracker as a hint (`core.rest_hints`): at its stamp, or, unstamped, at the
+latest sample tracked (a hint before the first sample is ignored and counted). The hints
+are kept across the trackers a parameter change or a recalibration builds; the start-up
+zeroing (``bias_tracking.zero_at_start``) is done once per start.
 """
 
 from datetime import datetime, timezone
@@ -33,12 +40,15 @@ from geometry_msgs.msg import TwistWithCovarianceStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from . import messages
+from . import messages, rest_hint
+from .compensation_inputs import waiting_messages
+from .qos import stream_subscription
 from .zro_recalibration import TRACKING_SECTION, ZroRecalibration
 from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
 from ..core.models import AXIS_NAMES
-from ..core.tracking_parameters import tracking_settings
+from ..core.rest_hints import RestHints
+from ..core.tracking_parameters import PREFIX, tracking_settings
 from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
 
 NS_PER_S = 1_000_000_000
@@ -121,6 +131,16 @@ class CompensationTracking:
         self.status_publisher = None    # imu/gyro_bias/status, with it
         if self.settings is not None:
             self._create_publishers()
+        self.hints = RestHints()
+        self.hint_topic = values[PREFIX + 'rest_hint_topic']
+        self.hint_kind = rest_hint.KINDS[values[PREFIX + 'rest_hint_type']]
+        self.hint_limits = ()
+        self.hint_messages = 0
+        self.hints_ignored = 0          # unstamped hints before the first sample
+        self.zeroed_at_start = False    # the start-up zeroing is done (or not wanted)
+        self._hint_limits(values)
+        self.hint_subscription = None if not self.hint_topic else stream_subscription(
+            node, self.hint_kind.message_type, self.hint_topic, self.on_hint)
 
     # The state file.
 
@@ -230,11 +250,36 @@ class CompensationTracking:
 
     def _build(self, state) -> None:
         self.tracker = None if self.settings is None or self.key is None else \
-            BiasTracking(self.settings, self.axes, state=state)
+            BiasTracking(self.settings, self.axes, state=state, hints=self.hints)
+        if self.tracker is not None and self.zeroed_at_start:
+            self.tracker.zeroing = False
+
+    def _hint_limits(self, values: dict) -> None:
+        self.hint_limits = (values[PREFIX + 'rest_hint_max_linear_m_s'],
+                            values[PREFIX + 'rest_hint_max_angular_rad_s'])
+
+    def on_hint(self, msg) -> None:
+        """Take a rest hint and those waiting behind it (a busy node must not fall behind)."""
+        self._hint(msg)
+        for waiting in waiting_messages(self.hint_subscription):
+            self._hint(waiting)
+
+    def _hint(self, msg) -> None:
+        """Take one rest hint: at its stamp, or unstamped at the latest sample tracked."""
+        self.hint_messages += 1
+        if self.tracker is None:
+            return
+        stamp_ns = rest_hint.stamp_ns(self.hint_kind, msg)
+        time_s = self.latest_s if stamp_ns is None else stamp_second(stamp_ns)
+        if time_s is None:
+            self.hints_ignored += 1
+            return
+        self.tracker.hint(time_s, rest_hint.at_rest(self.hint_kind, msg, *self.hint_limits))
 
     def configure(self, values: dict) -> None:
         """Take new ``bias_tracking.*`` values (checked before); the offset carries over."""
         self.save_period_s = values['bias_tracking.save_period_s']
+        self._hint_limits(values)
         settings = tracking_settings(values, self.axes, values['rate_noise_rad_s'])
         if settings == self.settings:
             return
@@ -259,7 +304,8 @@ class CompensationTracking:
             return {}
         noise = self.settings.standstill.rate_noise_rad_s
         state = tracking_state(self.tracker.state(), len(self.axes))
-        self.tracker = BiasTracking(self.settings, self.axes, state=state)
+        self.tracker = BiasTracking(self.settings, self.axes, state=state, hints=self.hints)
+        self.zeroed_at_start = True
         self.tracker.seed([0.0] * len(self.axes), [n * n / samples for n in noise],
                           self.latest_s)
         self.held_state = None
@@ -301,6 +347,8 @@ class CompensationTracking:
             stamp_s, tracked, stds = self._track_block(stamps_ns, rates, temperature_c,
                                                        acceleration)
         self.latest_s = stamp_s
+        if not tracker.zeroing:
+            self.zeroed_at_start = True
         if tracker.window_count != self.windows:
             self.windows = tracker.window_count
             imu = block.messages[-1]['imu']
@@ -385,6 +433,22 @@ class CompensationTracking:
             hardware_id=self.key[0],
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
+    def _hint_values(self) -> dict:
+        """Give the rest hint's values: its topic, messages, and what it says now."""
+        if not self.hint_topic:
+            return {'rest_hint': 'none'}
+        values = {'rest_hint': self.hint_topic, 'rest_hint_messages': self.hint_messages,
+                  'rest_hint_ignored': self.hints_ignored}
+        latest = None if self.latest_s is None else self.hints.latest(self.latest_s)
+        if latest is None:
+            values['rest_hint_state'] = 'no hint yet'
+            return values
+        age = self.latest_s - latest[0]
+        stale = self.settings is not None and age > self.settings.rest_hint_max_age_s
+        values['rest_hint_state'] = 'stale' if stale else 'at rest' if latest[1] else 'moving'
+        values['rest_hint_age_s'] = age
+        return values
+
     def summary(self) -> str:
         """Say what the tracker did, for the node's closing line ('' while off)."""
         tracker = self.tracker
@@ -398,11 +462,15 @@ class CompensationTracking:
         """Give the diagnostics' tracking values: on or off, still, the estimate, its age."""
         tracker = self.tracker
         if tracker is None:
-            return {'bias_tracking': 'off' if self.settings is None else 'waiting for a model'}
+            return {'bias_tracking': 'off' if self.settings is None else 'waiting for a model',
+                    **self._hint_values()}
         status = tracker.status()
         since = math.nan if status.last_update_s is None or self.latest_s is None else \
             self.latest_s - status.last_update_s
-        return {'bias_tracking': 'still' if status.still else 'moving',
+        return {'bias_tracking': 'still' if status.still else 'moving', **self._hint_values(),
+                'tracking_hinted': status.hinted,
+                'tracking_zero_at_start': 'off' if not self.settings.zero_at_start else
+                'done' if self.zeroed_at_start else 'waiting for the first still run',
                 'tracking_offset_rad_s': list(status.offset_rad_s),
                 'tracking_std_rad_s': list(status.std_rad_s),
                 'tracking_stable': list(status.stable), 'tracking_held': list(status.held),

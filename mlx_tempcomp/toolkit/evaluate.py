@@ -13,7 +13,8 @@ rest). Statistics per axis cover every sample and averages over bins of
 ``--average-s`` (weighted by their sample counts), optionally only the last
 ``--test-fraction`` of the rows: the test part and bins `diagnose` reports.
 ``--track-bias`` then runs the node's bias tracking over the model's output
-(`toolkit.tracking.offline_twin`) and reports the error with and without it.
+(`toolkit.tracking.offline_twin`) and reports the error with and without it;
+``--rest-hint COLUMN`` gives it the robot's rest hint of each row (a 0/1 column).
 """
 
 import argparse
@@ -26,7 +27,7 @@ import numpy as np
 
 from .common import (add_recording_options, check_output_file, float_type, load,
                      positive_float, read_options, UserError)
-from .tracking import offline_twin, twin_lines
+from .tracking import offline_twin, rest_hint_column, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
@@ -192,6 +193,8 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 def evaluate_command(args: argparse.Namespace) -> int:
     if args.out_csv is not None:
         check_output_file(args.out_csv, '--out-csv')
+    if args.rest_hint is not None and not args.track_bias:
+        raise UserError("--rest-hint is the bias tracking's input: give --track-bias with it")
     values, axes = _node_values(args.params, args.node_name, args.strict)
     model = _build(values, args.params, args.eeprom, args.input, args.imu_topic)
     recording = load(args.input, read_options(args), to_stderr=args.json)
@@ -233,8 +236,11 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'per_sample': {a: _statistics(error[part, i]) for i, a in enumerate(axes)},
         'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
+    hint = None if args.rest_hint is None else \
+        (args.rest_hint, rest_hint_column(args.input, args.rest_hint, read_options(args),
+                                          recording))
     twin = offline_twin(values, axes, recording, corrected, part, args.params,
-                        args.average_s) if args.track_bias else None
+                        args.average_s, hint) if args.track_bias else None
     if twin:
         report['bias_tracking'] = twin.report
     if args.out_csv is not None:
@@ -314,4 +320,8 @@ def add_parser(commands) -> None:
                           help="then run the node's bias tracking (bias_tracking.* of the "
                                "file) over the model's output, as the node does, and report "
                                'the error with and without it')
+    evaluate.add_argument('--rest-hint', metavar='COLUMN',
+                          help="with --track-bias: the robot's rest hint of each row, a 0/1 "
+                               'column of the CSV record (1: at rest; inject-motion writes '
+                               'rest_hint), as the node takes bias_tracking.rest_hint_topic')
     evaluate.set_defaults(handler=evaluate_command)

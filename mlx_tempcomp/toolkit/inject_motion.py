@@ -6,8 +6,10 @@ turns about every axis between, ``mixed`` rests 10 s to 10 min between slow, ram
 fast turns about every axis and gravity) is drawn from ``--seed`` and added to the
 record's gyro columns; the rate added is written as ``ref_x|y|z`` and the specific
 force, when the record has one, turned with the sensor. The output is a canonical CSV
-(``fit``, ``evaluate --track-bias`` and the rest read it as they read any record); the
-schedule goes to ``<stem>.schedule.json`` beside it. ``fit`` on the output fits the
+(``fit``, ``evaluate --track-bias`` and the rest read it as they read any record) with one
+more column, ``rest_hint``: 1 in the schedule's rests, 0 in its turns, the truth a robot's
+odometry would tell (``evaluate --track-bias --rest-hint rest_hint``); the schedule goes
+to ``<stem>.schedule.json`` beside it. ``fit`` on the output fits the
 bias to gyro minus ref, the record at rest; ``evaluate --track-bias`` judges the
 tracker against the truth.
 """
@@ -16,6 +18,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from .common import (add_recording_options, check_output_file, load, non_negative_int,
                      read_options, UserError, write_json)
 from ..core.errors import TempCompError
@@ -23,6 +27,7 @@ from ..recordings.csv_writer import write_csv
 from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings
 
 SCHEDULES = ('cycle', 'mixed')
+REST_HINT_COLUMN = 'rest_hint'
 _CSV_FORMAT = '%.17g'   # round trip: the reference is exact
 
 
@@ -45,8 +50,11 @@ def inject_motion_command(args: argparse.Namespace) -> int:
     moved = dataclasses.replace(recording, gyro_rad_s=injected.gyro_rad_s,
                                 reference_rad_s=injected.reference_rad_s,
                                 acceleration_m_s2=injected.acceleration_m_s2)
+    # At rest in a rest segment and after the schedule's end (segment -1).
+    resting = np.array([s.kind == REST for s in schedule.segments] + [True])
+    rest_hint = resting[injected.segment].astype(int)
     try:
-        write_csv(args.outputs.file(out), moved, _CSV_FORMAT)
+        write_csv(args.outputs.file(out), moved, _CSV_FORMAT, {REST_HINT_COLUMN: rest_hint})
         write_json(args.outputs.file(schedule_path), {
             'input': args.input, 'schedule': args.schedule, 'seed': args.seed,
             'settings': dataclasses.asdict(settings),
@@ -67,8 +75,8 @@ def inject_motion_command(args: argparse.Namespace) -> int:
     accelerometer = 'turned with the sensor' if injected.acceleration_m_s2 is not None else \
         'none in the record: turns about gravity are about z'
     print(f'specific force: {accelerometer}')
-    print(f'wrote {out} (gyro with the motion, ref_{"|".join(recording.axes)}) and '
-          f'{schedule_path}')
+    print(f'wrote {out} (gyro with the motion, ref_{"|".join(recording.axes)}, '
+          f'{REST_HINT_COLUMN} 1 at rest) and {schedule_path}')
     return 0
 
 
@@ -79,9 +87,10 @@ def add_parser(commands) -> None:
         description='Draw a schedule of rests and turns (slow 0.2-2 deg/s constant and '
                     'ramped, fast, about x, y, z and gravity), add it to the gyro of a record '
                     'taken at rest, turn its specific force with the sensor, and write a '
-                    'CSV with the added rate as ref_x|y|z, to test the bias tracking '
-                    '(evaluate --track-bias) on your own unit: the truth is known, the bias '
-                    "is the record's own.")
+                    'CSV with the added rate as ref_x|y|z and the rest hint a robot would '
+                    'give as rest_hint (1 at rest, 0 turning), to test the bias tracking '
+                    '(evaluate --track-bias [--rest-hint rest_hint]) on your own unit: the '
+                    "truth is known, the bias is the record's own.")
     add_recording_options(parser)
     parser.add_argument('--out', required=True, metavar='FILE.csv',
                         help='CSV to write; the schedule goes to <stem>.schedule.json')

@@ -11,11 +11,14 @@ built from the parameter file's ``bias_tracking.*`` by the same `tracking_settin
 the model's output of the whole record in one block (the node gets blocks of 1 to
 ``max_block`` samples: the same bits, ``test/test_fuzz_bias_tracking.py``). Its report
 compares the error with and without tracking, at rest and in motion when the record has
-a reference (moving: any reference rate not zero).
+a reference (moving: any reference rate not zero). ``--rest-hint COLUMN`` gives each sample
+the hint of its row, a 0/1 column of a CSV record (1: the robot said it was at rest;
+`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`).
 """
 
 from dataclasses import dataclass
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -27,6 +30,11 @@ from ..core.metrics import bin_means, bin_starts, ErrorStatistics
 from ..core.model_interface import ModelInputs
 from ..core.tracking_bounds import bounds_lines, derive_bounds, RestRecord
 from ..core.tracking_parameters import tracking_parameters, tracking_settings
+from ..recordings.columns import column_preset, parse_column_map
+from ..recordings.csv_reader import load_csv_column
+from ..recordings.flightlog import is_flight_log
+from ..recordings.load import BAG_SUFFIXES
+from ..recordings.recording import RecordingError
 
 
 def model_residual(model, recording, axes) -> np.ndarray:
@@ -155,12 +163,46 @@ def _learnt_in_motion(tracker: BiasTracking, learnt: np.ndarray, time_s: np.ndar
             'largest_mean_reference_rad_s': largest_mean.tolist()}
 
 
+def rest_hint_column(path: str, name: str, options, recording) -> np.ndarray:
+    """
+    Give the 0/1 column ``name`` of the CSV record at ``path`` for each row of ``recording``.
+
+    The file is read with the recording's column map (``options``: --preset or --columns)
+    and each row of the recording takes the value of the file's row with its time; a
+    value other than 0 or 1 on such a row is a UserError naming the column and the line.
+    """
+    where = Path(path)
+    if where.is_dir() or where.suffix.lower() in BAG_SUFFIXES or is_flight_log(where):
+        msg = f'--rest-hint reads a 0/1 column of a CSV record; {path} is not one'
+        raise UserError(msg)
+    try:
+        columns = column_preset(options.preset) if options.preset is not None else \
+            parse_column_map(options.columns) if options.columns is not None else None
+        time_s, cells, lines = load_csv_column(path, name, *([columns] if columns else []))
+    except RecordingError as err:
+        raise UserError(f'--rest-hint {name}: {err}') from None
+    order = np.argsort(time_s, kind='stable')
+    rows = order[np.clip(np.searchsorted(time_s[order], recording.time_s), 0, order.size - 1)]
+    if not np.array_equal(time_s[rows], recording.time_s):
+        msg = f'{path}: --rest-hint {name}: the rows of the record were not found by their time'
+        raise UserError(msg)
+    values = cells[rows]
+    good = np.isin(np.char.strip(values), ('0', '1', '0.0', '1.0'))
+    if not good.all():
+        bad = int(np.flatnonzero(~good)[0])
+        msg = (f'{path}: line {lines[rows[bad]]}: --rest-hint column {name!r} holds '
+               f'{str(values[bad])!r}; it takes 0 (moving) or 1 (at rest)')
+        raise UserError(msg)
+    return np.char.strip(values).astype(float) == 1.0
+
+
 def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, part: slice,
-                 source: str, average_s: float) -> TwinResult:
+                 source: str, average_s: float, rest_hint=None) -> TwinResult:
     """
     Track ``corrected`` (the model's output of every row) as the node would; see above.
 
     Figures over the rows of ``part``, per sample and of means over ``average_s`` bins.
+    ``rest_hint``: (name, each row's hint) or None.
     """
     try:
         settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
@@ -171,7 +213,8 @@ def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, pa
         raise UserError(msg)
     tracker = BiasTracking(settings, axes, keep_windows=True)
     out = tracker.process(recording.time_s, corrected, recording.temperature_c,
-                          recording.acceleration_m_s2)
+                          recording.acceleration_m_s2,
+                          None if rest_hint is None else rest_hint[1])
     columns = [recording.axes.index(a) for a in axes]
     truth = 0.0 if recording.reference_rad_s is None else \
         recording.reference_rad_s[:, columns]
@@ -191,8 +234,14 @@ def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, pa
         'final': {'offset_rad_s': list(status.offset_rad_s),
                   'std_rad_s': list(status.std_rad_s), 'stable': list(status.stable)},
         'settings': {'window_s': settings.standstill.window_s,
-                     'max_mean_rate_rad_s': settings.standstill.max_mean_rate_rad_s},
+                     'max_mean_rate_rad_s': settings.standstill.max_mean_rate_rad_s,
+                     'rest_hint_max_age_s': settings.rest_hint_max_age_s,
+                     'zero_at_start': settings.zero_at_start},
+        'hinted_windows': sum(w.hinted for w in tracker.windows),
     }
+    if rest_hint is not None:
+        report['rest_hint'] = {'column': rest_hint[0],
+                               'at_rest_share': float(np.mean(rest_hint[1][part]))}
     learnt = learnt_mask(tracker, recording.time_s)
     if moving is not None:
         report['still_share_true'] = float(np.mean(~moving))
@@ -211,6 +260,13 @@ def twin_lines(report: dict, axes: tuple) -> list:
              f'{100 * report["still_share_found"]:.1f} % of the samples'
              + (f' (truly {100 * report["still_share_true"]:.1f} %)'
                 if 'still_share_true' in report else '')]
+    if 'rest_hint' in report:
+        lines.append(f'rest hint {report["rest_hint"]["column"]}: at rest '
+                     f'{100 * report["rest_hint"]["at_rest_share"]:.1f} % of the samples; '
+                     f'{report["hinted_windows"]} windows hinted (the mean-rate bound lifted)')
+    elif report['settings']['zero_at_start']:
+        lines.append(f'zero at start: {report["hinted_windows"]} windows taken as at rest '
+                     'before the first still run')
     moving = 'still_share_true' in report
     header = f'{"axis":<6}{"without":>12}{"with":>12}{"gain":>8}{"mean gain":>10}'
     if moving:
