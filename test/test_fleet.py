@@ -447,6 +447,24 @@ def test_simulate_fleet_writes_units_a_manifest_and_the_truth(tmp_path):
     assert manifest[0] == 'unit,path' and len(manifest) == 5
 
 
+def test_a_fleet_chip_the_factory_could_not_store_is_drawn_again(tmp_path):
+    """Seed 3582's unit 2 has a scale factor at 85 C beyond its EEPROM byte (1 in 10,000)."""
+    out = tmp_path / 'fleet'
+    code, stdout, stderr = run_cli(['simulate', '--fleet', 3, '--fleet-outliers', 0, '--seed',
+                                    3582, '--out', out, '--duration-s', 20, '--rate-hz', 2])
+    assert code == 0, stderr
+    assert stdout.strip().endswith('chips the factory could not store, drawn again: 1')
+    units = json.loads((out / 'fleet_truth.json').read_text())['units']
+    assert [u.get('screened_out_seeds') for u in units] == [None, None, [358200002]]
+    assert [u['seed'] for u in units] == [358200000, 358200001, 358200002 + 10 ** 9]
+    assert json.loads((out / units[2]['truth']).read_text())['config']['seed'] == \
+        units[2]['seed']
+    # The unit alone, as simulate draws it: the error the fleet screens out.
+    code, _, stderr = run_cli(['simulate', '--seed', 358200002, '--out', tmp_path / 'one.csv',
+                               '--duration-s', 20, '--rate-hz', 2])
+    assert code == 2 and 'is outside what the EEPROM byte can store' in stderr
+
+
 def _wait_for(predicate, timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while not predicate():
