@@ -18,6 +18,10 @@ units flagged and of sub-fleets with any flag (`report.flag_groups`, the
 report's rule), and how often one unit whose slope is made 0.2 deg/s/C steeper
 is flagged on it.
 
+First, fleets drawn from one normal population (no simulation; the chips'
+own coefficients are drawn clipped at two sigma, so their bias and slope
+have no tails): the share of units flagged and of fleets with any flag.
+
 Beside each figure, the rule of before computed here apart from the report's
 code: |0.6745 (x - median) / MAD| > 3.5 of the bias, slope, held-out RMS and
 number of effects (the count's MAD at least half an effect). Targets (issue
@@ -26,7 +30,8 @@ unit flagged; on the clean 1000-unit fleet at most 0.5 % of the units flagged.
 Nothing is asserted: the figures are printed.
 
     .venv/bin/python bench/bench_fleet_outliers.py [--seeds 0] [--workers 2]
-        [--outlier-units 200] [--clean-units 1000] [--draws 500]    # 0 units: that part left out
+        [--outlier-units 200] [--clean-units 1000] [--draws 500] [--normal-draws 2000]
+        # 0: that part left out
 """
 
 import argparse
@@ -159,6 +164,27 @@ def sub_fleets(figures: dict, draws: int, seed: int) -> None:
             for name, c in counts.items()))
 
 
+def normal_fleets(draws: int) -> None:
+    """The rules on fleets of one normal population (bias, slope, log RMS): no outlier."""
+    rng = np.random.default_rng(30)
+    print(f'fleets of one normal population, {draws} of each size:')
+    for size in (5, 10, 20, 40, 200, 1000):
+        counts = {'now': [0, 0], 'before': [0, 0]}
+        for _ in range(draws if size < 1000 else draws // 5):
+            figures = {'bias_rad_s': rng.normal(0.0, 0.01, size),
+                       'slope_rad_s_per_c': rng.normal(1e-4, 3e-4, size),
+                       'held_out_rms_rad_s': 6e-3 * np.exp(rng.normal(0.0, 0.03, size)),
+                       'effects': np.zeros(size)}
+            for name, rule in (('now', rule_now), ('before', rule_of_before)):
+                flagged = {k for k, _ in rule(figures)}
+                counts[name][0] += len(flagged)
+                counts[name][1] += bool(flagged)
+        drawn = draws if size < 1000 else draws // 5
+        print(f'  {size:4d} units: ' + '; '.join(
+            f'{name} {c[0] / (drawn * size):.3%} of units flagged, {c[1] / drawn:.1%} of fleets'
+            for name, c in counts.items()))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, nargs='+', default=[0])
@@ -166,7 +192,10 @@ def main() -> int:
     parser.add_argument('--clean-units', type=int, default=1000)
     parser.add_argument('--draws', type=int, default=500)
     parser.add_argument('--workers', type=int, default=2)
+    parser.add_argument('--normal-draws', type=int, default=2000)
     args = parser.parse_args()
+    if args.normal_draws:
+        normal_fleets(args.normal_draws)
     for seed in args.seeds:
         with tempfile.TemporaryDirectory(prefix='bench-outliers-') as folder:
             folder = Path(folder)
