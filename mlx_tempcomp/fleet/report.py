@@ -191,8 +191,8 @@ def outlier_threshold(size: int, values_judged: int) -> float:
     robust z, as often as `_THRESHOLD_EXCEEDANCES` values beyond it take (at most
     `_THRESHOLD_DRAWS` values), with a seed of the two numbers. The MAD of a
     small fleet is itself uncertain, which widens the robust z's tails far
-    beyond the normal's (5 units: 18 where the normal quantile is 3.0); from a
-    few hundred units on it is the normal quantile.
+    beyond the normal's (5 units of one axis: 16 where the normal quantile is
+    2.9); from a few hundred units on it is the normal quantile.
     """
     tail = FALSE_FLAGS_PER_FLEET / max(values_judged, 1)
     fleets = min(math.ceil(_THRESHOLD_EXCEEDANCES / (tail * size)),
@@ -200,9 +200,9 @@ def outlier_threshold(size: int, values_judged: int) -> float:
     rng = np.random.default_rng([size, values_judged])
     beyond, drawn = [], 0
     # In blocks, keeping the upper tail only: the quantile is far out in it.
-    for start in range(0, fleets, max(1, _THRESHOLD_BLOCK // size)):
-        block = rng.standard_normal((min(max(1, _THRESHOLD_BLOCK // size), fleets - start),
-                                     size))
+    per_block = max(1, _THRESHOLD_BLOCK // size)
+    for start in range(0, fleets, per_block):
+        block = rng.standard_normal((min(per_block, fleets - start), size))
         median = np.median(block, axis=1, keepdims=True)
         mad = np.median(np.abs(block - median), axis=1, keepdims=True)
         scores = np.abs(_MAD_Z * (block - median) / mad).ravel()
