@@ -165,7 +165,7 @@ def sub_fleets(figures: dict, draws: int, seed: int) -> None:
 
 
 def normal_fleets(draws: int) -> None:
-    """The rules on fleets of one normal population (bias, slope, log RMS): no outlier."""
+    """Print the rules on fleets of one normal population (bias, slope, log RMS): no outlier."""
     rng = np.random.default_rng(30)
     print(f'fleets of one normal population, {draws} of each size:')
     for size in (5, 10, 20, 40, 200, 1000):
