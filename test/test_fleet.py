@@ -24,7 +24,8 @@ import time
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.fleet.manifest import read_manifest, RecordSpec, UnitSpec
 from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
-from mlx_tempcomp.fleet.report import COUNT_METRICS, fleet_summary, OUTLIER_Z, robust_z
+from mlx_tempcomp.fleet.report import (COUNT_METRICS, FALSE_FLAGS_PER_FLEET, flag_groups,
+                                       fleet_summary, outlier_threshold, OUTLIER_Z, robust_z)
 from mlx_tempcomp.fleet.run import connect, finished, store_unit, WORKER_SETTINGS
 from mlx_tempcomp.fleet.unit import MOMENTS_FILE, run_unit, UnitJob
 from mlx_tempcomp.parameters.files import node_values
@@ -310,13 +311,14 @@ def test_a_record_that_contradicts_the_fleet_keeps_its_params(fleet_run, tmp_pat
     out = tmp_path / 'out'
     shutil.copytree(fleet_run[0], out)
     # 10 degrees from 25 C of a chip whose curvature is 30 times the fleet's: the fleet's
-    # curve, which its record is too short to tell, is not this unit's. Noisier than the
-    # fleet, so the report flags it (held-out RMS) and the prior shrinks it unpooled.
+    # curve, which its record is too short to tell, is not this unit's. Twice as noisy as the
+    # fleet, so the report flags it (held-out RMS more than sqrt 2 times the fleet's) and the
+    # prior shrinks it unpooled.
     rng = np.random.default_rng(3)
     time_s = np.arange(100) * 3.0
     temperature_c = 25.0 + time_s / 30.0 + rng.normal(0.0, 0.02, time_s.size)
     rate = 0.01 + SLOPE_RAD_S_PER_C * (temperature_c - 25.0) + \
-        30 * 2e-6 * (temperature_c - 25.0) ** 2 + rng.normal(0.0, 7e-4, time_s.size)
+        30 * 2e-6 * (temperature_c - 25.0) ** 2 + rng.normal(0.0, 1e-3, time_s.size)
     path = tmp_path / 'bent.csv'
     np.savetxt(path, np.column_stack([time_s, temperature_c, rate]), delimiter=',',
                header='time,temperature,gyro_z', comments='', fmt='%.17g')
@@ -325,6 +327,8 @@ def test_a_record_that_contradicts_the_fleet_keeps_its_params(fleet_run, tmp_pat
     store_unit(job, run_unit(job))
     code, stdout, _ = run_cli(['fleet', 'report', '--out', out])
     assert code == 0 and '1 unit whose record rejects its shrunk fit' in stdout
+    flagged = json.loads((out / 'fleet.json').read_text())['outliers']
+    assert {(o['unit'], o['metric']) for o in flagged} >= {('bent', 'held_out_rms_rad_s')}
     units = json.loads((out / PRIOR_JSON).read_text())['units']
     assert units['bent']['axes']['z']['conflict']['rejected']
     assert units['bent']['kept_own'].endswith('it keeps its own params.yaml')
@@ -341,6 +345,8 @@ def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():
     z = robust_z(counts, COUNT_METRICS['effects'])
     flagged = sorted({value for value, score in zip(counts, z) if abs(score) > OUTLIER_Z})
     assert flagged == [3.0, 5.0]
+    flags, thresholds = flag_groups([('effects', counts)])
+    assert thresholds == [OUTLIER_Z] and [counts[k] for _, k, *_ in flags] == [3.0, 5.0]
     assert robust_z([2.0] * 6 + [1.0, 3.0], 1.0).tolist() == \
         pytest.approx([0.0] * 6 + [-1.349, 1.349], abs=1e-3)
     # A count whose MAD is not 0 keeps the plain robust z.
@@ -348,6 +354,70 @@ def test_a_count_with_zero_mad_flags_only_counts_far_from_the_median():
     assert robust_z(spread, 1.0).tolist() == pytest.approx(robust_z(spread).tolist())
     # A measured value with MAD 0 still takes the mean absolute deviation.
     assert robust_z([0.0] * 9 + [1.0])[-1] == pytest.approx(1.0 / (1.253314 * 0.1))
+
+
+def normal_fleet(rng, units: int) -> list:
+    """Give the measured metrics of a fleet drawn from one population (no outlier)."""
+    return [('bias_rad_s', rng.normal(0.0, 0.01, units)),
+            ('slope_rad_s_per_c', rng.normal(1e-4, 3e-4, units)),
+            ('held_out_rms_rad_s', 6e-3 * np.exp(rng.normal(0.0, 0.03, units)))]
+
+
+def test_a_fleet_without_outliers_gets_its_false_flags_from_the_rule_at_every_size():
+    """
+    Fleets drawn from one normal population, 5 to 1000 units, 300 seeded fleets each.
+
+    The rule sets FALSE_FLAGS_PER_FLEET false flags per fleet in expectation, whatever its
+    size: at most that share of fleets has one (within three binomial standard errors), so
+    about 0.05 / N of the units, at most 0.5 % from 40 units up. A fixed 3.5 flags a unit
+    in a third of the small fleets (the MAD of a few units is itself uncertain), and in a
+    fifth of the 1000-unit ones.
+    """
+    rng = np.random.default_rng(30)
+    fleets = 300
+    bound = FALSE_FLAGS_PER_FLEET + 3.0 * np.sqrt(FALSE_FLAGS_PER_FLEET / fleets)
+    for units in (5, 10, 40, 200, 1000):
+        flagged_units = fleets_flagged = fixed_fleets = 0
+        for _ in range(fleets if units < 1000 else fleets // 3):
+            groups = normal_fleet(rng, units)
+            flagged = {k for _, k, *_ in flag_groups(groups)[0]}
+            flagged_units += len(flagged)
+            fleets_flagged += bool(flagged)
+            fixed_fleets += any(np.any(np.abs(robust_z(np.log(v) if 'rms' in m else v)) > 3.5)
+                                for m, v in groups)
+        drawn = fleets if units < 1000 else fleets // 3
+        assert fleets_flagged / drawn <= bound, units
+        assert units < 40 or flagged_units / (drawn * units) <= 0.005, units
+        assert fixed_fleets / drawn > 2 * bound, 'a fixed threshold would flag more'
+    assert outlier_threshold(5, 15) > 10.0 > 4.0 < outlier_threshold(200, 600) < 4.3
+    assert outlier_threshold(1000, 3000) == pytest.approx(4.26, abs=0.1), 'the normal quantile'
+
+
+def test_a_held_out_rms_is_judged_on_its_log_and_flagged_only_where_it_matters():
+    """Forty units whose held-out RMS agree within 2 % (docs/fleet.md's fleet): 9 % is nothing."""
+    rng = np.random.default_rng(17)
+    rms = list(5.8e-3 * np.exp(rng.normal(0.0, 0.015, 36)))
+    median = float(np.median(rms))
+    odd = [1.09 * median, 1.5 * median, 0.6 * median, 0.0]
+    flags, thresholds = flag_groups([('held_out_rms_rad_s', rms + odd)])
+    assert robust_z(rms + odd)[36] > OUTLIER_Z, 'a robust z on the RMS itself flagged 9 %'
+    assert {k: round(ratio, 2) for _, k, _, ratio in flags} == \
+        {37: pytest.approx(1.5, abs=0.03), 38: pytest.approx(0.6, abs=0.02), 39: 0.0}
+    # A value a fleet of one population holds can be far from its median: not an outlier.
+    wide = list(5.8e-3 * np.exp(rng.normal(0.0, 0.5, 40)))
+    assert flag_groups([('held_out_rms_rad_s', wide + [2.0 * float(np.median(wide))])])[0] == []
+
+
+def test_slope_outliers_stand_out_of_a_fleet_of_200_and_nothing_else():
+    """docs/fleet.md's fleet grown to 200: four chips 0.2 deg/s/C steeper (z about 9)."""
+    rng = np.random.default_rng(4)
+    groups = normal_fleet(rng, 200)
+    slopes = groups[1][1]
+    planted = [3, 60, 61, 150]
+    slopes[planted] += np.radians(0.2)
+    flags, thresholds = flag_groups(groups)
+    assert sorted((group, k) for group, k, *_ in flags) == [(1, k) for k in planted]
+    assert thresholds[:3] == [outlier_threshold(200, 600)] * 3
 
 
 @pytest.mark.slow
@@ -445,6 +515,24 @@ def test_simulate_fleet_writes_units_a_manifest_and_the_truth(tmp_path):
                if not u['outlier'])
     manifest = (out / 'units.csv').read_text().splitlines()
     assert manifest[0] == 'unit,path' and len(manifest) == 5
+
+
+def test_a_fleet_chip_the_factory_could_not_store_is_drawn_again(tmp_path):
+    """Seed 3582's unit 2 has a scale factor at 85 C beyond its EEPROM byte (1 in 10,000)."""
+    out = tmp_path / 'fleet'
+    code, stdout, stderr = run_cli(['simulate', '--fleet', 3, '--fleet-outliers', 0, '--seed',
+                                    3582, '--out', out, '--duration-s', 20, '--rate-hz', 2])
+    assert code == 0, stderr
+    assert stdout.strip().endswith('chips the factory could not store, drawn again: 1')
+    units = json.loads((out / 'fleet_truth.json').read_text())['units']
+    assert [u.get('screened_out_seeds') for u in units] == [None, None, [358200002]]
+    assert [u['seed'] for u in units] == [358200000, 358200001, 358200002 + 10 ** 9]
+    assert json.loads((out / units[2]['truth']).read_text())['config']['seed'] == \
+        units[2]['seed']
+    # The unit alone, as simulate draws it: the error the fleet screens out.
+    code, _, stderr = run_cli(['simulate', '--seed', 358200002, '--out', tmp_path / 'one.csv',
+                               '--duration-s', 20, '--rate-hz', 2])
+    assert code == 2 and 'is outside what the EEPROM byte can store' in stderr
 
 
 def _wait_for(predicate, timeout_s: float, what: str) -> None:

@@ -13,17 +13,31 @@ the RMS pooled, each weighted by its rows, and the gains diagnose's
 geometric mean), else on the test set when one was kept, else in the fold
 cross-validation. The bias polynomials of units differ in order and
 reference, so they are compared as the bias and its slope at one fleet
-temperature (the median of the rows' mid-range temperatures). Outliers: the
-robust z-score 0.6745 (x - median) / MAD of the bias, slope, held-out RMS
-and number of effects per axis, flagged beyond `OUTLIER_Z` (Iglewicz and
-Hoaglin's 3.5). The number of effects is a count: its MAD is 0 whenever more
-than half the rows agree, and its smallest nonzero MAD is half a step, so
-the MAD is taken as at least half a step (`COUNT_METRICS`): a count flags 3
-or more away from the fleet's median (z 4.0), never 1 or 2 (z 1.3, 2.7),
-however many rows share the median. A measured metric with MAD 0 (more than
+temperature (the median of the rows' mid-range temperatures).
+
+Outliers: the robust z-score 0.6745 (x - median) / MAD of each row's bias,
+slope, held-out RMS and number of effects per axis, over at least
+`MIN_UNITS_FOR_OUTLIERS` rows. The held-out RMS is positive and skewed, and
+judged on its log (`LOG_METRICS`). A measured metric's threshold makes the
+false flags principled: the |robust z| that a fleet of the same size drawn
+from one normal population exceeds `FALSE_FLAGS_PER_FLEET` times in
+expectation over all the measured values of the report (Bonferroni), at
+least Iglewicz and Hoaglin's `OUTLIER_Z` 3.5 (`outlier_threshold`: it rises
+with the fleet's size, and is far higher for a handful of units, whose MAD
+is itself uncertain). An RMS is flagged only when it also differs from the
+fleet's median by a factor that matters (`RELATIVE_FLOOR`, sqrt 2: the error
+beyond the median's, added in quadrature, at least as large as the median's
+itself): the held-out RMS of forty units can agree within 2 %, where a unit
+9 % above the median has a robust z of 4 and no practical meaning. The
+number of effects is a count, not a normal value: its MAD is 0 whenever
+more than half the rows agree, and its smallest nonzero MAD is half a step,
+so the MAD is taken as at least half a step (`COUNT_METRICS`) and a count
+is flagged beyond OUTLIER_Z: 3 or more effects away from the fleet's median
+(z 4.0), never 1 or 2 (z 1.3, 2.7). A measured metric with MAD 0 (more than
 half the rows equal) takes the mean absolute deviation times 1.2533.
 """
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -35,7 +49,15 @@ from .unit import UNIT_FILE
 from ..parameters.files import flat_parameters
 from ..toolkit.common import write_json, write_result
 
+# The least |robust z| flagged (Iglewicz and Hoaglin; a count's threshold), and the false flags
+# a fleet drawn from one normal population gets in expectation over its report's measured values.
 OUTLIER_Z = 3.5
+FALSE_FLAGS_PER_FLEET = 0.05
+# The draws behind `outlier_threshold`: values beyond the quantile, at most this many values,
+# in blocks of this many.
+_THRESHOLD_EXCEEDANCES = 200
+_THRESHOLD_DRAWS = 4_000_000
+_THRESHOLD_BLOCK = 500_000
 # MAD and mean absolute deviation scaled to the standard deviation of a normal sample.
 _MAD_Z = 0.6745
 _MEAN_AD_SCALE = 1.253314
@@ -44,6 +66,10 @@ PLOT = 'fleet_coefficients.png'
 METRICS = ('bias_rad_s', 'slope_rad_s_per_c', 'held_out_rms_rad_s', 'effects')
 # Metrics that are counts, and their step.
 COUNT_METRICS = {'effects': 1.0}
+# Positive, skewed metrics, judged on their log; and the ratio to the fleet's median a flagged
+# one must reach, either way (see the module).
+LOG_METRICS = frozenset({'held_out_rms_rad_s'})
+RELATIVE_FLOOR = {'held_out_rms_rad_s': math.sqrt(2.0)}
 
 
 def _model_values(params_path: Path) -> tuple:
@@ -154,27 +180,111 @@ def _metric_values(row: dict, axis: str) -> dict:
     return values
 
 
-def _outliers(rows: list, axes: list) -> list:
-    """Flag rows whose robust z-score of a metric on an axis exceeds OUTLIER_Z."""
-    flagged = []
+@functools.lru_cache(maxsize=None)
+def outlier_threshold(size: int, values_judged: int) -> float:
+    """
+    Give the |robust z| a value of a group of ``size`` is flagged beyond (at least OUTLIER_Z).
+
+    The |robust z| that a value of a fleet of ``size`` drawn from one normal
+    population exceeds with probability FALSE_FLAGS_PER_FLEET / ``values_judged``
+    (Bonferroni over the report's values), drawn: ``size`` normal values, their
+    robust z, as often as `_THRESHOLD_EXCEEDANCES` values beyond it take (at most
+    `_THRESHOLD_DRAWS` values), with a seed of the two numbers. The MAD of a
+    small fleet is itself uncertain, which widens the robust z's tails far
+    beyond the normal's (5 units of one axis: 16 where the normal quantile is
+    2.9); from a few hundred units on it is the normal quantile.
+    """
+    tail = FALSE_FLAGS_PER_FLEET / max(values_judged, 1)
+    fleets = min(math.ceil(_THRESHOLD_EXCEEDANCES / (tail * size)),
+                 max(1, _THRESHOLD_DRAWS // size))
+    rng = np.random.default_rng([size, values_judged])
+    beyond, drawn = [], 0
+    # In blocks, keeping the upper tail only: the quantile is far out in it.
+    per_block = max(1, _THRESHOLD_BLOCK // size)
+    for start in range(0, fleets, per_block):
+        block = rng.standard_normal((min(per_block, fleets - start), size))
+        median = np.median(block, axis=1, keepdims=True)
+        mad = np.median(np.abs(block - median), axis=1, keepdims=True)
+        scores = np.abs(_MAD_Z * (block - median) / mad).ravel()
+        beyond.append(scores[scores > OUTLIER_Z])
+        drawn += scores.size
+    beyond = np.sort(np.concatenate(beyond))[::-1]
+    rank = math.ceil(tail * drawn)
+    return float(beyond[rank - 1]) if rank <= beyond.size else OUTLIER_Z
+
+
+def flag_values(metric: str, values, threshold: float) -> list:
+    """
+    Give (index, robust z, ratio to the median) of each of ``values`` flagged on ``metric``.
+
+    The z of a `LOG_METRICS` metric is its log's, and its ratio must reach the
+    metric's `RELATIVE_FLOOR` either way; the ratio of a signed metric is None.
+    """
+    values = np.asarray(values, dtype=float)
+    if metric in LOG_METRICS:
+        # A zero RMS (a dead output) stays finite, and far below any fleet.
+        values = np.maximum(values, np.finfo(float).tiny)
+        scores = robust_z(np.log(values))
+        ratios = values / float(np.median(values))
+        far = np.abs(np.log(ratios)) >= math.log(RELATIVE_FLOOR.get(metric, 1.0))
+    else:
+        scores = robust_z(values, COUNT_METRICS.get(metric, 0.0))
+        ratios = [None] * values.size
+        far = np.ones(values.size, dtype=bool)
+    return [(k, float(scores[k]), None if ratios[k] is None else float(ratios[k]))
+            for k in np.flatnonzero((np.abs(scores) > threshold) & far)]
+
+
+def flag_groups(groups: list) -> tuple:
+    """
+    Flag values judged together: ``groups`` a list of (metric, values), e.g. one per axis.
+
+    A group of fewer than MIN_UNITS_FOR_OUTLIERS values is not judged. A
+    measured metric's threshold is `outlier_threshold` of its group's size and
+    the number of measured values judged; a count's is OUTLIER_Z (see the
+    module). Give the flags, (group index, value index, robust z, ratio to the
+    median or None) each, and the threshold of each group (None: not judged).
+    """
+    sizes = [len(values) if len(values) >= MIN_UNITS_FOR_OUTLIERS else 0
+             for _, values in groups]
+    measured = sum(size for (metric, _), size in zip(groups, sizes)
+                   if metric not in COUNT_METRICS)
+    thresholds = [None if not size else OUTLIER_Z if metric in COUNT_METRICS
+                  else outlier_threshold(size, measured)
+                  for (metric, _), size in zip(groups, sizes)]
+    return [(k, *flag) for k, ((metric, values), threshold) in enumerate(zip(groups, thresholds))
+            if threshold is not None
+            for flag in flag_values(metric, values, threshold)], thresholds
+
+
+def _outliers(rows: list, axes: list) -> tuple:
+    """Give the flagged rows (see the module) and the thresholds by axis and metric."""
+    groups = []
     for axis in axes:
         for metric in METRICS:
             pairs = [(row, _metric_values(row, axis).get(metric)) for row in rows
                      if axis in row['axes']]
-            pairs = [(row, value) for row, value in pairs if value is not None]
-            if len(pairs) < MIN_UNITS_FOR_OUTLIERS:
-                continue
-            values = [value for _, value in pairs]
-            median = float(np.median(values))
-            for (row, value), z in zip(pairs, robust_z(values, COUNT_METRICS.get(metric, 0.0))):
-                if abs(z) > OUTLIER_Z:
-                    flagged.append({'unit': row['unit'], 'record': row['record'],
-                                    'axis': axis, 'metric': metric, 'value': value,
-                                    'fleet_median': median, 'robust_z': float(z),
-                                    'reason': f'axis {axis} {metric} {value:.3g} against a '
-                                              f'fleet median of {median:.3g} (robust z '
-                                              f'{z:+.1f})'})
-    return flagged
+            groups.append((axis, metric, [(row, value) for row, value in pairs
+                                          if value is not None]))
+    flags, thresholds = flag_groups([(metric, [value for _, value in pairs])
+                                     for _, metric, pairs in groups])
+    flagged = []
+    for group, k, z, ratio in flags:
+        axis, metric, pairs = groups[group]
+        row, value = pairs[k]
+        median = float(np.median([v for _, v in pairs]))
+        how = f'{ratio:.2f}x, robust z of its log' if ratio is not None else 'robust z'
+        flagged.append({'unit': row['unit'], 'record': row['record'], 'axis': axis,
+                        'metric': metric, 'value': value, 'fleet_median': median,
+                        'robust_z': z, 'ratio_to_median': ratio,
+                        'reason': f'axis {axis} {metric} {value:.3g} against a fleet median '
+                                  f'of {median:.3g} ({how} {z:+.1f}, beyond '
+                                  f'{thresholds[group]:.2f})'})
+    by_group = {}
+    for (axis, metric, _), threshold in zip(groups, thresholds):
+        if threshold is not None:
+            by_group.setdefault(axis, {})[metric] = threshold
+    return flagged, by_group
 
 
 def _distribution(values) -> dict:
@@ -243,7 +353,7 @@ def fleet_summary(out: Path) -> dict:
         pairs = {a: _bias_and_slope(row['section'], a, reference_c) for a in row['axes']}
         row['bias'] = {a: pair[0] for a, pair in pairs.items()}
         row['slope'] = {a: pair[1] for a, pair in pairs.items()}
-    outliers = _outliers(rows, axes)
+    outliers, thresholds = _outliers(rows, axes)
     table = []
     for row in rows:
         report = row['report']
@@ -262,9 +372,15 @@ def fleet_summary(out: Path) -> dict:
         'failed': [{'unit': e['unit'], 'error': e['error']} for e in entries
                    if e['status'] != 'ok'],
         'reference_temperature_c': reference_c,
-        'outlier_rule': f'|robust z| > {OUTLIER_Z} over at least {MIN_UNITS_FOR_OUTLIERS} '
-                        'rows, robust z = 0.6745 (x - median) / MAD, the MAD of the number '
-                        'of effects at least half an effect',
+        'outlier_rule': '|robust z| beyond the value that a fleet of the same size drawn from '
+                        f'one normal population exceeds {FALSE_FLAGS_PER_FLEET} times over the '
+                        'measured values judged (Bonferroni; at least '
+                        f'{OUTLIER_Z}), over at least {MIN_UNITS_FOR_OUTLIERS} rows, robust '
+                        'z = 0.6745 (x - median) / MAD; the held-out RMS judged on its log, '
+                        f'and {RELATIVE_FLOOR["held_out_rms_rad_s"]:.3g}x the median or more '
+                        '(or 1/that or less); the number of effects beyond '
+                        f'{OUTLIER_Z} with its MAD at least half an effect',
+        'outlier_thresholds': thresholds,
         'several_records': "diagnose fits one model over all of a unit's records (one row per "
                            "unit; params.yaml carries the last record's offset); fit takes "
                            'one record, so a fit unit of several has a row per record',

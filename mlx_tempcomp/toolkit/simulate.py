@@ -28,7 +28,7 @@ from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
 from ..core.compensation import NominalConversion
 from ..core.conversion import Output, SensorTransfer
-from ..core.errors import TempCompError
+from ..core.errors import EepromError, TempCompError
 from ..core.table import sensor_tables
 from ..hardware.errors import HardwareError
 from ..recordings.bag import STORAGES
@@ -51,6 +51,14 @@ FLEET_VARIED_EFFECTS = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v
 OUTLIER_ZRO_SLOPE_DPS_PER_C = 0.2
 FLEET_UNITS_PER_OUTLIER = 50
 FLEET_SEED_STRIDE = 100000
+# A fleet unit whose chip the factory could not store is drawn again from its seed plus this,
+# up to this many times.
+FLEET_REDRAW_SEED = 10 ** 9
+FLEET_REDRAWS = 10
+
+
+class UnstorableChip(UserError):
+    """A drawn chip whose factory table its EEPROM cannot hold (a part the factory rejects)."""
 
 
 def _parse_axes(text: str) -> tuple:
@@ -192,6 +200,8 @@ def _device_recording(run: _ChipRun, out: Path, progress_enabled) -> _Simulated:
         images = array.read_eeproms()
         transfer = SensorTransfer()
         tables = sensor_tables(images, Output.DIGITAL, transfer)
+    except EepromError as err:
+        raise UnstorableChip(f'simulation: {err}') from None
     except (HardwareError, TempCompError) as err:
         raise UserError(f'simulation: {err}') from None
     faces = _FACES_M_S2 if run.orientation_period_s else (_FACES_M_S2[0],)
@@ -450,6 +460,24 @@ def _unit_run(run: _ChipRun, unit: dict) -> _ChipRun:
                                zro_slope_shift_dps_per_c=unit['zro_slope_shift_dps_per_c'])
 
 
+def _screened_unit(run: _ChipRun, unit: dict, out: Path) -> _Simulated:
+    """
+    Simulate one unit of `_fleet_units`; a chip the factory could not store is drawn again.
+
+    A chip whose scale factor or ZRO at a table temperature is beyond what its
+    EEPROM byte holds is one the factory screens out (one in several hundred
+    draws): the unit's seed moves on by FLEET_REDRAW_SEED, and ``unit`` keeps the
+    seeds screened out. A fleet without such a draw is the same as before.
+    """
+    for _ in range(FLEET_REDRAWS):
+        try:
+            return _device_recording(_unit_run(run, unit), out, False)
+        except UnstorableChip:
+            unit.setdefault('screened_out_seeds', []).append(unit['seed'])
+            unit['seed'] += FLEET_REDRAW_SEED
+    return _device_recording(_unit_run(run, unit), out, False)
+
+
 def _simulate_fleet(folder: Path, fmt: str, run: _ChipRun, count: int, outliers, outputs,
                     progress_enabled) -> None:
     """Write ``count`` unit recordings, their truths, a manifest and fleet_truth.json."""
@@ -462,7 +490,7 @@ def _simulate_fleet(folder: Path, fmt: str, run: _ChipRun, count: int, outliers,
             out = folder / name
             unit['path'] = name
             unit['truth'] = unit['unit'] + '.truth.json'
-            _write_simulated(_device_recording(_unit_run(run, unit), out, False), out, fmt,
+            _write_simulated(_screened_unit(run, unit, out), out, fmt,
                              folder / unit['truth'], run.rate_hz, outputs, False)
             rows.append(f'{unit["unit"]},{name}')
             bar.update(done + 1)
@@ -478,8 +506,10 @@ def _simulate_fleet(folder: Path, fmt: str, run: _ChipRun, count: int, outliers,
         msg = f'cannot write to {folder}: {err.strerror}'
         raise UserError(msg) from None
     outliers_drawn = ', '.join(u['unit'] for u in units if u['outlier']) or 'none'
+    screened = sum(len(u.get('screened_out_seeds', ())) for u in units)
     print(f'wrote {len(units)} units into {folder} (manifest units.csv, fleet_truth.json); '
-          f'outliers: {outliers_drawn}')
+          f'outliers: {outliers_drawn}' + (f'; chips the factory could not store, drawn '
+                                           f'again: {screened}' if screened else ''))
 
 
 def add_parser(commands) -> None:
