@@ -56,8 +56,8 @@ def read_csv(path: Path) -> dict:
     return {name: table[:, k] for k, name in enumerate(rows[0])}
 
 
-def std_from_params(params: Path, axes: tuple, temperature_c: np.ndarray) -> np.ndarray:
-    """The std the file publishes per sample, from its YAML in plain numpy (no project code)."""
+def std_from_params(params: Path, axes: tuple, temperature_c: np.ndarray) -> tuple:
+    """Give (the std the file publishes per sample, the noise per axis) in plain numpy."""
     values = yaml.safe_load(params.read_text())['compensation_node']['ros__parameters']
     table = values.get('model_error', {})
     noise = table.get('rate_noise_rad_s') or [values.get('rate_noise_rad_s', 0.0058)] * len(axes)
@@ -77,9 +77,8 @@ def ratios(time_s: np.ndarray, error: np.ndarray, std: np.ndarray, noise: np.nda
     rows = np.diff(np.append(starts, len(time_s))).astype(np.float64)[:, None]
     means = np.add.reduceat(error, starts, axis=0) / rows
     bias2 = np.add.reduceat(np.square(std) - noise ** 2, starts, axis=0) / rows
-    windows = np.sqrt(np.sum(rows * np.square(means) / (np.maximum(bias2, 0.0)
-                                                       + noise ** 2 / rows), axis=0)
-                      / np.sum(rows))
+    spread2 = np.maximum(bias2, 0.0) + noise ** 2 / rows
+    windows = np.sqrt(np.sum(rows * np.square(means) / spread2, axis=0) / np.sum(rows))
     return per_sample, windows
 
 
