@@ -36,6 +36,7 @@ from mlx_tempcomp.simulation.physics import Effects, GyroTruth, Noise, Scenario
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np
+from plot_checks import drawn_figures
 import pytest
 import yaml
 
@@ -625,6 +626,29 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     report = json.loads((out / 'report.json').read_text())
     reported = report['comparison']['test']['diagnosed']
     assert rms == pytest.approx([reported[a]['rms'] for a in 'xyz'], rel=1e-9)
+
+
+@pytest.mark.skipif(not MEASURED_CSV.is_file(), reason=f'measured data missing: {MEASURED_CSV}')
+def test_the_plots_compare_on_one_scale_beside_the_cubic_and_no_label_covers_another(
+        tmp_path, monkeypatch):
+    with drawn_figures(monkeypatch) as saved:
+        run_cli(['diagnose', MEASURED_CSV, '--preset', 'tofupilot', '--test', '0.25', '--out',
+                 tmp_path / 'out'])
+    assert set(saved) == {'residual_vs_temperature.png', 'residual_vs_time.png',
+                          'error_per_step.png', 'error_by_temperature.png'}
+    for name, (overlaps, _) in saved.items():
+        assert overlaps == [], name
+    # Before and after of an axis, and the axes of the error plots, share their y-scale.
+    for name in ('residual_vs_temperature.png', 'residual_vs_time.png'):
+        panels = saved[name][1].axes
+        for before, after in zip(panels[0::2], panels[1::2]):
+            assert before.get_shared_y_axes().joined(before, after), name
+            assert before.get_ylim() == after.get_ylim(), name
+    for name in ('error_per_step.png', 'error_by_temperature.png'):
+        figure = saved[name][1]
+        assert len(figure.axes) == 3 and len({plot.get_ylim() for plot in figure.axes}) == 1
+        labels = [text.get_text() for legend in figure.legends for text in legend.get_texts()]
+        assert any(label.startswith("PX4's cubic, clamped") for label in labels), name
 
 
 def test_cli_report_json_says_what_lies_outside_the_range_and_the_error_by_temperature(cli_run):

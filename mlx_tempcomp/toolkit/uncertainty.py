@@ -283,24 +283,43 @@ def block_lines(blocks, scheme: str) -> list:
 
 
 def plot_error_by_temperature(path, diagnosis, save) -> None:
-    """Plot each axis's held-out (and test) RMS per temperature bin against the bin's mean T."""
+    """
+    Plot per axis the model error written by temperature, the test part's, and the cubic's.
+
+    One panel per axis on one log scale: the table params.yaml carries (the
+    bias part, `model_error.larger_table`), the same bias part of the written
+    model on the test part, and of PX4's cubic clamped at its range (on the
+    test part, else on the held-out blocks), the reference; the white noise
+    of a sample dash-dotted. The legend lies below the panels.
+    """
     from matplotlib import pyplot
 
     errors = diagnosis.error_by_temperature
-    figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
-    parts = [(errors.held_out, '-', 'o', f'{errors.validation.replace("_", "-")} held-out')]
-    if errors.test is not None:
-        parts.append((errors.test, '--', 'x', 'test set'))
-    for axis, name in enumerate(diagnosis.axes):
-        colour = f'C{axis}'
-        for table, style, marker, label in parts:
-            filled = table.filled()
-            plot.plot([table.temperature_c[k] for k in filled],
-                      [table.rms_rad_s[k][axis] for k in filled], linestyle=style,
-                      marker=marker, color=colour, label=f'{name}, {label}')
-    plot.set_xlabel('temperature (C)')
-    plot.set_ylabel('RMS of the residual (rad/s)')
-    plot.set_title('Error of the written model by temperature')
-    plot.grid(True, alpha=0.3)
-    plot.legend(fontsize='small')
+    axes = diagnosis.axes
+    figure, grid = pyplot.subplots(1, len(axes), figsize=(4.2 * len(axes), 4.6), squeeze=False,
+                                   sharey=True, layout='constrained')
+    where = 'test part' if errors.test is not None else 'held-out'
+    curves = [(errors.test, 'x--', 'C3', 'written model, test part'),
+              (errors.cubic, '+:', '0.4', f"PX4's cubic, clamped, {where}")]
+    for k, (plot, name) in enumerate(zip(grid[0], axes)):
+        if errors.table is not None:
+            plot.semilogy(errors.table.temperature_c, errors.table.error_rad_s[k], 'o-',
+                          color='C0', label='model_error written (held-out)')
+        for table, style, colour, label in curves:
+            if table is None:
+                continue
+            filled = list(table.filled())
+            bias = bias_rms_rad_s(table, errors.noise_rad_s)[:, k]
+            plot.semilogy([table.temperature_c[i] for i in filled], bias[filled], style,
+                          color=colour, label=label)
+        plot.axhline(errors.noise_rad_s[k], color='0.6', ls='-.',
+                     label='white noise of a sample')
+        plot.set_title(f'axis {name}')
+        plot.set_xlabel('temperature (C)')
+        plot.grid(True, which='both', alpha=0.3)
+    grid[0][0].set_ylabel('bias part of the RMS (rad/s)')
+    figure.suptitle('Error of the written model by temperature (noise share taken out)')
+    handles, labels = grid[0][0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc='outside lower center', ncol=min(len(labels), 4),
+                  fontsize='small')
     save(pyplot, figure, path)

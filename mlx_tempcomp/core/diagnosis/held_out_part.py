@@ -112,7 +112,7 @@ def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: Effe
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
         heating=heating_bins(problem, test, starts),
         before_rad_s=binned['temperature_polynomial'], after_rad_s=binned['diagnosed'],
-        rows=counts)
+        rows=counts, cubic_rad_s=binned['px4_cubic'])
     return scopes, part, {method: tuple(float(v) for v in offset)
                           for method, offset in rezero.items()}, residuals['diagnosed']
 
@@ -220,6 +220,9 @@ def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResi
                                            edges))
     test_table = None if test is None else error_by_temperature(
         test.temperature_c, test.after_rad_s, test.rows, edges)
+    reference = held_out if test is None else test
+    cubic = None if reference.cubic_rad_s is None else error_by_temperature(
+        reference.temperature_c, reference.cubic_rad_s, reference.rows, edges)
     noise = sample_noise_rad_s([problem.error_rows[rows]
                                 for rows in problem.records.segments(problem.rows)])
     try:
@@ -228,7 +231,7 @@ def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResi
         table = None
     return ErrorByTemperature(problem.settings.validation, tables[0],
                               float(np.mean(problem.counts)), test_table, scheme, tables[1],
-                              tuple(float(v) for v in noise), table)
+                              tuple(float(v) for v in noise), table, cubic)
 
 
 def test_normalised_error(problem: DiagnosisProblem, errors: ErrorByTemperature,

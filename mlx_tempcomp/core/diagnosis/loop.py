@@ -390,7 +390,9 @@ def _diagnosis(problem: DiagnosisProblem, skipped: dict, zero: _StepZero, rounds
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
         heating=heating_bins(problem, slice(0, problem.rows), problem.starts),
-        before_rad_s=zero.run.residual, after_rad_s=written.run.residual, rows=problem.counts)
+        before_rad_s=zero.run.residual, after_rad_s=written.run.residual, rows=problem.counts,
+        cubic_rad_s=np.where(problem.folds.scored[:, None],
+                             problem.baseline_run(problem.folds).residual, np.nan))
     test, rezero, residual = None, {}, None
     if problem.test_rows:
         scopes, test, rezero, residual = compare_test(problem, zero.model, model)

@@ -123,7 +123,11 @@ class AxisDiagnosis:
 
 @dataclass(frozen=True)
 class BinnedResidual:
-    """Binned residuals (bins, axes) of the base and diagnosed models; rows per bin."""
+    """
+    Binned residuals (bins, axes) of the base and diagnosed models; rows per bin.
+
+    ``cubic_rad_s``: the PX4-style cubic's, clamped at its fitted range, the reference.
+    """
 
     time_s: np.ndarray
     temperature_c: np.ndarray
@@ -131,6 +135,7 @@ class BinnedResidual:
     before_rad_s: np.ndarray
     after_rad_s: np.ndarray
     rows: Optional[np.ndarray] = None
+    cubic_rad_s: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -166,7 +171,9 @@ class ErrorByTemperature:
     ``noise_rad_s`` is the white noise of a sample per axis on the diagnosed
     rows, ``table`` the node's `ModelErrorTable`: per bin the larger bias
     part of the two schemes (`model_error.larger_table`), None without a
-    held-out residual.
+    held-out residual. ``cubic``: the PX4-style cubic's error per bin, the
+    reference: on the test part when there is one, else on the deciding
+    scheme's held-out blocks.
     """
 
     validation: str
@@ -177,6 +184,7 @@ class ErrorByTemperature:
     other_held_out: Optional[TemperatureErrors] = None
     noise_rad_s: tuple = ()
     table: Optional[ModelErrorTable] = None
+    cubic: Optional[TemperatureErrors] = None
 
 
 @dataclass(frozen=True)
