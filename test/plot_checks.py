@@ -39,8 +39,8 @@ def _boxes(figure) -> list:
     legends = list(figure.legends) + [plot.get_legend() for plot in figure.axes
                                       if plot.get_legend() is not None]
     drawn, every = _tick_labels(figure)
-    skipped = {id(text) for legend in legends for text in [*legend.get_texts(),
-                                                            legend.get_title()]}
+    entries = [text for legend in legends for text in [*legend.get_texts(), legend.get_title()]]
+    skipped = {id(text) for text in entries}
     skipped |= {id(text) for text in every}
     boxes = [(f'legend {k}', legend.get_window_extent(renderer))
              for k, legend in enumerate(legends)]

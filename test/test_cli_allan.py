@@ -105,8 +105,7 @@ def test_kalibr_yaml_gives_the_known_densities(tmp_path, capsys):
     assert f'wrote {target}' in out and 'upper bound' not in target.read_text()
 
 
-def test_the_allan_plot_shows_the_lines_and_where_each_figure_was_read(tmp_path, capsys,
-                                                                      monkeypatch):
+def test_the_allan_plot_shows_the_lines_and_where_each_figure_was_read(tmp_path, monkeypatch):
     with drawn_figures(monkeypatch) as saved:
         assert main(['allan', rest_record_csv(tmp_path), '--out', str(tmp_path / 'out')]) == 0
     result = json.loads((tmp_path / 'out' / 'allan.json').read_text())
