@@ -96,7 +96,7 @@ def test_fit_says_first_how_the_model_does_on_held_out_blocks_and_writes_its_cov
     lines = out.splitlines()
     assert lines[1].startswith('forward held-out blocks (each predicted by a fit on the blocks '
                                'before it, as the node runs a model later in time): the model '
-                               'written is x ')
+                               "written against PX4's cubic clamped at its range")
     assert lines[2].startswith('error left (RMS per sample): x ')
     covariance = next(line for line in lines if line.startswith('covariance (model_error.*'))
     values = yaml.safe_load(out_path.read_text())['compensation_node']['ros__parameters']

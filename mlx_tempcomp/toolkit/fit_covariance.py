@@ -30,6 +30,7 @@ import numpy as np
 
 from .common import UserError
 from .tracking import model_residual
+from .uncertainty import gain_words
 from ..core.baseline import fit_cubic
 from ..core.errors import CalibrationError, TempCompError
 from ..core.model_error import (larger_table, normalised_error, NormalisedError,
@@ -150,16 +151,15 @@ def held_out_judgement(recording, refit, axes: tuple, blocks: int, folds: int,
         return HeldOutJudgement({}, (f'model_error not written: {err}',))
     judged = _judged(forward, schemes, recording, noise, edges)
     model_rms, cubic_rms = _rms(forward.residual), _rms(forward.cubic)
-    gains = ', '.join(f'{a} {c / m:.2f}x' if m else f'{a} -'
-                      for a, c, m in zip(axes, cubic_rms, model_rms))
+    gains = gain_words({a: c / m if m else None for a, c, m in zip(axes, cubic_rms, model_rms)})
     error = '; '.join(f'{a} {v:.3e} rad/s = {math.degrees(v):.3g} deg/s = '
                       f'{3600.0 * math.degrees(v):.4g} deg/h' for a, v in zip(axes, model_rms))
     cells = ', '.join(f'{a} {v:.2f}' for a, v in zip(axes, judged.per_sample))
     means = ', '.join(f'{a} {v:.2f}' for a, v in zip(axes, judged.window_means))
     lines = (
         'forward held-out blocks (each predicted by a fit on the blocks before it, as the node '
-        f"runs a model later in time): the model written is {gains} better than PX4's cubic "
-        "clamped at its range, refitted on the same blocks (the cubic's RMS / the model's)",
+        "runs a model later in time): the model written against PX4's cubic clamped at its "
+        f"range, refitted on the same blocks (the cubic's RMS / the model's): {gains}",
         f'error left (RMS per sample): {error}',
         'covariance (model_error.*: the noise of a sample '
         + ', '.join(f'{a} {v:.3e}' for a, v in zip(axes, noise))

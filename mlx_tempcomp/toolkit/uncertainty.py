@@ -136,6 +136,19 @@ def normalised_text(section: dict) -> str:
             f'{cells(section["window_means"])}')
 
 
+def _gain_word(gain) -> str:
+    if gain is None:
+        return '-'
+    text = f'{gain:.2f}x'
+    return text + (' (the same)' if text == '1.00x' else ' better' if gain > 1.0 else
+                   ' (worse)')
+
+
+def gain_words(gains: dict) -> str:
+    """Say each axis's gain over the cubic: '1.94x better', '1.00x (the same)', '0.73x (worse)'."""
+    return ', '.join(f'{axis} {_gain_word(gain)}' for axis, gain in gains.items())
+
+
 def params_model_error(errors, axes) -> tuple:
     """Give (the ``model_error`` node parameters, or {}, and a line saying why not)."""
     if errors.table is None:

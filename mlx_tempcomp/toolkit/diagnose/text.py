@@ -7,7 +7,8 @@ the console and the JSON say the same; values in rad/s, table cells ``.3e``.
 
 import math
 
-from ..uncertainty import console_lines, error_lines, normalised_text, outside_lines
+from ..uncertainty import (console_lines, error_lines, gain_words, normalised_text,
+                           outside_lines)
 from ...core.diagnosis import DEFAULT_REZERO_S, METHODS
 
 
@@ -307,9 +308,9 @@ def _left_text(axis: str, left: dict, rms: float) -> str:
 def headline_lines(report: dict) -> list:
     """Give the first lines: the gain over the clamped cubic, the error, what is left."""
     head = report['headline']
-    gains = ', '.join(f'{a} {_gain(g)}' for a, g in head['gain'].items())
-    lines = [f'{_scope_text(report, head["scope"])}: the written model is {gains} better than '
-             "PX4's cubic clamped at its range (the cubic's RMS / the model's)",
+    lines = [f"{_scope_text(report, head['scope'])}: the written model against PX4's cubic "
+             "clamped at its range (the cubic's RMS / the model's): "
+             + gain_words(head['gain']),
              'error left (RMS of the residual averaged over '
              f'{report["settings"]["average_s"]:g} s): '
              + '; '.join(f'{a} {_degrees(v)}' for a, v in head['rms_rad_s'].items())]
