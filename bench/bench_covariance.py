@@ -36,7 +36,7 @@ from pathlib import Path
 import sys
 import tempfile
 
-from bench_real import run_cli, simulated_record, SIMULATED, SLOW_PERIODS
+from bench_real import run_cli, SIMULATED, simulated_record, SLOW_PERIODS
 from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 import yaml

@@ -128,8 +128,8 @@ def test_the_covariance_the_node_publishes_is_judged_and_written_per_sample(tmp_
     assert section['normalised']['windows'] == 9 and section['normalised']['window_s'] == 60.0
     # Without the noise per axis the node's rate_noise_rad_s serves every axis; with that 0
     # too it publishes 0 (unknown): nothing to judge, no std column.
-    params.write_text(params.read_text().replace("'rate_noise_rad_s':\n      - 0.002\n"
-                                                 "      - 0.001", "'rate_noise_rad_s': []"))
+    given = "'rate_noise_rad_s':\n      - 0.002\n      - 0.001"
+    params.write_text(params.read_text().replace(given, "'rate_noise_rad_s': []"))
     report = evaluate_json(capsys, csv_path, '--params', str(params))
     assert report['covariance']['noise_rad_s'] == {'x': 0.0058, 'z': 0.0058}
     bare = tmp_path / 'bare.yaml'
