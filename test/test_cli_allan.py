@@ -6,6 +6,7 @@ from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.noise import allan_deviation
 import numpy as np
+from plot_checks import drawn_figures
 import pytest
 import yaml
 
@@ -102,6 +103,39 @@ def test_kalibr_yaml_gives_the_known_densities(tmp_path, capsys):
                   if not line.startswith('#')), end='')   # the file, for docs/toolkit-allan.md
     assert imu['rostopic'] == '/imu/data' and imu['update_rate'] == KALIBR_RATE_HZ
     assert f'wrote {target}' in out and 'upper bound' not in target.read_text()
+
+
+def test_the_allan_plot_shows_the_lines_and_where_each_figure_was_read(tmp_path, monkeypatch):
+    with drawn_figures(monkeypatch) as saved:
+        assert main(['allan', rest_record_csv(tmp_path), '--out', str(tmp_path / 'out')]) == 0
+    result = json.loads((tmp_path / 'out' / 'allan.json').read_text())
+    overlaps, figure = saved['allan.png']
+    assert overlaps == []
+    gyro, accel = figure.axes   # each sensor on axes of its own
+    assert (gyro.get_title(), accel.get_title()) == ('gyro', 'accelerometer')
+    assert 'rad/s' in gyro.get_ylabel() and 'm/s^2' in accel.get_ylabel()
+    for plot, figures in ((gyro, result['axes']), (accel, result['accelerometer_axes'])):
+        for k, axis in enumerate(figures):
+            lines = [line for line in plot.get_lines() if line.get_color() == f'C{k}']
+            by_style = {(line.get_linestyle(), line.get_marker()): line for line in lines}
+            # The white-noise and random-walk lines, through the figures read.
+            white, walk = by_style[('--', 'None')], by_style[(':', 'None')]
+            taus = white.get_xdata()
+            np.testing.assert_allclose(white.get_ydata(),
+                                       axis['noise_density_rad_s_rt_hz' if plot is gyro else
+                                            'noise_density_m_s2_rt_hz'] / np.sqrt(taus))
+            np.testing.assert_allclose(walk.get_ydata() / np.sqrt(walk.get_xdata() / 3.0),
+                                       axis['random_walk_rad_s_s_rt_hz' if plot is gyro else
+                                            'random_walk_m_s2_s_rt_hz'])
+            # Where N, K and the bias instability's floor were read.
+            assert by_style[('None', 's')].get_xdata()[0] == 1.0
+            assert by_style[('None', '^')].get_xdata()[0] == 3.0
+            floor = by_style[('None', 'v')]
+            assert floor.get_xdata()[0] == axis['bias_instability_tau_s']
+            at = axis['taus_s'].index(axis['bias_instability_tau_s'])
+            assert floor.get_ydata()[0] == pytest.approx(axis['adev_rad_s'][at], rel=1e-12)
+    labels = [text.get_text() for text in figure.legends[0].get_texts()]
+    assert 'N read at tau = 1 s' in labels and 'K read at tau = 3 s' in labels
 
 
 def test_kalibr_yaml_without_an_accelerometer_leaves_its_entries_out(tmp_path, capsys):

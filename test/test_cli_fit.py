@@ -89,6 +89,29 @@ def test_fit_chooses_true_orders_and_reproduces_bias(fitted):
     assert np.max(np.abs(residual)) < NOISE_RAD_S / 4
 
 
+def test_fit_says_first_how_the_model_does_on_held_out_blocks_and_writes_its_covariance(
+        fitted):
+    """A true polynomial and white noise: the covariance is the noise, and says so."""
+    out_path, out = fitted
+    lines = out.splitlines()
+    assert lines[1].startswith('forward held-out blocks (each predicted by a fit on the blocks '
+                               'before it, as the node runs a model later in time): the model '
+                               "written against PX4's cubic clamped at its range")
+    assert lines[2].startswith('error left (RMS per sample): x ')
+    covariance = next(line for line in lines if line.startswith('covariance (model_error.*'))
+    values = yaml.safe_load(out_path.read_text())['compensation_node']['ros__parameters']
+    error = values['model_error']
+    assert error['rate_noise_rad_s'] == pytest.approx([NOISE_RAD_S] * 2, rel=0.05)
+    # The polynomial is the truth: what the held-out blocks leave is the noise, which the
+    # table does not count twice.
+    for axis in ('x', 'z'):
+        assert max(error[f'{axis}_rad_s']) < NOISE_RAD_S / 2
+    per_sample = covariance.split('per sample ')[1].split(';')[0]
+    for cell in per_sample.split(', '):
+        assert 0.9 < float(cell.split()[1]) < 1.1, covariance
+    assert '# model_error: the white noise of a sample per axis' in out_path.read_text()
+
+
 def test_fit_writes_the_cubic_unless_an_order_beats_it_fold_by_fold(tmp_path, capsys):
     """The sweep's z is a true quadratic, as good as the cubic that holds it: the cubic."""
     assert main(['fit', sweep_csv(tmp_path), '--validation', 'forward', '--out',

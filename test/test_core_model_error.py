@@ -2,7 +2,10 @@
 The error-by-temperature path: binning held-out residuals, the node's table, the fitted range.
 
 `validation.error_by_temperature` bins residuals by temperature;
-`ModelErrorTable` is what the node interpolates for its covariance;
+`ModelErrorTable` is what the node interpolates for its covariance, built
+from the held-out errors less their white-noise share (`bias_rms_rad_s`,
+`larger_table`) and judged against the error (`normalised_error`, live:
+`StillWindows`);
 `validation.outside_range` / `held_out_outside_range` measure the rows a
 model runs clamped.
 """
@@ -10,7 +13,8 @@ model runs clamped.
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.model_error import ModelErrorTable
+from mlx_tempcomp.core.model_error import (bias_rms_rad_s, larger_table, ModelErrorTable,
+                                           normalised_error, sample_noise_rad_s, StillWindows)
 from mlx_tempcomp.core.validation import (block_bounds, error_by_temperature,
                                           held_out_outside_range, outside_range, split,
                                           temperature_bin_edges)
@@ -92,3 +96,69 @@ def test_held_out_blocks_are_judged_against_the_range_of_their_training_blocks()
                                   split(4, min_past=0.25))
     assert (both[1].low_c, both[1].high_c) == (20.0, 23.0)
     assert both[1].fraction == (0.0, 1.0)
+
+
+def test_the_sample_noise_is_the_white_noise_the_slow_bias_leaves_out():
+    generator = np.random.default_rng(3)
+    time_s = np.arange(20000.0)
+    bias = np.column_stack([1e-3 * np.sin(time_s / 500.0), np.full(time_s.size, 0.2)])
+    noise = generator.normal(0.0, 1.0, bias.shape) * [2e-4, 5e-4]
+    found = sample_noise_rad_s([bias[:12000] + noise[:12000], bias[12000:] + noise[12000:]])
+    np.testing.assert_allclose(found, [2e-4, 5e-4], rtol=0.03)
+    with pytest.raises(CalibrationError, match='two consecutive samples'):
+        sample_noise_rad_s([np.zeros((1, 2))])
+
+
+def test_the_bias_part_takes_the_noise_share_of_each_averaged_value_out():
+    # Bin [0, 5): values averaging 2 and 4 rows; [5, 10]: one value of 1 row (all noise).
+    errors = error_by_temperature([1.0, 2.0, 7.0], [[3e-3], [1e-3], [1e-4]], [2.0, 4.0, 1.0],
+                                  temperature_bin_edges(0.0, 10.0, 3))
+    noise = 2e-3
+    bias = bias_rms_rad_s(errors, [noise])
+    mean_square = (2.0 * 9e-6 + 4.0 * 1e-6) / 6.0
+    assert bias[0, 0] == pytest.approx(math.sqrt(mean_square - noise ** 2 * 2 / 6.0))
+    assert math.isnan(bias[1, 0]) and bias[2, 0] == 0.0
+
+
+def test_the_node_s_table_is_the_larger_bias_part_of_two_schemes():
+    edges = temperature_bin_edges(0.0, 10.0, 3)
+    deciding = error_by_temperature([1.0, 5.0], [[2e-3, 1e-3], [1e-3, 1e-3]], [1.0, 1.0], edges)
+    forward = error_by_temperature([2.0, 9.0], [[1e-3, 3e-3], [4e-3, 5e-4]], [1.0, 1.0], edges)
+    table = larger_table((deciding, forward), [0.0, 0.0])
+    # Bins 0 (both), 1 (deciding only), 2 (forward only), at the first table's mean T.
+    assert table.temperature_c == (1.0, 5.0, 9.0)
+    assert table.error_rad_s == ((2e-3, 1e-3, 4e-3), (3e-3, 1e-3, 5e-4))
+    empty = error_by_temperature([1.0], [[math.nan, math.nan]], [1.0], edges)
+    with pytest.raises(CalibrationError, match='no held-out residual'):
+        larger_table((empty, empty), [0.0, 0.0])
+
+
+def test_the_normalised_error_is_one_when_the_covariance_is_true():
+    generator = np.random.default_rng(5)
+    time_s = np.arange(36000.0) * 0.1
+    noise, bias = np.array([1e-3, 2e-4]), np.array([5e-4, 1e-3])
+    # A bias constant over each minute, normal with the std published, and white noise.
+    minutes = generator.normal(0.0, 1.0, (60, 2)) * bias
+    error = minutes[(time_s // 60.0).astype(int)] + generator.normal(0.0, 1.0, (36000, 2)) * noise
+    judged = normalised_error(time_s, error, noise ** 2 + bias ** 2, noise)
+    np.testing.assert_allclose(judged.per_sample, [1.0, 1.0], atol=0.1)
+    np.testing.assert_allclose(judged.window_means, [1.0, 1.0], atol=0.25)
+    assert (judged.samples, judged.windows, judged.window_s) == (36000, 60, 60.0)
+    # Told only the white noise, the window means are far too confident, samples less so.
+    naive = normalised_error(time_s, error, noise ** 2, noise)
+    assert naive.window_means[1] > 10.0 and naive.per_sample[1] > 4.0
+
+
+def test_still_windows_judge_the_mean_of_each_still_minute():
+    windows = StillWindows(window_s=10.0)
+    noise = (0.1, 0.0)
+    for k in range(25):     # 2.5 windows of 10 samples, the last one left open
+        windows.add(float(k), (0.02 + 0.1 * (-1) ** k, 0.03), (0.01, 0.01), noise, True)
+    assert windows.windows == 2
+    # Mean 0.02 over sqrt(0.01^2 + 0.1^2 / 10); the second axis 0.03 over 0.01.
+    np.testing.assert_allclose(windows.rms(), [0.02 / math.sqrt(1e-4 + 1e-3), 3.0])
+    windows.add(25.0, (5.0, 5.0), (0.01, 0.01), noise, False)   # moving: the open one dropped
+    for k in range(26, 37):
+        windows.add(float(k), (0.0, 0.0), (0.01, 0.01), noise, True)
+    assert windows.windows == 3
+    assert StillWindows().rms() == []

@@ -24,9 +24,10 @@ from mlx_tempcomp.core.diagnosis.acceptance import choose_model
 from mlx_tempcomp.core.diagnosis.problem import Score
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.model_error import bias_rms_rad_s
 from mlx_tempcomp.core.model_interface import ModelInputs
 from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
-from mlx_tempcomp.parameters.compensation import model_error_of
+from mlx_tempcomp.parameters.compensation import covariance_noise_of, model_error_of
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.recordings.recording import Recording
@@ -35,6 +36,7 @@ from mlx_tempcomp.simulation.physics import Effects, GyroTruth, Noise, Scenario
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np
+from plot_checks import drawn_figures
 import pytest
 import yaml
 
@@ -256,8 +258,9 @@ def test_on_the_measured_cycle_no_axis_is_worse_than_the_cubic(tmp_path):
     assert beyond == {5, 6, 7, 17, 18, 19}
     errors = report['error_by_temperature']
     assert len(errors['bins']) == 8 and errors['in_params_yaml']
-    assert parameters_of(out)['model_error']['temperature_c'] == [
-        b['temperature_c'] for b in errors['bins']]
+    assert parameters_of(out)['model_error']['temperature_c'] == errors['table']['temperature_c']
+    assert parameters_of(out)['model_error']['rate_noise_rad_s'] == [
+        errors['noise_rad_s'][a] for a in 'xyz']
 
 
 def test_the_error_by_temperature_splits_the_held_out_error_of_the_written_model():
@@ -279,6 +282,29 @@ def test_the_error_by_temperature_splits_the_held_out_error_of_the_written_model
     assert sum(table.held_out.count) < np.count_nonzero(
         np.isfinite(result.held_out.after_rad_s[:, 0]))
     assert table.test is not None and sum(table.test.count) > 0
+    # Beside it the forward folds, later in time: the node's table is per bin the larger
+    # bias part of the two, the white noise share taken out of each.
+    assert table.other == 'forward' and table.other_held_out.edges_c == table.held_out.edges_c
+    noise = table.noise_rad_s[0]
+    bias = [bias_rms_rad_s(part, table.noise_rad_s)[:, 0]
+            for part in (table.held_out, table.other_held_out)]
+    assert table.table.error_rad_s[0] == pytest.approx(
+        [np.nanmax([b[k] for b in bias]) for k in range(8) if np.isfinite(bias[0][k])
+         or np.isfinite(bias[1][k])], rel=1e-12)
+    weight, count = np.array(table.held_out.weight), np.array(table.held_out.count)
+    expected = np.sqrt(np.maximum(rms ** 2 - noise ** 2 * count[filled] / weight[filled], 0.0))
+    assert bias[0][filled] == pytest.approx(expected, rel=1e-12)
+
+
+def test_the_written_covariance_is_judged_on_the_test_part():
+    """Per sample the error over sqrt(noise^2 + table(T)^2): the white noise counts once."""
+    result = diagnosed('thermal_lag')
+    errors, judged = result.error_by_temperature, result.normalised
+    # 1 Hz, 1 s bins: each held-out value is one sample, all noise (0.02 deg/s). Counted
+    # in full in both the noise and the table it would give 1/sqrt(2) = 0.71.
+    assert errors.noise_rad_s[0] == pytest.approx(math.radians(NOISE_DPS), rel=0.05)
+    assert 0.85 < judged.per_sample[0] < 1.15
+    assert judged.samples == result.test_rows and judged.window_s == 60.0
 
 
 def test_the_rows_reported_outside_the_range_are_the_rows_a_model_clamps():
@@ -510,7 +536,7 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
         assert (out / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert ('outside the fitted temperature range (clamped): forward held-out blocks '
             in stdout) and '; test set ' in stdout
-    assert 'axis z: round-robin error by temperature (rad/s): ' in stdout
+    assert 'axis z: model error by temperature (rad/s, model_error.*): ' in stdout
     assert 'axis x: held-out RMS' in stdout and 'hysteresis' in stdout
     assert 'skipped acceleration_sensitivity: needs columns acc_x, acc_y, acc_z' in stdout
     assert 'axis y: record-only finding bias_step: a step of' in stdout
@@ -532,7 +558,8 @@ def test_cli_writes_report_plots_and_parameters(cli_run):
     assert '## Outside the fitted temperature range' in report_md
     assert '- test set: ' in report_md and '| block | range of the blocks before (C) |' in \
         report_md
-    assert '## Error by temperature' in report_md and '| x test RMS |' in report_md
+    assert '## Error by temperature' in report_md and '| x test |' in report_md
+    assert 'error / published std (RMS; 1 = honest' in report_md
 
 
 def test_cli_report_json_schema(cli_run):
@@ -601,6 +628,29 @@ def test_cli_parameter_file_round_trips_and_reproduces_the_test_error(cli_run):
     assert rms == pytest.approx([reported[a]['rms'] for a in 'xyz'], rel=1e-9)
 
 
+@pytest.mark.skipif(not MEASURED_CSV.is_file(), reason=f'measured data missing: {MEASURED_CSV}')
+def test_the_plots_compare_on_one_scale_beside_the_cubic_and_no_label_covers_another(
+        tmp_path, monkeypatch):
+    with drawn_figures(monkeypatch) as saved:
+        run_cli(['diagnose', MEASURED_CSV, '--preset', 'tofupilot', '--test', '0.25', '--out',
+                 tmp_path / 'out'])
+    assert set(saved) == {'residual_vs_temperature.png', 'residual_vs_time.png',
+                          'error_per_step.png', 'error_by_temperature.png'}
+    for name, (overlaps, _) in saved.items():
+        assert overlaps == [], name
+    # Before and after of an axis, and the axes of the error plots, share their y-scale.
+    for name in ('residual_vs_temperature.png', 'residual_vs_time.png'):
+        panels = saved[name][1].axes
+        for before, after in zip(panels[0::2], panels[1::2]):
+            assert before.get_shared_y_axes().joined(before, after), name
+            assert before.get_ylim() == after.get_ylim(), name
+    for name in ('error_per_step.png', 'error_by_temperature.png'):
+        figure = saved[name][1]
+        assert len(figure.axes) == 3 and len({plot.get_ylim() for plot in figure.axes}) == 1
+        labels = [text.get_text() for legend in figure.legends for text in legend.get_texts()]
+        assert any(label.startswith("PX4's cubic, clamped") for label in labels), name
+
+
 def test_cli_report_json_says_what_lies_outside_the_range_and_the_error_by_temperature(cli_run):
     _, out, _, _ = cli_run
     report = json.loads((out / 'report.json').read_text())
@@ -617,30 +667,41 @@ def test_cli_report_json_says_what_lies_outside_the_range_and_the_error_by_tempe
         sum(b['rows'] * b['fraction']['x'] for b in outside['forward_blocks']) / rows)
     errors = report['error_by_temperature']
     assert errors['validation'] == 'round_robin' and errors['in_params_yaml'] is True
-    assert errors['not_written'] == '' and 'not white noise' in errors['meaning']
+    assert errors['not_written'] == '' and 'white noise share taken out' in errors['meaning']
     temperatures = [b['temperature_c'] for b in errors['bins']]
     assert temperatures == sorted(temperatures) and len(temperatures) == 8
-    for part in errors['bins'] + errors['test_bins']:
+    for part in errors['bins'] + errors['other_bins'] + errors['test_bins']:
         assert part['low_c'] <= part['temperature_c'] <= part['high_c']
         assert part['count'] > 0 and part['rows'] >= part['count']
         assert all(value > 0.0 for value in part['rms'].values())
+    assert errors['other_validation'] == 'forward'
+    table = errors['table']
+    for temperature, (low, high) in zip(table['temperature_c'], table['bins_c']):
+        assert low <= temperature <= high
+    covariance = report['covariance']
+    assert covariance['samples'] == report['rows']['test']
+    assert set(covariance['per_sample']) == set(covariance['window_means']) == {'x', 'y', 'z'}
 
 
 def test_cli_model_error_round_trips_into_the_node_s_table(cli_run):
     _, out, _, _ = cli_run
     report = json.loads((out / 'report.json').read_text())
-    bins = report['error_by_temperature']['bins']
+    section = report['error_by_temperature']
+    written = section['table']
     values = node_values(str(out / 'params.yaml'), 'compensation_node')
     table = model_error_of(values)
-    assert table.temperature_c == tuple(b['temperature_c'] for b in bins)
+    assert table.temperature_c == tuple(written['temperature_c'])
     for axis, errors in zip('xyz', table.error_rad_s):
-        assert errors == tuple(b['rms'][axis] for b in bins)
-    # The node's variance at a bin's temperature: the sensor noise plus that bin's error.
-    noise = values['rate_noise_rad_s']
-    np.testing.assert_allclose(table.variance(noise, [bins[2]['temperature_c']])[0],
-                               [noise ** 2 + bins[2]['rms'][a] ** 2 for a in 'xyz'],
-                               rtol=1e-12)
-    assert 'model_error: held-out RMS by temperature' in (out / 'params.yaml').read_text()
+        assert errors == tuple(written['error_rad_s'][axis])
+    # The node's variance at a bin's temperature: the noise of the axis plus that bin's error.
+    noise = covariance_noise_of(values)
+    assert noise == tuple(section['noise_rad_s'][a] for a in 'xyz')
+    np.testing.assert_allclose(
+        table.variance(noise, [written['temperature_c'][2]])[0],
+        [noise[k] ** 2 + written['error_rad_s'][a][2] ** 2 for k, a in enumerate('xyz')],
+        rtol=1e-12)
+    assert 'model_error: the white noise of a sample per axis' in \
+        (out / 'params.yaml').read_text()
 
 
 def test_shares_outside_the_range_are_per_axis_when_the_axes_clamp_differently():
@@ -658,13 +719,15 @@ def test_shares_outside_the_range_are_per_axis_when_the_axes_clamp_differently()
         'them' in outside_lines(same)
 
 
-def test_single_sample_residuals_write_no_model_error():
-    """With --average-s 0 the residuals hold the white noise, which rate_noise_rad_s counts."""
+def test_the_model_error_carries_the_noise_of_each_axis():
+    """The white noise is in model_error.rate_noise_rad_s, not in the table as well."""
     errors = diagnosed('clean').error_by_temperature
-    written, why = params_model_error(errors, ('z',), average_s=1.0)
-    assert set(written['model_error']) == {'temperature_c', 'z_rad_s'} and why == ''
-    written, why = params_model_error(errors, ('z',), average_s=0.0)
-    assert written == {} and 'white noise' in why
+    written, why = params_model_error(errors, ('z',))
+    assert set(written['model_error']) == {'temperature_c', 'z_rad_s', 'rate_noise_rad_s'}
+    assert why == '' and written['model_error']['rate_noise_rad_s'] == list(errors.noise_rad_s)
+    # A clean record's held-out residual is noise: what is left of it once the noise share is
+    # out is small beside the noise.
+    assert max(errors.table.error_rad_s[0]) < 0.5 * errors.noise_rad_s[0]
 
 
 @pytest.mark.slow

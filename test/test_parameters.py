@@ -6,11 +6,13 @@ offset refresh); the nodes declare the same specs through rclpy. Both must agree
 value a YAML file can give.
 """
 
+import math
 from pathlib import Path
 
 from hypothesis import given, strategies as st
 from mlx_tempcomp.core.model_error import ModelErrorTable
-from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS, limits_of, model_error_of
+from mlx_tempcomp.parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
+                                                  limits_of, model_error_of)
 from mlx_tempcomp.parameters.driver import DEVICES, DRIVER_SPECS
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.parameters.models import build_model, MODELS
@@ -188,3 +190,16 @@ def test_the_model_table_gives_the_choices_and_refuses_a_name_it_lacks():
     with pytest.raises(ParameterError, match="invalid parameter model: 'cubic' is not one of "
                                              'eeprom, polynomial, linear_btc, effects, chain'):
         build_model({**values, 'model': 'cubic'})
+
+
+def test_the_covariance_takes_the_noise_of_each_axis_when_given():
+    assert covariance_noise_of(model_error_values()) == (0.0058, 0.0058)
+    per_axis = model_error_values(**{'model_error.rate_noise_rad_s': [2e-4, 3e-4]})
+    assert covariance_noise_of(per_axis) == (2e-4, 3e-4)
+    # The recalibration's motion check keeps rate_noise_rad_s.
+    assert limits_of(per_axis).rate_noise_rad_s == 0.0058
+    for wrong in ([2e-4], [2e-4, -1.0], [2e-4, math.nan]):
+        with pytest.raises(ParameterError, match='invalid parameter model_error.rate_noise_rad_s: '
+                                                 r'needs one finite noise >= 0 per axis \(2: x, '
+                                                 r'z\)'):
+            covariance_noise_of(model_error_values(**{'model_error.rate_noise_rad_s': wrong}))

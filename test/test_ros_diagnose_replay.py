@@ -26,7 +26,7 @@ from mlx_tempcomp.recordings.bag import RawTopics
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
 import numpy as np
 import pytest
-from ros_harness import finish_model_replay, start_model_replay
+from ros_harness import by_stamp, finish_model_replay, start_model_replay
 
 pytestmark = pytest.mark.ros
 
@@ -151,8 +151,11 @@ def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple,
                                 '--test-fraction', TEST_FRACTION, '--average-s', AVERAGE_S,
                                 '--json', '--out-csv', offline_csv))
     assert evaluation['model'] == 'effects' and evaluation['truth'] == 'zero (at rest)'
-    offline = np.loadtxt(offline_csv, delimiter=',', skiprows=1)
-    time_s, expected = offline[:, 0], offline[:, 2:]
+    offline = np.genfromtxt(offline_csv, delimiter=',', names=True)
+    time_s = offline['time']
+    expected = np.column_stack([offline[f'gyro_{a}'] for a in axes])
+    # The standard deviation the node publishes with each sample, as evaluate computes it.
+    std = np.column_stack([offline[f'std_{a}'] for a in axes])
     run(capsys, 'convert', csv, *options, '--out', bag)
     stamps_ns, messages = bag_stamps(bag)
     assert len(stamps_ns) == len(time_s)
@@ -165,6 +168,10 @@ def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple,
     difference = np.max(np.abs(got - expected))
     print(f'{len(got)} samples, largest |node - offline| {difference:.3g} rad/s')
     assert difference <= TOLERANCE_RAD_S
+    published = by_stamp(probe.received['imu/data'])
+    variance = np.array([[published[s].angular_velocity_covariance[4 * k] for k in range(3)]
+                         for s in stamps_ns])
+    np.testing.assert_allclose(variance, std ** 2, rtol=1e-9)
 
     # At rest the truth is 0: the node's output is its error.
     node = held_out_figures(time_s, got)

@@ -119,12 +119,13 @@ def test_beyond_the_fitted_range_the_node_gives_the_edge_value_and_counts_it(
     assert status_values(status)['model_error_temperatures'] == '0'
 
 
-def expected_covariance(table: ModelErrorTable, temperature_c: float) -> list:
+def expected_covariance(table: ModelErrorTable, temperature_c: float,
+                        noise_rad_s=(NOISE_RAD_S, NOISE_RAD_S)) -> list:
     """Give the diagonal the node must publish: noise^2 + error^2, y unmeasured (0)."""
     error = table.error_at([temperature_c])[0]
     covariance = [0.0] * 9
-    covariance[0] = NOISE_RAD_S ** 2 + error[0] ** 2
-    covariance[8] = NOISE_RAD_S ** 2 + error[1] ** 2
+    covariance[0] = noise_rad_s[0] ** 2 + error[0] ** 2
+    covariance[8] = noise_rad_s[1] ** 2 + error[1] ** 2
     return covariance
 
 
@@ -156,3 +157,16 @@ def test_the_published_covariance_follows_the_model_error_table(launcher, probe,
     for temperature_c, msg in zip([20.0, 30.0], feeder.outputs(stamps)):
         assert list(msg.angular_velocity_covariance) == pytest.approx(
             expected_covariance(changed, temperature_c), rel=1e-12, abs=0.0)
+
+    # The noise of each axis (what diagnose and fit measure) takes the place of
+    # rate_noise_rad_s; one per axis, or it is refused naming the parameter.
+    results = probe.set_parameters('compensation_node', {'model_error.rate_noise_rad_s': [1e-3]})
+    assert [r.successful for r in results] == [False]
+    assert results[0].reason.startswith('invalid parameter model_error.rate_noise_rad_s: needs '
+                                        'one finite noise >= 0 per axis (2: x, z)')
+    results = probe.set_parameters('compensation_node',
+                                   {'model_error.rate_noise_rad_s': [1e-3, 2e-4]})
+    assert [r.successful for r in results] == [True], results[0].reason
+    stamps = feeder.send([20.0])
+    assert list(feeder.outputs(stamps)[0].angular_velocity_covariance) == pytest.approx(
+        expected_covariance(changed, 20.0, (1e-3, 2e-4)), rel=1e-12, abs=0.0)

@@ -28,6 +28,7 @@ from typing import Optional
 import numpy as np
 
 from .errors import CalibrationError
+from .model_error import sample_noise_rad_s
 from .standstill import MIN_WINDOW_SAMPLES
 
 MEAN_RATE_BOUND_RAD_S = math.radians(0.1)
@@ -57,9 +58,7 @@ class RestRecord:
 
 def _noise(records: list) -> np.ndarray:
     """Give the white noise of one sample per axis, from consecutive differences (pooled)."""
-    differences = np.concatenate([np.diff(r.residual_rad_s, axis=0) for r in records])
-    spread = 1.4826 * np.median(np.abs(differences - np.median(differences, axis=0)), axis=0)
-    return spread / math.sqrt(2.0)
+    return sample_noise_rad_s([r.residual_rad_s for r in records])
 
 
 def _windows(record: RestRecord, window_s: float) -> list:

@@ -5,7 +5,7 @@ The compensation node's parameters: its specs, and the settings read from their 
 ``model`` and each model's own (`models.MODELS`, in that order), the model
 error table, the ZRO recalibration, the inputs, and the bias tracking
 (``bias_tracking.*``, from `core.tracking_parameters`). `model_error_of`,
-`limits_of` and `state_file_of` read the settings the node and the toolkit
+`covariance_noise_of`, `limits_of` and `state_file_of` read the settings the node and the toolkit
 build from the values, raising `ParameterError` naming the parameter.
 """
 
@@ -30,7 +30,11 @@ COMPENSATION_SPECS = COMMON_SPECS + (
 ) + tuple(spec for kind in MODELS.values() for spec in kind.specs) + (
     Spec('model_error.temperature_c', NoDefault('double_array'),
          'temperatures of the model error table, strictly increasing, degC (empty: no model '
-         'error; mlx-tempcomp diagnose writes it)'),
+         'error; mlx-tempcomp diagnose and fit write it)'),
+    Spec('model_error.rate_noise_rad_s', NoDefault('double_array'),
+         'white noise of one sample per axis (in the order of axes), rad/s: in the angular '
+         'velocity covariance it takes the place of rate_noise_rad_s (empty: rate_noise_rad_s '
+         'for every axis; mlx-tempcomp diagnose and fit write it, measured on the record)'),
 ) + tuple(
     Spec(f'model_error.{axis}_rad_s', NoDefault('double_array'),
          f'axis {axis}: held-out RMS error of the model at each model_error.temperature_c, '
@@ -124,6 +128,25 @@ def model_error_of(values: dict) -> Optional[ModelErrorTable]:
                    f'>= 0, got {list(column)}')
             raise ParameterError(msg)
     return ModelErrorTable(tuple(temperature), tuple(tuple(column) for column in errors))
+
+
+def covariance_noise_of(values: dict) -> tuple:
+    """
+    Give the white noise of one sample per measured axis the covariance takes, rad/s.
+
+    ``model_error.rate_noise_rad_s`` when given (one per axis), else
+    ``rate_noise_rad_s`` for every axis; `ParameterError` naming the
+    parameter when it is not one finite figure >= 0 per axis.
+    """
+    axes = axes_of(values)
+    given = values['model_error.rate_noise_rad_s']
+    if not given:
+        return (values['rate_noise_rad_s'],) * len(axes)
+    if len(given) != len(axes) or not all(math.isfinite(v) and v >= 0.0 for v in given):
+        msg = (f'invalid parameter model_error.rate_noise_rad_s: needs one finite noise >= 0 '
+               f'per axis ({len(axes)}: {", ".join(axes)}), got {list(given)}')
+        raise ParameterError(msg)
+    return tuple(float(v) for v in given)
 
 
 def state_file_of(values: dict, node_name: str) -> str:

@@ -185,18 +185,20 @@ def effect_parameters(model: EffectModel, axes) -> dict:
             'effects': nest_parameters(model.to_parameters(axes))}
 
 
-def model_error_parameters(table: ModelErrorTable, axes) -> dict:
+def model_error_parameters(table: ModelErrorTable, axes, noise_rad_s=()) -> dict:
     """
     Return the compensation node's ``model_error`` parameters for any model.
 
     The table of the model's error by temperature (`ModelErrorTable`), which
     the node adds to the Imu angular velocity covariance; ``axes`` names the
-    Imu axis of each of its error columns.
+    Imu axis of each of its error columns; ``noise_rad_s``, one per axis when
+    given, the white noise of a sample the covariance takes beside it.
     """
     axes = _check_axes(axes, table.axes)
+    noise = {'rate_noise_rad_s': [float(v) for v in noise_rad_s]} if len(noise_rad_s) else {}
     return {'model_error': {'temperature_c': [float(t) for t in table.temperature_c],
                             **{f'{axis}_rad_s': [float(v) for v in values]
-                               for axis, values in zip(axes, table.error_rad_s)}}}
+                               for axis, values in zip(axes, table.error_rad_s)}, **noise}}
 
 
 def linear_btc_parameters(model: EffectModel, axes) -> dict:

@@ -45,7 +45,8 @@ from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
 from ..core.tracking_parameters import tracking_settings
-from ..parameters.compensation import COMPENSATION_SPECS, model_error_of, state_file_of
+from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
+                                       state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
 
@@ -248,7 +249,9 @@ class CompensationNode(Node):
         rates, clamped = block.correct(stream)
         # The tracker follows the model's output; the recalibration's window takes it too.
         tracked, stds = self.tracking.track(block, rates)
-        self.outputs.publish(block, tracked, clamped, stds)
+        tracker = self.tracking.tracker
+        self.outputs.publish(block, tracked, clamped, stds,
+                             still=tracker is not None and tracker.still)
         self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, rates)
 
     # Recalibration.
@@ -305,8 +308,10 @@ class CompensationNode(Node):
         candidate.update({p.name: messages_value(p) for p in parameters})
         try:
             check_choices(COMPENSATION_SPECS, candidate)
-            if any(p.name.startswith(_MODEL_ERROR_PREFIX) for p in parameters):
+            if any(p.name.startswith(_MODEL_ERROR_PREFIX) or p.name == 'rate_noise_rad_s'
+                   for p in parameters):
                 model_error_of(candidate)
+                covariance_noise_of(candidate)
             if any(p.name.startswith(_TRACKING_PREFIXES) for p in parameters):
                 tracking_settings(candidate, self.axes, candidate['rate_noise_rad_s'])
             if _changes_model(parameters):

@@ -2,10 +2,13 @@
 The compensation node's outputs: ``imu/data`` and ``imu/temperature``, and what went out.
 
 The input messages go out again with the rate rewritten (acceleration and
-orientation pass through); the angular velocity covariance is
-``rate_noise_rad_s``^2, plus the variance of the tracked offset while bias
+orientation pass through); the angular velocity covariance is per axis the
+white noise of a sample squared (``model_error.rate_noise_rad_s``, else
+``rate_noise_rad_s``), plus the variance of the tracked offset while bias
 tracking runs, else the square of the model's error at the sample's
-temperature when ``model_error.*`` gives a table.
+temperature when ``model_error.*`` gives a table. While the tracking says
+the gyro is still, the rate published is checked against that covariance
+(`StillWindows`: the truth there is 0), for ``/diagnostics``.
 """
 
 from sensor_msgs.msg import Imu, Temperature
@@ -13,7 +16,8 @@ from sensor_msgs.msg import Imu, Temperature
 from . import messages
 from .compensation_inputs import InputBlock
 from .qos import stream_publisher
-from ..parameters.compensation import model_error_of
+from ..core.model_error import StillWindows
+from ..parameters.compensation import covariance_noise_of, model_error_of
 
 
 class CompensationOutputs:
@@ -37,17 +41,21 @@ class CompensationOutputs:
 
     def configure(self, values: dict) -> None:
         """Take the parameter values the covariance depends on (checked before)."""
-        self.rate_noise_rad_s = values['rate_noise_rad_s']
-        self.covariance = messages.rate_covariance(self.indices, self.rate_noise_rad_s)
+        self.noise_rad_s = covariance_noise_of(values)
+        self.covariance = messages.diagonal_covariance(self.indices,
+                                                       [n * n for n in self.noise_rad_s])
         self.model_error = model_error_of(values)
         self._tracked = (None, None)   # the last tracked std and its covariance
+        # A new covariance is judged afresh.
+        self.still_windows = StillWindows()
 
-    def publish(self, block: InputBlock, rates: list, clamped: int, stds=None) -> None:
+    def publish(self, block: InputBlock, rates: list, clamped: int, stds=None,
+                still: bool = False) -> None:
         """
         Publish the corrected rows of ``block`` and their temperatures; count them.
 
         ``stds``: per row, the tracked offset's standard deviation per axis (None: no
-        tracking).
+        tracking); ``still``: the tracking says the gyro is still.
         """
         streams = self.temperature_streams
         covariances = self.covariances(block.temperature_c) if stds is None else \
@@ -64,6 +72,10 @@ class CompensationOutputs:
                     imu.header.stamp, imu.header.frame_id,
                     sum(temperatures) / len(temperatures), parts[streams[0]].variance))
             self.imu_publisher.publish(messages.set_rates(imu, self.indices, rate, covariance))
+        if stds is not None and any(self.noise_rad_s):
+            for stamp_ns, rate, std in zip(block.stamps_ns, rates, stds):
+                self.still_windows.add(stamp_ns * 1e-9, rate, std, self.noise_rad_s,
+                                       still)
         if clamped:
             self.clamped_samples += clamped
             self.clamped_recent = True
@@ -75,26 +87,26 @@ class CompensationOutputs:
         """
         Give the angular velocity covariance of each sample at its temperatures.
 
-        rate_noise_rad_s^2, plus the model error's square at the temperature
+        The noise^2 per axis, plus the model error's square at the temperature
         when a table is given; with the noise unknown (0) it stays all 0.
         """
-        noise = self.rate_noise_rad_s
-        if self.model_error is None or noise <= 0.0:
+        noise = self.noise_rad_s
+        if self.model_error is None or not any(noise):
             return [self.covariance] * len(temperatures)
         return [messages.diagonal_covariance(self.indices, row)
                 for row in self.model_error.variance(noise, temperatures).tolist()]
 
     def tracked_covariances(self, stds: list) -> list:
         """
-        Give the covariance of tracked rows: rate_noise_rad_s^2 + the offset's variance.
+        Give the covariance of tracked rows: noise^2 + the offset's variance, per axis.
 
         The tracked offset's standard deviation takes the place of the model error:
         it is the bias error left after tracking (at most ``initial_std_rad_s``, the
         model's own). With the noise unknown (0) it stays all 0. The standard
         deviation changes once a window: the last covariance is reused.
         """
-        noise2 = self.rate_noise_rad_s ** 2
-        if noise2 <= 0.0:
+        noise = self.noise_rad_s
+        if not any(noise):
             return [self.covariance] * len(stds)
         covariances = []
         last_std, last = self._tracked
@@ -102,7 +114,7 @@ class CompensationOutputs:
             if std != last_std:
                 last_std = std
                 last = messages.diagonal_covariance(self.indices,
-                                                    [noise2 + s * s for s in std])
+                                                    [n * n + s * s for n, s in zip(noise, std)])
             covariances.append(last)
         self._tracked = last_std, last
         return covariances

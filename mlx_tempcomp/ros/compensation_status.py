@@ -64,6 +64,9 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str,
         'temperature_clamped_samples': outputs.clamped_samples,
         'model_error_temperatures': 0 if model_error is None else
         len(model_error.temperature_c),
+        # The covariance judged at rest: still windows' mean rate over its std (1: true).
+        'still_windows_checked': outputs.still_windows.windows,
+        'still_normalised_error_rms': outputs.still_windows.rms(),
         'no_acceleration_samples': inputs.no_acceleration_samples,
         'no_supply_voltage_samples': inputs.no_supply_samples,
         'input_age_s': float('nan') if input_age_s is None else input_age_s,

@@ -6,7 +6,8 @@ compensation node's ``rate_noise_rad_s``, then per gyro and accelerometer
 axis the two continuous-time densities visual-inertial tools take (`noise_lines`):
 the noise density and the random walk. ``--kalibr-yaml FILE`` writes them as
 Kalibr's ``imu.yaml``; ``--out DIR`` also writes allan.json (figures and
-curves) and allan.png (log-log curves). matplotlib is imported only when the
+curves) and allan.png (log-log curves, gyro and accelerometer each on its own axes, with
+the fitted lines and where each figure was read). matplotlib is imported only when the
 plot is written.
 """
 
@@ -19,7 +20,8 @@ import numpy as np
 from .common import (add_recording_options, check_output_file, check_output_folder, load,
                      read_options, UserError, write_json, write_result)
 from ..core.errors import TempCompError
-from ..core.noise import allan_deviation, NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S
+from ..core.noise import (allan_deviation, FLICKER_FLOOR_FACTOR, MIN_CLUSTERS, NOISE_DENSITY_TAU_S,
+                          noise_lines, RANDOM_WALK_TAU_S)
 from ..recordings.recording import AXES
 
 SECONDS_PER_HOUR = 3600.0
@@ -69,7 +71,7 @@ def _axis_json(figures, lines, unit: str) -> dict:
 
 
 def _write_allan_files(out_dir: str, source: str, outputs, gyro: tuple, accel: tuple) -> None:
-    """Write allan.json (figures and curves) and allan.png (log-log curves) into ``out_dir``."""
+    """Write allan.json (figures and curves) and allan.png (`allan_figure`) into ``out_dir``."""
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
@@ -78,17 +80,7 @@ def _write_allan_files(out_dir: str, source: str, outputs, gyro: tuple, accel: t
     if accel:
         # The accelerometer's curve is in m/s^2, under the same keys as the gyro's.
         result['accelerometer_axes'] = [_axis_json(f, lines, 'm_s2') for f, lines in accel]
-    figure, axes = pyplot.subplots(figsize=(7.0, 5.0))
-    for f, _ in gyro:
-        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', label=f'gyro {f.axis} (rad/s)')
-    for f, _ in accel:
-        axes.loglog(f.taus_s, f.adev_rad_s, marker='.', linestyle='--',
-                    label=f'accelerometer {f.axis} (m/s^2)')
-    axes.set_xlabel('tau (s)')
-    axes.set_ylabel('Allan deviation')
-    axes.set_title(f'Overlapping Allan deviation: {Path(source).name}')
-    axes.grid(True, which='both', alpha=0.3)
-    axes.legend()
+    figure = allan_figure(pyplot, source, gyro, accel)
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         write_json(outputs.file(Path(out_dir) / 'allan.json'), result)
@@ -98,6 +90,65 @@ def _write_allan_files(out_dir: str, source: str, outputs, gyro: tuple, accel: t
         raise UserError(msg) from None
     finally:
         pyplot.close(figure)
+
+
+def _sensor_panel(plot, pairs: tuple, sensor: str, unit: str) -> None:
+    """
+    Draw one sensor's curves, the lines its figures come from, and where each was read.
+
+    Per axis: the Allan deviation; the white-noise line N / sqrt(tau) (dashed) and
+    the random-walk line K sqrt(tau / 3) (dotted) over the trusted taus, unless the
+    figure is a bound; a square where N is read (tau = 1 s), a triangle where K is
+    (3 s), a downward triangle at the floor the bias instability is read from.
+    """
+    for k, (f, lines) in enumerate(pairs):
+        colour = f'C{k}'
+        plot.loglog(f.taus_s, f.adev_rad_s, marker='.', color=colour, label=f'{sensor} {f.axis}')
+        taus = f.taus_s[f.taus_s <= max(f.duration_s / MIN_CLUSTERS, f.taus_s[0])]
+        if not lines.noise_density_bound:
+            plot.loglog(taus, lines.noise_density / np.sqrt(taus), '--', color=colour, lw=1)
+        if not lines.random_walk_bound:
+            plot.loglog(taus, lines.random_walk * np.sqrt(taus / 3.0), ':', color=colour, lw=1)
+        plot.loglog([NOISE_DENSITY_TAU_S], [lines.noise_density / NOISE_DENSITY_TAU_S ** 0.5],
+                    's', color=colour, mfc='none', ms=8)
+        plot.loglog([RANDOM_WALK_TAU_S], [lines.random_walk], '^', color=colour, mfc='none',
+                    ms=8)
+        plot.loglog([f.bias_instability_tau_s],
+                    [f.bias_instability_rad_s * FLICKER_FLOOR_FACTOR], 'v', color=colour, ms=8)
+    plot.set_xlabel('tau (s)')
+    plot.set_ylabel(f'Allan deviation ({unit})')
+    plot.set_title(sensor)
+    plot.grid(True, which='both', alpha=0.3)
+
+
+def allan_figure(pyplot, source: str, gyro: tuple, accel: tuple):
+    """
+    Give allan.png's figure: gyro and accelerometer each on axes of their own (`_sensor_panel`).
+
+    One legend below the panels names the axes and what each mark means.
+    """
+    from matplotlib.lines import Line2D
+
+    panels = 2 if accel else 1
+    figure, grid = pyplot.subplots(1, panels, figsize=(6.0 * panels, 5.5), squeeze=False,
+                                   layout='constrained')
+    _sensor_panel(grid[0][0], gyro, 'gyro', 'rad/s')
+    if accel:
+        _sensor_panel(grid[0][1], accel, 'accelerometer', 'm/s^2')
+    figure.suptitle(f'Overlapping Allan deviation: {Path(source).name}')
+    grey = {'color': '0.3'}
+    marks = [Line2D([], [], ls='--', **grey, label='white-noise line N / sqrt(tau)'),
+             Line2D([], [], ls=':', **grey, label='random-walk line K sqrt(tau / 3)'),
+             Line2D([], [], ls='', marker='s', mfc='none', **grey,
+                    label=f'N read at tau = {NOISE_DENSITY_TAU_S:g} s'),
+             Line2D([], [], ls='', marker='^', mfc='none', **grey,
+                    label=f'K read at tau = {RANDOM_WALK_TAU_S:g} s'),
+             Line2D([], [], ls='', marker='v', **grey,
+                    label='floor (bias instability = floor / 0.664)')]
+    axes = [Line2D([], [], marker='.', color=f'C{k}', label=f'axis {f.axis}')
+            for k, (f, _) in enumerate(gyro if len(gyro) >= len(accel) else accel)]
+    figure.legend(handles=axes + marks, loc='outside lower center', ncol=4, fontsize='small')
+    return figure
 
 
 def _largest(pairs: tuple) -> tuple:

@@ -15,6 +15,14 @@ rest). Statistics per axis cover every sample and averages over bins of
 ``--track-bias`` then runs the node's bias tracking over the model's output
 (`toolkit.tracking.offline_twin`) and reports the error with and without it;
 ``--rest-hint COLUMN`` gives it the robot's rest hint of each row (a 0/1 column).
+
+The covariance the node would publish with each sample is judged too: the
+standard deviation per axis, sqrt(noise^2 + model_error(T)^2) from the
+file's ``model_error.*`` and noise (`parameters.compensation`), with
+``--track-bias`` sqrt(noise^2 + the tracked offset's variance), as the node
+builds it; the error over it, RMS per sample and of 60 s means
+(`core.model_error.normalised_error`), over the rows evaluated. ``--out-csv``
+writes it per sample (``std_*``).
 """
 
 import argparse
@@ -31,8 +39,10 @@ from .tracking import offline_twin, rest_hint_column, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
+from ..core.model_error import normalised_error
 from ..core.model_interface import INPUTS, ModelInputs
 from ..core.table import sensor_tables
+from ..parameters.compensation import covariance_noise_of, model_error_of
 from ..parameters.files import node_values
 from ..parameters.models import build_model
 from ..parameters.specs import axes_of, ParameterError, transfer_of
@@ -160,7 +170,7 @@ def _statistics(error: np.ndarray, weights=None) -> dict:
 
 
 def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.ndarray,
-                     axes: tuple, corrected: np.ndarray, twin=None) -> None:
+                     axes: tuple, corrected: np.ndarray, std, twin=None) -> None:
     """
     Write time, temperature and corrected rate as a canonical CSV recording at ``staged``.
 
@@ -168,7 +178,8 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 
     With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
     ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
-    learnt from) follow.
+    learnt from) follow. Last, ``std_*``: the standard deviation the node publishes with
+    the rate (rad/s), when ``std`` (samples, axes) is given.
     """
     header = ['time', 'temperature'] + [f'gyro_{a}' for a in axes]
     columns = [corrected]
@@ -177,6 +188,9 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
                                for a in axes]
         columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
                    twin.offset_std_rad_s, twin.learnt.astype(int)]
+    if std is not None:
+        header += [f'std_{a}' for a in axes]
+        columns.append(std)
     try:
         with open(staged, 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
@@ -243,9 +257,15 @@ def evaluate_command(args: argparse.Namespace) -> int:
                         args.average_s, hint) if args.track_bias else None
     if twin:
         report['bias_tracking'] = twin.report
+    noise, variance = _published_variance(values, args.params, temperature_c, twin)
+    report['covariance'] = _covariance_report(noise, variance, axes, recording.time_s[part],
+                                              (twin.rate_rad_s - truth)[part] if twin else
+                                              error[part], variance is not None and
+                                              variance[part], bool(twin))
     if args.out_csv is not None:
         _write_corrected(args.out_csv, args.outputs.file(args.out_csv), recording.time_s,
-                         recording.temperature_c, axes, corrected, twin)
+                         recording.temperature_c, axes, corrected,
+                         None if variance is None else np.sqrt(variance), twin)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -253,6 +273,45 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.out_csv is not None:
         print(f'wrote {args.out_csv}')
     return 0
+
+
+def _published_variance(values: dict, params: str, temperature_c: np.ndarray, twin) -> tuple:
+    """
+    Give (noise per axis, the variance the node publishes per sample (samples, axes) or None).
+
+    noise^2 + the model error's square at the temperature (`ModelErrorTable`),
+    or + the tracked offset's variance with the twin; None when the noise is
+    unknown (0: the node publishes a covariance of 0).
+    """
+    try:
+        noise = np.array(covariance_noise_of(values))
+        table = model_error_of(values)
+    except ParameterError as err:
+        raise UserError(f'{params}: {err}') from None
+    if not noise.any():
+        return noise, None
+    if twin is not None:
+        return noise, np.square(noise) + np.square(twin.offset_std_rad_s)
+    temperature = np.asarray(temperature_c, dtype=np.float64)
+    if table is None:
+        return noise, np.broadcast_to(np.square(noise), (len(temperature), noise.size))
+    return noise, table.variance(noise, temperature)
+
+
+def _covariance_report(noise: np.ndarray, variance, axes: tuple, time_s: np.ndarray,
+                       error: np.ndarray, part_variance, tracked: bool) -> dict:
+    """Give report's ``covariance``: what the node publishes, judged on the rows evaluated."""
+    section = {'noise_rad_s': dict(zip(axes, noise.tolist())), 'tracked': tracked}
+    if variance is None:
+        section['normalised'] = None
+        return section
+    judged = normalised_error(time_s, error, part_variance, noise)
+    section['normalised'] = {'per_sample': dict(zip(axes, judged.per_sample)),
+                             'window_means': dict(zip(axes, judged.window_means)),
+                             'window_s': judged.window_s, 'windows': judged.windows}
+    section['mean_std_rad_s'] = dict(zip(axes, np.mean(np.sqrt(part_variance), axis=0)
+                                         .tolist()))
+    return section
 
 
 def _columns(recording, axes: tuple, model, params: str, path: str) -> list:
@@ -289,7 +348,22 @@ def _text_lines(report: dict, start: int, twin) -> list:
                          f'{s["rms"]:>12.3e}{s["peak"]:>12.3e}')
     if twin:
         lines += twin_lines(twin.report, tuple(report['axes']))
-    return lines
+    return lines + [_covariance_line(report['covariance'])]
+
+
+def _covariance_line(section: dict) -> str:
+    """Say how the covariance the node publishes compares with the error (1: honest)."""
+    what = 'tracked' if section['tracked'] else 'model'
+    judged = section['normalised']
+    if judged is None:
+        return 'covariance: not judged: the noise is 0 (unknown), so the node publishes 0'
+
+    def cells(values):
+        return ', '.join(f'{axis} {value:.2f}' for axis, value in values.items())
+    stds = ', '.join(f'{axis} {value:.3e}' for axis, value in section['mean_std_rad_s'].items())
+    return (f'covariance ({what}): mean published std {stds} rad/s; error / std (RMS, 1 = '
+            f'honest, above 1 = too confident) per sample {cells(judged["per_sample"])}, '
+            f'{judged["window_s"]:g} s means {cells(judged["window_means"])}')
 
 
 def add_parser(commands) -> None:
@@ -315,7 +389,8 @@ def add_parser(commands) -> None:
     evaluate.add_argument('--json', action='store_true', help='print JSON')
     evaluate.add_argument('--out-csv', metavar='FILE',
                           help='write time, temperature and corrected rate of every sample '
-                               '(with --track-bias: tracked, and the still flag and offset)')
+                               '(with --track-bias: tracked, and the still flag and offset), '
+                               'and the standard deviation the node publishes with it')
     evaluate.add_argument('--track-bias', action='store_true',
                           help="then run the node's bias tracking (bias_tracking.* of the "
                                "file) over the model's output, as the node does, and report "

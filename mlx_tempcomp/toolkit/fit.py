@@ -23,6 +23,7 @@ from .common import (add_parameter_file_options, add_recording_options,
                      validation_settings, write_node_parameters)
 from .exports import (add_export_options, check_export_outputs, check_export_record,
                       export_request, node_model, write_exports)
+from .fit_covariance import held_out_judgement, HeldOutJudgement
 from .tracking import tracking_section
 from .uncertainty import block_lines
 from ..core.chain import ChainModel
@@ -376,18 +377,41 @@ def fit_command(args: argparse.Namespace) -> int:
             raise UserError(str(err)) from None
     recording = load(args.input, read_options(args))
     check_export_record(exports, recording)
+    printed = io.StringIO()
     try:
-        fitted = fit(options, recording)
+        with contextlib.redirect_stdout(printed):
+            fitted = fit(options, recording)
+        judgement = _judgement(args, options, fit, recording)
         tracking, lines = tracking_section([recording], fitted.parameters)
     except TempCompError as err:
         msg = f'{args.input}: {err}'
         raise UserError(msg) from None
+    # The judgement first: what a user reads before the fit's own tables.
+    print('\n'.join(judgement.lines[:-1] + (printed.getvalue().rstrip('\n'),)
+                    + judgement.lines[-1:]))
     print('\n'.join(lines))
     write_exports(exports, args.outputs, recording, lambda part: _refit(options, fit, part))
+    header = fitted.header + ('\nmodel_error: the white noise of a sample per axis and the '
+                              'held-out error by temperature\n(a bias error) the Imu '
+                              'covariance adds up' if judgement.parameters else '')
     write_node_parameters(args.out, args.node_name, args.outputs,
-                          {**fitted.parameters, **tracking}, fitted.header)
+                          {**fitted.parameters, **judgement.parameters, **tracking}, header)
     print(f'wrote {args.out} (model {fitted.parameters["model"]})')
     return 0
+
+
+def _judgement(args: argparse.Namespace, options: _FitOptions, fit,
+               recording) -> HeldOutJudgement:
+    """Judge the model on held-out blocks, refitted as it was fitted (`fit_covariance`)."""
+    if args.model == 'chain':
+        return HeldOutJudgement({}, ('model_error not written: the chain is fitted on the '
+                                     "plateaus of a rate table, not on a thermal record's "
+                                     'blocks',))
+    blocks = DEFAULT_BLOCKS if options.blocks is None else options.blocks
+    folds = DEFAULT_FOLDS if options.folds is None else options.folds
+    return held_out_judgement(recording, lambda part: _refit(options, fit, part),
+                              tuple(recording.axes), blocks, folds,
+                              options.validation['validation'], options.validation['min_past'])
 
 
 def _refit(options: _FitOptions, fit, part):

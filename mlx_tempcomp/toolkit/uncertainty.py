@@ -12,16 +12,28 @@ lines, a plot and the ``model_error.*`` node parameters.
 
 import math
 
-from ..core.model_error import ModelErrorTable
+import numpy as np
+
+from ..core.model_error import bias_rms_rad_s
 from ..parameters.files import model_error_parameters
 
 OUTSIDE_MEANING = ('rows whose temperature (T_eff with a thermal lag) lies outside the range '
                    'the model predicting them was fitted on: the node clamps the temperature at '
                    'the edge there, so the correction holds the edge value')
-ERROR_MEANING = ('RMS per temperature bin of the held-out residual of the model written '
+ERROR_MEANING = ('per temperature bin, the RMS of the held-out residual of the model written '
                  '(corrected - truth, averaged over bins of average_s seconds, as the held-out '
-                 'RMS), rad/s: a bias error, not white noise; params.yaml carries it as '
-                 'model_error.*, which the node adds to rate_noise_rad_s^2 in the Imu covariance')
+                 'RMS), rad/s, under the deciding scheme and the one beside (one of them '
+                 'forward: later in time than the fit); the table params.yaml carries as '
+                 'model_error.* is per bin the larger of the two with the white noise share '
+                 'taken out (noise^2 / samples per averaged value): a bias error, which the '
+                 'node adds to the white noise of a sample squared (model_error.rate_noise_rad_s) '
+                 'in the Imu covariance')
+NORMALISED_MEANING = ('the written model on the test part, as written: per axis the RMS of '
+                      "each sample's error over the standard deviation params.yaml publishes "
+                      "for it (sqrt(noise^2 + model_error(T)^2)), and of each window's mean "
+                      'error over the standard deviation of such a mean (the model error '
+                      "whole, the noise over the window's samples); 1 when the covariance "
+                      'tells the truth, above 1 when it is too confident')
 
 
 def _number(value):
@@ -72,37 +84,76 @@ def _bins(errors, axes) -> list:
             for k in errors.filled()]
 
 
-def error_by_temperature_json(errors, axes, average_s: float) -> dict:
+def _table_json(table, axes, edges_c) -> dict:
+    """Give the node's table with the temperature bin each of its values comes from."""
+    index = [min(int(np.searchsorted(edges_c, t, side='right')) - 1, len(edges_c) - 2)
+             for t in table.temperature_c]
+    return {'temperature_c': list(table.temperature_c),
+            'bins_c': [[edges_c[k], edges_c[k + 1]] for k in index],
+            'error_rad_s': {axis: list(values) for axis, values in zip(axes, table.error_rad_s)}}
+
+
+def error_by_temperature_json(errors, axes) -> dict:
     """Return report.json's ``error_by_temperature``; whether params.yaml has it, and why not."""
-    written, not_written = params_model_error(errors, axes, average_s)
+    written, not_written = params_model_error(errors, axes)
     return {'meaning': ERROR_MEANING, 'validation': errors.validation,
+            'other_validation': errors.other,
             'rows_per_bin': errors.rows_per_bin, 'bins': _bins(errors.held_out, axes),
+            'other_bins': _bins(errors.other_held_out, axes),
             'test_bins': None if errors.test is None else _bins(errors.test, axes),
+            'test_bias': None if errors.test is None else _bias_bins(errors.test, errors, axes),
+            'noise_rad_s': dict(zip(axes, errors.noise_rad_s)),
+            'table': None if errors.table is None else
+            _table_json(errors.table, axes, errors.held_out.edges_c),
             'in_params_yaml': bool(written), 'not_written': not_written}
 
 
-def model_error_table(errors) -> ModelErrorTable:
-    """Give the node's table of the held-out error: the filled bins at their mean T."""
-    held = errors.held_out
-    filled = held.filled()
-    return ModelErrorTable(temperature_c=tuple(held.temperature_c[k] for k in filled),
-                           error_rad_s=tuple(tuple(held.rms_rad_s[k][axis] for k in filled)
-                                             for axis in range(len(held.rms_rad_s[0]))))
+def _bias_bins(table, errors, axes) -> list:
+    """Give the bias part of a table's filled bins (`model_error.bias_rms_rad_s`)."""
+    bias = bias_rms_rad_s(table, errors.noise_rad_s)
+    return [{'low_c': table.edges_c[k], 'high_c': table.edges_c[k + 1],
+             'temperature_c': table.temperature_c[k],
+             'rms': {axis: _number(value) for axis, value in zip(axes, bias[k])}}
+            for k in table.filled()]
 
 
-def params_model_error(errors, axes, average_s: float) -> tuple:
-    """
-    Give (the ``model_error`` node parameters, or {}, and a line saying why not).
+def normalised_json(normalised, axes) -> dict:
+    """Return report.json's ``covariance``: the normalised error on the test part, or None."""
+    if normalised is None:
+        return None
+    return {'meaning': NORMALISED_MEANING, 'window_s': normalised.window_s,
+            'samples': normalised.samples, 'windows': normalised.windows,
+            'per_sample': dict(zip(axes, normalised.per_sample)),
+            'window_means': dict(zip(axes, normalised.window_means))}
 
-    Residuals of single samples (--average-s 0) hold the white noise in full:
-    added to rate_noise_rad_s^2 it would count twice, so no table is written.
-    """
-    if average_s <= 0.0:
-        return {}, ('model_error not written: with --average-s 0 the residuals hold the white '
-                    'noise, which rate_noise_rad_s already counts')
-    if not errors.held_out.filled():
+
+def normalised_text(section: dict) -> str:
+    """One line: the normalised error per axis, per sample and of the window means."""
+    def cells(values):
+        return ', '.join(f'{axis} {value:.2f}' for axis, value in values.items())
+    return (f'error / published std (RMS; 1 = honest, above 1 = too confident): per sample '
+            f'{cells(section["per_sample"])}; {section["window_s"]:g} s means '
+            f'{cells(section["window_means"])}')
+
+
+def _gain_word(gain) -> str:
+    if gain is None:
+        return '-'
+    text = f'{gain:.2f}x'
+    return text + (' (the same)' if text == '1.00x' else ' better' if gain > 1.0 else
+                   ' (worse)')
+
+
+def gain_words(gains: dict) -> str:
+    """Say each axis's gain over the cubic: '1.94x better', '1.00x (the same)', '0.73x (worse)'."""
+    return ', '.join(f'{axis} {_gain_word(gain)}' for axis, gain in gains.items())
+
+
+def params_model_error(errors, axes) -> tuple:
+    """Give (the ``model_error`` node parameters, or {}, and a line saying why not)."""
+    if errors.table is None:
         return {}, 'model_error not written: no held-out residual'
-    return model_error_parameters(model_error_table(errors), axes), ''
+    return model_error_parameters(errors.table, axes, errors.noise_rad_s), ''
 
 
 def percent(fraction: float) -> str:
@@ -165,30 +216,43 @@ def _e(value) -> str:
     return '-' if value is None else f'{value:.3e}'
 
 
-def error_lines(section: dict, axes) -> list:
-    """report.md lines of ``error_by_temperature``."""
+def error_lines(section: dict, axes, covariance) -> list:
+    """report.md lines of ``error_by_temperature`` and the normalised error (``covariance``)."""
     scheme = section['validation'].replace('_', '-')
-    lines = ['## Error by temperature', '',
-             f'Held-out RMS ({scheme} folds) of the model written, per temperature bin '
-             f'(residuals averaged over bins of {section["rows_per_bin"]:.3g} samples on '
-             'average; count: such bins). It is a bias error, not white noise: '
-             + ('params.yaml carries it as model_error.*, which the node adds to '
-                'rate_noise_rad_s^2 in the angular velocity covariance.'
+    other = section['other_validation'].replace('_', '-')
+    noise = ', '.join(f'{axis} {value:.3e}' for axis, value in section['noise_rad_s'].items())
+    lines = ['## Error by temperature (the covariance)', '',
+             f'Per temperature bin, the held-out RMS of the model written under {scheme} and '
+             f'{other} folds (residuals averaged over bins of {section["rows_per_bin"]:.3g} '
+             'samples on average; count: such bins), the larger of the two with the white '
+             f'noise share taken out (noise of a sample: {noise} rad/s). It is a bias error, '
+             'not white noise: '
+             + ('params.yaml carries it as model_error.*, which the node adds to the noise '
+                'squared (model_error.rate_noise_rad_s) in the angular velocity covariance.'
                 if section['in_params_yaml'] else 'not written into params.yaml.'), '']
-    test = {(b['low_c'], b['high_c']): b for b in section['test_bins'] or ()}
-    header = ('temperature bin (C)', 'mean T (C)', 'count', *(f'{a} RMS' for a in axes))
+    table = section['table']
+    if table is None:
+        return lines
+    test = {(b['low_c'], b['high_c']): b for b in section['test_bias'] or ()}
+    header = ('temperature bin (C)', 'mean T (C)', *(f'{a} written' for a in axes))
     if test:
-        header += ('test count', *(f'{a} test RMS' for a in axes))
+        header += tuple(f'{a} test' for a in axes)
     lines += ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
-    for b in section['bins']:
-        row = [f'{b["low_c"]:.1f} .. {b["high_c"]:.1f}', f'{b["temperature_c"]:.1f}',
-               b['count'], *(_e(b['rms'][a]) for a in axes)]
+    for k, (temperature, (low, high)) in enumerate(zip(table['temperature_c'],
+                                                       table['bins_c'])):
+        row = [f'{low:.1f} .. {high:.1f}', f'{temperature:.1f}',
+               *(_e(table['error_rad_s'][a][k]) for a in axes)]
         if test:
-            other = test.get((b['low_c'], b['high_c']))
-            row += [other['count'] if other else 0,
-                    *(_e(other['rms'][a] if other else None) for a in axes)]
+            part = test.get((low, high))
+            row += [_e(part['rms'][a] if part else None) for a in axes]
         lines.append('| ' + ' | '.join(str(cell) for cell in row) + ' |')
-    return lines + ['']
+    lines.append('')
+    if test:
+        lines += ['test: the same bias part of the written model on the test part, which no '
+                  'fit saw.', '']
+    if covariance is not None:
+        lines += [normalised_text(covariance) + ', on the test part.', '']
+    return lines
 
 
 def console_lines(report: dict) -> list:
@@ -208,13 +272,12 @@ def console_lines(report: dict) -> list:
     test = section['test']
     if test is not None:
         text += f'; test set {fraction_text(test["fraction"], per_axis)} of {test["rows"]} rows'
-    errors = report['error_by_temperature']
+    table = report['error_by_temperature']['table']
     lines = [text]
-    for axis in report['axes']:
-        cells = ', '.join(f'{b["temperature_c"]:.1f} C {_e(b["rms"][axis])}'
-                          for b in errors['bins'])
-        lines.append(f'axis {axis}: {errors["validation"].replace("_", "-")} error by '
-                     f'temperature (rad/s): {cells}')
+    for axis in report['axes'] if table else ():
+        cells = ', '.join(f'{t:.1f} C {_e(v)}' for t, v in zip(table['temperature_c'],
+                                                               table['error_rad_s'][axis]))
+        lines.append(f'axis {axis}: model error by temperature (rad/s, model_error.*): {cells}')
     return lines
 
 
@@ -233,24 +296,43 @@ def block_lines(blocks, scheme: str) -> list:
 
 
 def plot_error_by_temperature(path, diagnosis, save) -> None:
-    """Plot each axis's held-out (and test) RMS per temperature bin against the bin's mean T."""
+    """
+    Plot per axis the model error written by temperature, the test part's, and the cubic's.
+
+    One panel per axis on one log scale: the table params.yaml carries (the
+    bias part, `model_error.larger_table`), the same bias part of the written
+    model on the test part, and of PX4's cubic clamped at its range (on the
+    test part, else on the held-out blocks), the reference; the white noise
+    of a sample dash-dotted. The legend lies below the panels.
+    """
     from matplotlib import pyplot
 
     errors = diagnosis.error_by_temperature
-    figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
-    parts = [(errors.held_out, '-', 'o', f'{errors.validation.replace("_", "-")} held-out')]
-    if errors.test is not None:
-        parts.append((errors.test, '--', 'x', 'test set'))
-    for axis, name in enumerate(diagnosis.axes):
-        colour = f'C{axis}'
-        for table, style, marker, label in parts:
-            filled = table.filled()
-            plot.plot([table.temperature_c[k] for k in filled],
-                      [table.rms_rad_s[k][axis] for k in filled], linestyle=style,
-                      marker=marker, color=colour, label=f'{name}, {label}')
-    plot.set_xlabel('temperature (C)')
-    plot.set_ylabel('RMS of the residual (rad/s)')
-    plot.set_title('Error of the written model by temperature')
-    plot.grid(True, alpha=0.3)
-    plot.legend(fontsize='small')
+    axes = diagnosis.axes
+    figure, grid = pyplot.subplots(1, len(axes), figsize=(4.2 * len(axes), 4.6), squeeze=False,
+                                   sharey=True, layout='constrained')
+    where = 'test part' if errors.test is not None else 'held-out'
+    curves = [(errors.test, 'x--', 'C3', 'written model, test part'),
+              (errors.cubic, '+:', '0.4', f"PX4's cubic, clamped, {where}")]
+    for k, (plot, name) in enumerate(zip(grid[0], axes)):
+        if errors.table is not None:
+            plot.semilogy(errors.table.temperature_c, errors.table.error_rad_s[k], 'o-',
+                          color='C0', label='model_error written (held-out)')
+        for table, style, colour, label in curves:
+            if table is None:
+                continue
+            filled = list(table.filled())
+            bias = bias_rms_rad_s(table, errors.noise_rad_s)[:, k]
+            plot.semilogy([table.temperature_c[i] for i in filled], bias[filled], style,
+                          color=colour, label=label)
+        plot.axhline(errors.noise_rad_s[k], color='0.6', ls='-.',
+                     label='white noise of a sample')
+        plot.set_title(f'axis {name}')
+        plot.set_xlabel('temperature (C)')
+        plot.grid(True, which='both', alpha=0.3)
+    grid[0][0].set_ylabel('bias part of the RMS (rad/s)')
+    figure.suptitle('Error of the written model by temperature (noise share taken out)')
+    handles, labels = grid[0][0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc='outside lower center', ncol=min(len(labels), 4),
+                  fontsize='small')
     save(pyplot, figure, path)

@@ -20,6 +20,7 @@ from .settings import DEFAULT_REZERO_S, DiagnosisSettings, REZERO_MIN_SAMPLES
 from ..effects import EffectModel, temperature_rate_c_s
 from ..errors import CalibrationError, ConfigError
 from ..metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
+from ..model_error import larger_table, normalised_error, NormalisedError, sample_noise_rad_s
 from ..validation import (error_by_temperature, FORWARD, held_out_outside_range, outside_range,
                           temperature_bin_edges)
 
@@ -71,12 +72,13 @@ def _errors(binned: np.ndarray, counts: np.ndarray) -> tuple:
 
 def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: EffectModel) -> tuple:
     """
-    Return (errors per method on the test part, binned residual before/after, re-zero).
+    Return (errors per method on the test part, binned residual before/after, re-zero, residual).
 
     The errors map 'test' and, when the test part is a record, 'test_rezeroed'
     (each residual less its mean over the record's re-zero window) to the
     errors per method; re-zero maps each method to what the window took off
-    per axis (empty without a test record).
+    per axis (empty without a test record); residual is the written model's
+    per sample (rows, axes).
     """
     full = problem.full
     test = slice(problem.rows, len(full.time_s))
@@ -110,9 +112,9 @@ def compare_test(problem: DiagnosisProblem, base_model: EffectModel, model: Effe
         temperature_c=np.add.reduceat(full.temperature_c[test], starts) / counts,
         heating=heating_bins(problem, test, starts),
         before_rad_s=binned['temperature_polynomial'], after_rad_s=binned['diagnosed'],
-        rows=counts)
+        rows=counts, cubic_rad_s=binned['px4_cubic'])
     return scopes, part, {method: tuple(float(v) for v in offset)
-                          for method, offset in rezero.items()}
+                          for method, offset in rezero.items()}, residuals['diagnosed']
 
 
 def default_rezero_s(records, held_out) -> float:
@@ -192,20 +194,52 @@ def outside_fitted_range(problem: DiagnosisProblem, specs: tuple,
 
 
 def written_error_by_temperature(problem: DiagnosisProblem, held_out: BinnedResidual,
-                                 test: Optional[BinnedResidual]) -> ErrorByTemperature:
+                                 other: np.ndarray, test: Optional[BinnedResidual]
+                                 ) -> ErrorByTemperature:
     """
-    Bin the written model's held-out (and test) residuals by temperature.
+    Bin the written model's held-out (and test) residuals by temperature; build its table.
 
-    The held-out bins are those the deciding folds count (inside their
+    The held-out bins of each scheme are those its folds count (inside their
     training range with scoring 'inside'): the bins' mean squares add up to
-    the held-out RMS.
+    the held-out RMS. ``other`` holds the binned residuals of the scheme
+    beside the deciding one. The table takes per bin the larger bias part of
+    the two (`model_error.larger_table`): one of them is forward, the model
+    run later in time than it was fitted, which is how the node runs it; the
+    white noise of the diagnosed rows (`model_error.sample_noise_rad_s`) is
+    taken out of both, as the node adds it apart.
     """
     temperature = problem.temperature
     edges = temperature_bin_edges(float(np.min(temperature)), float(np.max(temperature)),
                                   problem.settings.error_bins)
-    counted = np.where(problem.folds.scored[:, None], held_out.after_rad_s, np.nan)
-    held_table = error_by_temperature(held_out.temperature_c, counted, held_out.rows, edges)
+    scheme = problem.settings.other_validation
+    tables = []
+    for folds, residual in ((problem.folds, held_out.after_rad_s),
+                            (problem.folds_of(scheme), other)):
+        counted = np.where(folds.scored[:, None], residual, np.nan)
+        tables.append(error_by_temperature(held_out.temperature_c, counted, held_out.rows,
+                                           edges))
     test_table = None if test is None else error_by_temperature(
         test.temperature_c, test.after_rad_s, test.rows, edges)
-    return ErrorByTemperature(problem.settings.validation, held_table,
-                              float(np.mean(problem.counts)), test_table)
+    reference = held_out if test is None else test
+    cubic = None if reference.cubic_rad_s is None else error_by_temperature(
+        reference.temperature_c, reference.cubic_rad_s, reference.rows, edges)
+    noise = sample_noise_rad_s([problem.error_rows[rows]
+                                for rows in problem.records.segments(problem.rows)])
+    try:
+        table = larger_table(tuple(tables), noise)
+    except CalibrationError:
+        table = None
+    return ErrorByTemperature(problem.settings.validation, tables[0],
+                              float(np.mean(problem.counts)), test_table, scheme, tables[1],
+                              tuple(float(v) for v in noise), table, cubic)
+
+
+def test_normalised_error(problem: DiagnosisProblem, errors: ErrorByTemperature,
+                          residual: np.ndarray) -> Optional[NormalisedError]:
+    """Judge the covariance the written file publishes on the test part (as written)."""
+    if errors.table is None:
+        return None
+    full = problem.full
+    test = slice(problem.rows, len(full.time_s))
+    variance = errors.table.variance(errors.noise_rad_s, full.temperature_c[test])
+    return normalised_error(full.time_s[test], residual, variance, errors.noise_rad_s)

@@ -11,7 +11,7 @@ from .acceptance import (Attempt, choose_model, cubic_errors, judge, record_caus
 from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD, Trial
 from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
-                            written_error_by_temperature)
+                            test_normalised_error, written_error_by_temperature)
 from .problem import DiagnosisProblem, HeldOutRun, Score
 from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
                       RecordFit, Step)
@@ -156,9 +156,9 @@ class _Written:
 
     ``found`` are the specs the rounds found, ``specs`` those written (the
     PX4-style cubic where ``choices`` say so); ``run`` is the written specs'
-    held-out run under the deciding validation, ``other_errors`` their
-    errors under ``other``, the scheme beside; ``cubic`` and
-    ``other_cubic`` the cubic's errors under each.
+    held-out run under the deciding validation, ``other_run`` their run
+    under ``other``, the scheme beside; ``cubic`` and ``other_cubic`` the
+    cubic's errors under each.
     """
 
     found: tuple
@@ -166,9 +166,13 @@ class _Written:
     choices: tuple
     run: HeldOutRun
     other: Folds
-    other_errors: tuple
+    other_run: HeldOutRun
     cubic: tuple
     other_cubic: tuple
+
+    @property
+    def other_errors(self) -> tuple:
+        return self.other_run.errors
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
@@ -303,15 +307,14 @@ def _guard(problem: DiagnosisProblem, found: tuple, run: HeldOutRun) -> _Written
     other = problem.folds_of(settings.other_validation)
     cubic = cubic_errors(problem, problem.folds)
     other_cubic = cubic_errors(problem, other)
-    other_errors = problem.held_out(found, 'the other validation', other).errors
-    choices = tuple(_choice(problem, axis, spec, run, other_errors[axis], other_cubic[axis])
+    other_run = problem.held_out(found, 'the other validation', other)
+    choices = tuple(_choice(problem, axis, spec, run, other_run.errors[axis], other_cubic[axis])
                     for axis, spec in enumerate(found))
     cubic_axes = tuple(a for a, choice in enumerate(choices) if choice.written == 'px4_cubic')
     specs = found
     if cubic_axes:
-        specs, run, other_errors = _write_cubic(problem, found, cubic_axes, run, other_errors,
-                                                other)
-    return _Written(found, specs, choices, run, other, other_errors, cubic, other_cubic)
+        specs, run, other_run = _write_cubic(problem, found, cubic_axes, run, other_run, other)
+    return _Written(found, specs, choices, run, other, other_run, cubic, other_cubic)
 
 
 def _choice(problem: DiagnosisProblem, axis: int, spec: AxisSpec, run: HeldOutRun,
@@ -341,22 +344,25 @@ def _choice(problem: DiagnosisProblem, axis: int, spec: AxisSpec, run: HeldOutRu
 
 
 def _write_cubic(problem: DiagnosisProblem, found: tuple, cubic_axes: tuple, run: HeldOutRun,
-                 other_errors: tuple, other: Folds) -> tuple:
-    """Give (the specs with the cubic on ``cubic_axes``, their run, their errors beside)."""
+                 other_run: HeldOutRun, other: Folds) -> tuple:
+    """Give (the specs with the cubic on ``cubic_axes``, their run, their run beside)."""
     specs = tuple(CUBIC if a in cubic_axes else spec for a, spec in enumerate(found))
     # The models clamp at the range of every axis's T_eff: with the same lags, the axes
     # that keep their model keep their figures.
     same = {s.thermal_lag_s for s in specs} == {s.thermal_lag_s for s in found}
     axes = cubic_axes if same else None
-    new = problem.held_out(specs, 'held-out check of the cubic', axes=axes)
-    new_other = problem.held_out(specs, 'the other validation', other, axes).errors
     changed = list(axes or range(len(found)))
+    new = problem.held_out(specs, 'held-out check of the cubic', axes=axes)
+    new_other = problem.held_out(specs, 'the other validation', other, axes)
+    return specs, _merged(run, new, changed), _merged(other_run, new_other, changed)
+
+
+def _merged(run: HeldOutRun, new: HeldOutRun, changed: list) -> HeldOutRun:
+    """Give ``run`` with the residual and errors of the ``changed`` axes from ``new``."""
     residual = run.residual.copy()  # step 0's may be the same array
     residual[:, changed] = new.residual[:, changed]
-    errors = tuple(new.errors[a] if a in changed else run.errors[a] for a in range(len(found)))
-    other_errors = tuple(new_other[a] if a in changed else other_errors[a]
-                         for a in range(len(found)))
-    return specs, HeldOutRun(residual, errors), other_errors
+    return HeldOutRun(residual, tuple(new.errors[a] if a in changed else error
+                                      for a, error in enumerate(run.errors)))
 
 
 def _comparison(problem: DiagnosisProblem, zero: _StepZero, rounds: _Rounds,
@@ -384,11 +390,14 @@ def _diagnosis(problem: DiagnosisProblem, skipped: dict, zero: _StepZero, rounds
     held_out = BinnedResidual(
         time_s=problem.mean(problem.time), temperature_c=problem.mean(problem.temperature),
         heating=heating_bins(problem, slice(0, problem.rows), problem.starts),
-        before_rad_s=zero.run.residual, after_rad_s=written.run.residual, rows=problem.counts)
-    test, rezero = None, {}
+        before_rad_s=zero.run.residual, after_rad_s=written.run.residual, rows=problem.counts,
+        cubic_rad_s=np.where(problem.folds.scored[:, None],
+                             problem.baseline_run(problem.folds).residual, np.nan))
+    test, rezero, residual = None, {}, None
     if problem.test_rows:
-        scopes, test, rezero = compare_test(problem, zero.model, model)
+        scopes, test, rezero, residual = compare_test(problem, zero.model, model)
         comparison.update(scopes)
+    errors = written_error_by_temperature(problem, held_out, written.other_run.residual, test)
     per_axis = tuple(AxisDiagnosis(name, written.found[a].order, zero.scores[a],
                                    tuple(rounds.steps[a]), tuple(rounds.rejected[a]),
                                    findings[a], written.choices[a], rounds.causes[a])
@@ -402,7 +411,9 @@ def _diagnosis(problem: DiagnosisProblem, skipped: dict, zero: _StepZero, rounds
                      records=_record_fits(problem, written.specs), rezero_rad_s=rezero,
                      first_blocks=problem.first_blocks,
                      outside_range=outside_fitted_range(problem, written.specs, model),
-                     error_by_temperature=written_error_by_temperature(problem, held_out, test))
+                     error_by_temperature=errors,
+                     normalised=None if residual is None else
+                     test_normalised_error(problem, errors, residual))
 
 
 def _record_fits(problem: DiagnosisProblem, specs: tuple) -> tuple:

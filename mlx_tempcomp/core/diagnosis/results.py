@@ -8,6 +8,7 @@ import numpy as np
 
 from .settings import DiagnosisSettings
 from ..effects import EffectModel
+from ..model_error import ModelErrorTable, NormalisedError
 from ..validation import OutsideRange, split, TemperatureErrors
 
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
@@ -122,7 +123,11 @@ class AxisDiagnosis:
 
 @dataclass(frozen=True)
 class BinnedResidual:
-    """Binned residuals (bins, axes) of the base and diagnosed models; rows per bin."""
+    """
+    Binned residuals (bins, axes) of the base and diagnosed models; rows per bin.
+
+    ``cubic_rad_s``: the PX4-style cubic's, clamped at its fitted range, the reference.
+    """
 
     time_s: np.ndarray
     temperature_c: np.ndarray
@@ -130,6 +135,7 @@ class BinnedResidual:
     before_rad_s: np.ndarray
     after_rad_s: np.ndarray
     rows: Optional[np.ndarray] = None
+    cubic_rad_s: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -156,17 +162,29 @@ class OutsideFittedRange:
 @dataclass(frozen=True)
 class ErrorByTemperature:
     """
-    The written model's held-out error per temperature bin (`TemperatureErrors`).
+    The written model's held-out error per temperature bin (`TemperatureErrors`), and its table.
 
-    ``held_out``: the residuals of the deciding validation's folds (the
-    figure the node takes); ``test``: the written model on the test part.
-    ``rows_per_bin`` is the mean number of samples per averaging bin.
+    ``held_out``: the residuals of the deciding validation's folds,
+    ``other_held_out`` those of the scheme beside (``other``; one of the two
+    is forward: later in time); ``test``: the written model on the test
+    part. ``rows_per_bin`` is the mean number of samples per averaging bin.
+    ``noise_rad_s`` is the white noise of a sample per axis on the diagnosed
+    rows, ``table`` the node's `ModelErrorTable`: per bin the larger bias
+    part of the two schemes (`model_error.larger_table`), None without a
+    held-out residual. ``cubic``: the PX4-style cubic's error per bin, the
+    reference: on the test part when there is one, else on the deciding
+    scheme's held-out blocks.
     """
 
     validation: str
     held_out: TemperatureErrors
     rows_per_bin: float
     test: Optional[TemperatureErrors] = None
+    other: str = ''
+    other_held_out: Optional[TemperatureErrors] = None
+    noise_rad_s: tuple = ()
+    table: Optional[ModelErrorTable] = None
+    cubic: Optional[TemperatureErrors] = None
 
 
 @dataclass(frozen=True)
@@ -197,7 +215,9 @@ class Diagnosis:
     (`RecordFit`); with a held-out record, 'test_rezeroed' in ``comparison``
     holds the errors after its re-zero, and ``rezero_rad_s`` maps each of
     METHODS to what the re-zero took off per axis. ``outside_range`` and
-    ``error_by_temperature`` are the package docstring's last paragraph.
+    ``error_by_temperature`` are the package docstring's last paragraph;
+    ``normalised`` judges the covariance the written file publishes (white
+    noise and table) on the test part as written, None without one.
     """
 
     axes: tuple
@@ -219,6 +239,7 @@ class Diagnosis:
     first_blocks: tuple = (0,)
     outside_range: Optional[OutsideFittedRange] = None
     error_by_temperature: Optional[ErrorByTemperature] = None
+    normalised: Optional[NormalisedError] = None
 
     def split(self, scheme: Optional[str] = None):
         """Give the blocks as a scheme (default: the deciding one) dealt them, records and all."""

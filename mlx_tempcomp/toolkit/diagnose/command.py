@@ -195,8 +195,7 @@ def _write_parameters(path: Path, named: Path, node_name: str, report: dict, dia
     It holds the diagnosed model, its error by temperature (``model_error.*``)
     and the bias tracking's bounds (``bias_tracking.*``).
     """
-    model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes,
-                                        diagnosis.settings.average_s)
+    model_error, _ = params_model_error(diagnosis.error_by_temperature, diagnosis.axes)
     parameters = effect_parameters(diagnosis.model, diagnosis.axes)
     tracking, tracking_lines = tracking_section(recordings, parameters)
     content = parameter_file(node_name, {**parameters, **model_error, **tracking})
@@ -207,8 +206,9 @@ def _write_parameters(path: Path, named: Path, node_name: str, report: dict, dia
               + (f'Bias offset of {report["written_offset"]["record"]}, '
                  + WRITTEN_OFFSET.replace(': ', ':\n', 1) + '\n'
                  if len(recordings) > 1 else '')
-              + ('model_error: held-out RMS by temperature (a bias error), added to the '
-                 'Imu covariance\n' if model_error else '')
+              + ('model_error: the white noise of a sample per axis and the held-out error '
+                 'by temperature\n(a bias error) the Imu covariance adds up\n'
+                 if model_error else '')
               + f'Use: compensation_node --ros-args --params-file {named}')
     write_parameter_file(path, content, header)
     return tracking_lines

@@ -2,8 +2,11 @@
 The PNG plots of ``mlx-tempcomp diagnose`` (matplotlib, imported when they are drawn).
 
 The residual against temperature and against time, before and after the
-diagnosed effects, heating and cooling coloured; the held-out error per
-step; the error by temperature (`toolkit.uncertainty`).
+diagnosed effects, heating and cooling coloured, the two panels of an axis
+on one y-scale; the held-out error per step and the error by temperature
+(`toolkit.uncertainty`), each beside PX4's cubic clamped at its range, the
+reference. Legends lie below the panels, outside them, so no label covers
+another (`test/plot_checks.py` checks it).
 """
 
 import math
@@ -16,6 +19,7 @@ PLOTS = ('residual_vs_temperature.png', 'residual_vs_time.png', 'error_per_step.
 # Plots draw at most this many bins per axis (every k-th bin beyond).
 MAX_PLOT_POINTS = 20000
 _TITLES = (('temperature polynomial', 'before_rad_s'), ('diagnosed', 'after_rad_s'))
+CUBIC_TEXT = "PX4's cubic, clamped"
 
 
 def _every(count: int) -> slice:
@@ -40,7 +44,13 @@ def _residual_panels(grid, axes, parts, titles, x_of) -> None:
             plot.set_title(f'{name}: {title}')
             plot.set_ylabel('residual (rad/s)')
             plot.grid(True, alpha=0.3)
-        grid[row][0].legend(markerscale=3, fontsize='small')
+
+
+def _legend_below(figure, plot, markerscale: float = 1.0) -> None:
+    """One legend for the figure, below its panels, from one panel's labelled artists."""
+    handles, labels = plot.get_legend_handles_labels()
+    figure.legend(handles, labels, loc='outside lower center', ncol=min(len(labels), 5),
+                  fontsize='small', markerscale=markerscale)
 
 
 def write_plots(out: Path, diagnosis) -> None:
@@ -59,20 +69,24 @@ def write_plots(out: Path, diagnosis) -> None:
 
 
 def _residual_vs_temperature(pyplot, path: Path, diagnosis, parts: list) -> None:
+    """Draw the residuals against temperature, before and after, an axis on one scale."""
     axes = diagnosis.axes
-    figure, grid = pyplot.subplots(len(axes), 2, figsize=(11.0, 3.2 * len(axes)),
-                                   squeeze=False, sharex=True)
+    figure, grid = pyplot.subplots(len(axes), 2, figsize=(11.0, 3.2 * len(axes) + 0.6),
+                                   squeeze=False, sharex=True, sharey='row',
+                                   layout='constrained')
     _residual_panels(grid, axes, parts, _TITLES, lambda part: part.temperature_c)
     for plot in grid[-1]:
         plot.set_xlabel('temperature (C)')
+    _legend_below(figure, grid[0][0], markerscale=3)
     _save(pyplot, figure, path)
 
 
 def _residual_vs_time(pyplot, path: Path, diagnosis, parts: list) -> None:
     """Draw the residuals against the time since the start, the test set shaded."""
     axes = diagnosis.axes
-    figure, grid = pyplot.subplots(len(axes), 2, figsize=(13.0, 3.0 * len(axes)),
-                                   squeeze=False, sharex=True, sharey='row')
+    figure, grid = pyplot.subplots(len(axes), 2, figsize=(13.0, 3.0 * len(axes) + 0.6),
+                                   squeeze=False, sharex=True, sharey='row',
+                                   layout='constrained')
     start_s = diagnosis.held_out.time_s[0]
     if diagnosis.test is not None:
         for plot in grid.flat:
@@ -82,33 +96,48 @@ def _residual_vs_time(pyplot, path: Path, diagnosis, parts: list) -> None:
     _residual_panels(grid, axes, parts, _TITLES, lambda part: part.time_s - start_s)
     for plot in grid[-1]:
         plot.set_xlabel('time since start (s)')
+    _legend_below(figure, grid[0][0], markerscale=3)
     _save(pyplot, figure, path)
 
 
 def _error_per_step(pyplot, path: Path, diagnosis) -> None:
-    """Draw each axis's held-out RMS after each step, the step's effect beside its point."""
-    from matplotlib.ticker import MaxNLocator
+    """
+    Draw each axis's held-out RMS after each step, beside the clamped cubic's.
 
-    figure, plot = pyplot.subplots(figsize=(8.0, 4.5))
-    for axis in diagnosis.per_axis:
+    One panel per axis on one scale, the steps named on the x-axis; the
+    cubic's held-out RMS (deciding scheme) dashed across; with a test part,
+    the written model's and the cubic's RMS there.
+    """
+    axes = diagnosis.per_axis
+    figure, grid = pyplot.subplots(1, len(axes), figsize=(4.2 * len(axes), 4.8), squeeze=False,
+                                   sharey=True, layout='constrained')
+    scheme = diagnosis.settings.validation
+    test = diagnosis.comparison.get('test')
+    for k, (plot, axis) in enumerate(zip(grid[0], axes)):
         values = [axis.steps[0].before.rms_rad_s] + [s.after.rms_rad_s for s in axis.steps]
-        labels = ['none'] + [s.effect for s in axis.steps]
-        plot.semilogy(range(len(values)), values, marker='o', label=f'axis {axis.axis}')
-        for index, label in enumerate(labels):
-            plot.annotate(label, (index, values[index]), fontsize=7, rotation=20,
-                          textcoords='offset points', xytext=(3, 3))
-    plot.set_xlabel('step')
-    plot.xaxis.set_major_locator(MaxNLocator(integer=True))
-    plot.set_ylabel('held-out RMS (rad/s)')
-    plot.set_title('Held-out error per step')
-    plot.grid(True, which='both', alpha=0.3)
-    plot.legend()
+        # One word a line: the names stand level, side by side, none over another.
+        labels = ['none'] + [s.effect.replace('_', '\n') for s in axis.steps]
+        last = len(values) - 1
+        plot.semilogy(range(len(values)), values, marker='o', color='C0',
+                      label=f'held-out ({scheme.replace("_", "-")})')
+        cubic = diagnosis.comparison[scheme]['px4_cubic'][k].rms_rad_s
+        plot.axhline(cubic, color='0.4', ls='--', label=f'{CUBIC_TEXT}, held-out')
+        if test is not None:
+            plot.semilogy([last], [test['diagnosed'][k].rms_rad_s], 'x', color='C3', ms=9,
+                          label='written model, test part')
+            plot.axhline(test['px4_cubic'][k].rms_rad_s, color='C3', ls=':',
+                         label=f'{CUBIC_TEXT}, test part')
+        plot.set_xticks(range(len(values)), labels, fontsize='small')
+        plot.set_title(f'axis {axis.axis}')
+        plot.grid(True, which='both', alpha=0.3)
+    grid[0][0].set_ylabel('RMS of the residual (rad/s)')
+    figure.suptitle('Held-out error per step')
+    _legend_below(figure, grid[0][0])
     _save(pyplot, figure, path)
 
 
 def _save(pyplot, figure, path: Path) -> None:
     try:
-        figure.tight_layout()
         figure.savefig(path, dpi=100)
     finally:
         pyplot.close(figure)

@@ -12,7 +12,9 @@ null.
 
 import math
 
-from ..uncertainty import error_by_temperature_json, outside_range_json
+import numpy as np
+
+from ..uncertainty import error_by_temperature_json, normalised_json, outside_range_json
 from ...core.effects import RECORD_EFFECTS
 from ...core.validation import FORWARD
 
@@ -56,6 +58,15 @@ def _record_effect_text(finding) -> str:
                 f'{parameters["after_start_s"]:.1f} s after the record start{record} (stamp '
                 f'{parameters["time_s"]:.1f} s)')
     return f'a drift of {3600.0 * parameters["rad_s_per_s"]:.3g} rad/s per hour'
+
+
+def _short_effect_text(finding) -> str:
+    """Name a record-only effect in a few words: a step's size and time, a drift's rate."""
+    parameters = finding.parameters
+    if finding.effect == 'bias_step':
+        return (f'a bias step of {parameters["step_rad_s"]:+.2e} rad/s '
+                f'{parameters["after_start_s"]:.0f} s after the start')
+    return f'a drift of {3600.0 * parameters["rad_s_per_s"]:+.2e} rad/s per hour'
 
 
 def _cause_text(cause) -> str:
@@ -166,8 +177,43 @@ def build_report(source: str, recordings: list, diagnosis, held_out: tuple = ())
         'outside_fitted_range': outside_range_json(diagnosis.outside_range, diagnosis.axes,
                                                    diagnosis.split(FORWARD).describe()),
         'error_by_temperature': error_by_temperature_json(diagnosis.error_by_temperature,
-                                                          diagnosis.axes, settings.average_s),
+                                                          diagnosis.axes),
+        'covariance': normalised_json(diagnosis.normalised, diagnosis.axes),
+        'headline': _headline(diagnosis),
     }
+
+
+def _headline(diagnosis) -> dict:
+    """
+    Give what the report says first: the gain over the clamped cubic, the error, what is left.
+
+    On the test part when there is one (as written), else on the deciding
+    scheme's held-out blocks; the gain is the cubic's RMS over the model's
+    (the benches' direction: above 1, better). What is left per axis: the
+    test part's mean (an offset, which a re-zero takes out) and the record-only
+    effect (`_record_effect_text`) with the largest held-out gain, if any gains.
+    """
+    settings = diagnosis.settings
+    scope = 'test' if 'test' in diagnosis.comparison else settings.validation
+    methods = diagnosis.comparison[scope]
+    gains = _gains({method: dict(zip(diagnosis.axes, errors))
+                    for method, errors in methods.items()})
+    test = diagnosis.test
+    mean = None if test is None else np.average(test.after_rad_s, axis=0, weights=test.rows)
+    left = {}
+    for k, axis in enumerate(diagnosis.per_axis):
+        found = axis.cause or max(axis.findings, key=lambda f: f.held_out_gain, default=None)
+        left[axis.axis] = {
+            'test_mean_rad_s': None if mean is None else float(mean[k]),
+            'effect': None if found is None or not found.held_out_gain > 0.0 else {
+                'effect': found.effect, 'text': _short_effect_text(found),
+                'held_out_gain': _number(found.held_out_gain), 'passes': not found.reason}}
+    return {'scope': scope, 'gain': gains,
+            'rms_rad_s': {a: _number(e.rms_rad_s) for a, e in
+                          zip(diagnosis.axes, methods['diagnosed'])},
+            'cubic_rms_rad_s': {a: _number(e.rms_rad_s) for a, e in
+                                zip(diagnosis.axes, methods['px4_cubic'])},
+            'left': left}
 
 
 def _settings(diagnosis, held_out: tuple) -> dict:

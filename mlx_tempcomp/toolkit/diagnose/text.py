@@ -5,7 +5,10 @@ Each is written from the report (`report.build_report`), so the Markdown,
 the console and the JSON say the same; values in rad/s, table cells ``.3e``.
 """
 
-from ..uncertainty import console_lines, error_lines, outside_lines
+import math
+
+from ..uncertainty import (console_lines, error_lines, gain_words, normalised_text,
+                           outside_lines)
 from ...core.diagnosis import DEFAULT_REZERO_S, METHODS
 
 
@@ -59,9 +62,9 @@ def _comparison_lines(report: dict) -> list:
                  *(_e(methods[m][a]['peak']) for a in names)) for m in METHODS]
         lines += _table(header, rows)
         cubic, diagnosed = methods['px4_cubic'], methods['diagnosed']
-        lines += ['', 'Diagnosed / PX4-style cubic, RMS: ' + ', '.join(
-            f'{a} {diagnosed[a]["rms"] / cubic[a]["rms"]:.2f}x' for a in names
-            if cubic[a]['rms'])]
+        lines += ['', "Gain over the PX4-style cubic (its RMS / the diagnosed model's, above 1: "
+                  'better): ' + ', '.join(f'{a} {cubic[a]["rms"] / diagnosed[a]["rms"]:.2f}x'
+                                          for a in names if diagnosed[a]['rms'])]
     lines += ['', 'The cubic on held-out blocks is least squares of T^0..T^3 (raw '
                   'temperature) on the same bins; on the test set it is np.polyfit(T, rate, '
                   '3) on every row of the diagnosed part, as the PX4 script does'
@@ -193,9 +196,10 @@ def written_lines(report: dict) -> list:
             lines.append(f'axis {name}: writes the PX4-style cubic, {scheme}-validated RMS '
                          f'{cubic}; {written["reason"]}')
         else:
+            gain = 1.0 / written['ratio'] if written['ratio'] else math.inf
             lines.append(f'axis {name}: writes {_model_text(written)}, {scheme}-validated RMS '
                          f'{_e(written["held_out_rms"])} rad/s; the cubic {cubic} '
-                         f'({written["ratio"]:.2f}x)')
+                         f'({gain:.2f}x better)')
     return lines
 
 
@@ -205,34 +209,35 @@ def markdown(report: dict, plots: tuple) -> str:
     settings = report['settings']
     effects = report['effects']
     bounds = report['search_bounds']
-    lines = [f'# Diagnosis of {report["source"]}', '',
-             f'- rows diagnosed: {rows["diagnosed"]} ({rows["bins"]} bins); test rows: '
-             f'{rows["test"]}; skipped while loading: '
-             + (', '.join(f'{k} {v}' for k, v in rows['skipped_while_loading'].items() if v)
-                or 'none')
-             + (f'; rows out of time order sorted into place: {rows["sorted_while_loading"]}'
-                if rows['sorted_while_loading'] else ''),
-             f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
-             f'- held-out scheme (decides): {settings["held_out_scheme"]}; reported beside: '
-             f'{settings["other_scheme"]}; stateful inputs (temperature slope over '
-             f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
-             + ('over each record from its start' if len(report['records']) > 1 else
-                'over the whole record') + ' before rows are split.',
-             f'- an effect is added when its relative held-out RMS reduction is at least '
-             f'{settings["min_gain"]:g}, its mean per-fold improvement exceeds '
-             f'{settings["significance"]:g} standard errors and no held-out block but the '
-             f'first gets worse by more than {settings["block_tolerance"]:g} x the larger of '
-             'its RMS and the axis RMS; the candidate with the largest gain wins the round; '
-             'the polynomial order is then chosen again.',
-             '- effects searched (all run causally on a live node): '
-             + ', '.join(effects['searched']) + "; record-only (tied to the record's clock): "
-             + ', '.join(effects['record_only'])
-             + (' -- searched too (--record-effects)' if settings['record_effects'] else
-                ' -- tested as findings, not added'),
-             '- search bounds: ' + '; '.join(f'{name} {low:.3g} .. {high:.3g}'
-                                             for name, (low, high) in bounds.items()),
-             '- step errors come from EffectModel.correct (the code the node runs) on fold '
-             'models; all values in rad/s.', '']
+    lines = [f'# Diagnosis of {report["source"]}', '']
+    lines += [f'- {line}' for line in headline_lines(report)] + ['']
+    lines += [f'- rows diagnosed: {rows["diagnosed"]} ({rows["bins"]} bins); test rows: '
+              f'{rows["test"]}; skipped while loading: '
+              + (', '.join(f'{k} {v}' for k, v in rows['skipped_while_loading'].items() if v)
+                 or 'none')
+              + (f'; rows out of time order sorted into place: {rows["sorted_while_loading"]}'
+                 if rows['sorted_while_loading'] else ''),
+              f'- truth: {report["truth"]}; error figure: {report["metric"]}.',
+              f'- held-out scheme (decides): {settings["held_out_scheme"]}; reported beside: '
+              f'{settings["other_scheme"]}; stateful inputs (temperature slope over '
+              f'{settings["temperature_rate_window_s"]:g} s, lags, play state) are computed '
+              + ('over each record from its start' if len(report['records']) > 1 else
+                 'over the whole record') + ' before rows are split.',
+              f'- an effect is added when its relative held-out RMS reduction is at least '
+              f'{settings["min_gain"]:g}, its mean per-fold improvement exceeds '
+              f'{settings["significance"]:g} standard errors and no held-out block but the '
+              f'first gets worse by more than {settings["block_tolerance"]:g} x the larger of '
+              'its RMS and the axis RMS; the candidate with the largest gain wins the round; '
+              'the polynomial order is then chosen again.',
+              '- effects searched (all run causally on a live node): '
+              + ', '.join(effects['searched']) + "; record-only (tied to the record's clock): "
+              + ', '.join(effects['record_only'])
+              + (' -- searched too (--record-effects)' if settings['record_effects'] else
+                 ' -- tested as findings, not added'),
+              '- search bounds: ' + '; '.join(f'{name} {low:.3g} .. {high:.3g}'
+                                              for name, (low, high) in bounds.items()),
+              '- step errors come from EffectModel.correct (the code the node runs) on fold '
+              'models; all values in rad/s.', '']
     lines += ['## Model written (params.yaml)', '',
               f'Each axis writes the model the loop found when its held-out RMS '
               f'({settings["validation"].replace("_", "-")}) is at least '
@@ -250,7 +255,8 @@ def markdown(report: dict, plots: tuple) -> str:
     for name, axis in report['axes'].items():
         lines += _axis_lines(name, axis)
     lines += outside_lines(report['outside_fitted_range'])
-    lines += error_lines(report['error_by_temperature'], list(report['axes']))
+    lines += error_lines(report['error_by_temperature'], list(report['axes']),
+                         report['covariance'])
     lines += ['## Comparison']
     lines += _comparison_lines(report)
     lines += ['', '## Plots', '']
@@ -258,12 +264,69 @@ def markdown(report: dict, plots: tuple) -> str:
     return '\n'.join(lines) + '\n'
 
 
+# An axis's test part is said to hold an offset when its mean is at least this share of
+# its RMS.
+OFFSET_SHARE = 0.5
+
+
+def _degrees(value_rad_s: float) -> str:
+    return (f'{value_rad_s:.3e} rad/s = {math.degrees(value_rad_s):.3g} deg/s = '
+            f'{3600.0 * math.degrees(value_rad_s):.4g} deg/h')
+
+
+def _scope_text(report: dict, scope: str) -> str:
+    """Name the rows the headline is measured on."""
+    settings = report['settings']
+    if scope != 'test':
+        return (f'held-out blocks ({settings["held_out_scheme"]}; no test part: give --test '
+                'to judge on rows no fit saw)')
+    if report['held_out_records']:
+        return f'test record {report["held_out_records"][-1]["record"]}, never seen by the fit'
+    test = settings['test']
+    return ('test part (' + ('the last full heating/cooling cycle' if test == 'cycle' else
+                             f'the last {test:.0%} of the record') + ', never seen by the fit)')
+
+
+def _left_text(axis: str, left: dict, rms: float) -> str:
+    """Say what is left on an axis: the test part's offset, the record-only effect."""
+    parts = []
+    mean = left['test_mean_rad_s']
+    if mean is not None and rms and abs(mean) >= OFFSET_SHARE * rms:
+        parts.append(f'an offset of {mean:+.2e} rad/s over the test part ({abs(mean) / rms:.0%} '
+                     'of its RMS): drift over time or a shift after the temperature turned, '
+                     'which a re-zero at rest takes out')
+    elif mean is not None:
+        parts.append(f'no offset over the test part (mean {mean:+.2e} rad/s)')
+    effect = left['effect']
+    if effect is not None:
+        parts.append(f'the record-only effect that explains most: {effect["text"]} (held-out '
+                     f'gain {effect["held_out_gain"]:.2f}'
+                     + ('' if effect['passes'] else ', not significant') + ')')
+    return f'left on {axis}: ' + ('; '.join(parts) if parts else 'nothing the diagnosis names')
+
+
+def headline_lines(report: dict) -> list:
+    """Give the first lines: the gain over the clamped cubic, the error, what is left."""
+    head = report['headline']
+    lines = [f"{_scope_text(report, head['scope'])}: the written model against PX4's cubic "
+             "clamped at its range (the cubic's RMS / the model's): "
+             + gain_words(head['gain']),
+             'error left (RMS of the residual averaged over '
+             f'{report["settings"]["average_s"]:g} s): '
+             + '; '.join(f'{a} {_degrees(v)}' for a, v in head['rms_rad_s'].items())]
+    lines += [_left_text(a, left, head['rms_rad_s'][a]) for a, left in head['left'].items()]
+    if report['covariance'] is not None:
+        lines.append('covariance on the test part: ' + normalised_text(report['covariance']))
+    return lines
+
+
 def summary(report: dict) -> str:
-    """Give what diagnose prints first: per axis the held-out RMS step by step, the comparison."""
+    """Give what diagnose prints: the headline, the held-out RMS step by step, the comparison."""
     rows = report['rows']
-    lines = [f'{report["source"]}: {rows["diagnosed"]} rows diagnosed in {rows["bins"]} bins'
-             + (f', last {rows["test"]} rows kept as the test set' if rows['test'] else '')
-             + f'; truth {report["truth"]}; errors in rad/s']
+    lines = headline_lines(report)
+    lines += [f'{report["source"]}: {rows["diagnosed"]} rows diagnosed in {rows["bins"]} bins'
+              + (f', last {rows["test"]} rows kept as the test set' if rows['test'] else '')
+              + f'; truth {report["truth"]}; errors in rad/s']
     if len(report['records']) > 1:
         lines.append(f'{len(report["records"])} records, each with its own history and bias '
                      f'offset; params.yaml carries the offset of '
