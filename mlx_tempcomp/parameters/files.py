@@ -3,7 +3,8 @@ ROS 2 parameter files: reading a node's values from one, and writing a fitted mo
 
 Reading: `node_values` gives every compensation-node parameter with a node's
 sections of a file (``/**`` first, then the node's), type and range checked as
-rcl checks them (`flat_parameters` gives a file's keys as rcl names them).
+rcl checks them (`flat_parameters` gives a file's keys as rcl names them);
+`node_overrides` every key the sections hold, as written.
 
 Writing: one function per model the toolkit fits builds its
 ``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
@@ -76,6 +77,16 @@ def _read_overrides(path: str, node_name: str) -> dict:
             raise ParameterError(msg)
         overrides.update(flat_parameters(parameters))
     return overrides
+
+
+def node_overrides(path: str, node_name: str) -> dict:
+    """
+    Give the flat parameters of ``node_name`` in the file ``path`` as written (``/**`` first).
+
+    Every key, the node's or not (``learning.*``, read by ``evaluate --learn``);
+    `ParameterError` where the file cannot be read as a parameter file.
+    """
+    return _read_overrides(path, node_name)
 
 
 def node_values(path: str, node_name: str) -> dict:

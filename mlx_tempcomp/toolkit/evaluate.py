@@ -13,7 +13,10 @@ rest). Statistics per axis cover every sample and averages over bins of
 ``--average-s`` (weighted by their sample counts), optionally only the last
 ``--test-fraction`` of the rows: the test part and bins `diagnose` reports.
 ``--track-bias`` then runs the node's bias tracking over the model's output
-(`toolkit.tracking.offline_twin`) and reports the error with and without it.
+(`toolkit.tracking.offline_twin`) and reports the error with and without it;
+``--learn`` runs the field learner with it (`core.learning`, the file's
+``learning.*``) and ``--learned-params`` writes the model in use at the end
+(`toolkit.learning`).
 """
 
 import argparse
@@ -26,6 +29,7 @@ import numpy as np
 
 from .common import (add_recording_options, check_output_file, float_type, load,
                      positive_float, read_options, UserError)
+from .learning import learning_lines, learning_of, write_learned
 from .tracking import offline_twin, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
@@ -155,7 +159,8 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 
     With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
     ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
-    learnt from) follow.
+    learnt from) follow; with field learning, ``correction_*`` (rad/s, the learnt
+    correction taken off before the offset).
     """
     header = ['time', 'temperature'] + [f'gyro_{a}' for a in axes]
     columns = [corrected]
@@ -164,6 +169,9 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
                                for a in axes]
         columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
                    twin.offset_std_rad_s, twin.learnt.astype(int)]
+        if twin.correction_rad_s is not None:
+            header += [f'correction_{a}' for a in axes]
+            columns.append(twin.correction_rad_s)
     try:
         with open(staged, 'w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
@@ -178,10 +186,16 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
-    if args.out_csv is not None:
-        check_output_file(args.out_csv, '--out-csv')
+    if args.learn and not args.track_bias:
+        raise UserError('--learn runs with the bias tracking: give --track-bias too')
+    if args.learned_params is not None and not args.learn:
+        raise UserError('--learned-params writes what --learn learnt: give --learn too')
+    for path, option in ((args.out_csv, '--out-csv'), (args.learned_params, '--learned-params')):
+        if path is not None:
+            check_output_file(path, option)
     values, axes = _node_values(args.params, args.node_name)
     model = _build(values, args.params, args.eeprom, args.input, args.imu_topic)
+    learning = learning_of(args.params, args.node_name, values, model) if args.learn else None
     recording = load(args.input, read_options(args), to_stderr=args.json)
     columns = _columns(recording, axes, model, args.params, args.input)
     inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
@@ -222,18 +236,23 @@ def evaluate_command(args: argparse.Namespace) -> int:
         'averaged': {a: _statistics(averaged[:, i], counts) for i, a in enumerate(axes)},
     }
     twin = offline_twin(values, axes, recording, corrected, part, args.params,
-                        args.average_s) if args.track_bias else None
+                        args.average_s, learning) if args.track_bias else None
     if twin:
         report['bias_tracking'] = twin.report
     if args.out_csv is not None:
         _write_corrected(args.out_csv, args.outputs.file(args.out_csv), recording.time_s,
                          recording.temperature_c, axes, corrected, twin)
+    written = None
+    if args.learned_params is not None:
+        written = write_learned(args.learned_params, args.outputs, args.params, args.node_name,
+                                args.input, model, twin.learner, axes)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     print('\n'.join(_text_lines(report, part.start, twin)))
-    if args.out_csv is not None:
-        print(f'wrote {args.out_csv}')
+    for path, line in ((args.out_csv, f'wrote {args.out_csv}'), (written, written)):
+        if path is not None:
+            print(line)
     return 0
 
 
@@ -271,6 +290,8 @@ def _text_lines(report: dict, start: int, twin) -> list:
                          f'{s["rms"]:>12.3e}{s["peak"]:>12.3e}')
     if twin:
         lines += twin_lines(twin.report, tuple(report['axes']))
+        if 'learning' in twin.report:
+            lines += learning_lines(twin.report['learning'], tuple(report['axes']))
     return lines
 
 
@@ -302,4 +323,11 @@ def add_parser(commands) -> None:
                           help="then run the node's bias tracking (bias_tracking.* of the "
                                "file) over the model's output, as the node does, and report "
                                'the error with and without it')
+    evaluate.add_argument('--learn', action='store_true',
+                          help="with --track-bias: run the node's field learner too (learning.* "
+                               'of the file, whatever learning.enabled says): it renews the model '
+                               'from the still windows the tracker learns from')
+    evaluate.add_argument('--learned-params', metavar='FILE',
+                          help='with --learn: write the model in use at the end as a parameter '
+                               'file (the given one with the learnt correction table)')
     evaluate.set_defaults(handler=evaluate_command)

@@ -11,11 +11,13 @@ built from the parameter file's ``bias_tracking.*`` by the same `tracking_settin
 the model's output of the whole record in one block (the node gets blocks of 1 to
 ``max_block`` samples: the same bits, ``test/test_fuzz_bias_tracking.py``). Its report
 compares the error with and without tracking, at rest and in motion when the record has
-a reference (moving: any reference rate not zero).
+a reference (moving: any reference rate not zero). With ``--learn`` the field learner
+rides on the tracker (`core.learning.LearningTracking`, the same bits for any split too).
 """
 
 from dataclasses import dataclass
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -23,6 +25,7 @@ from .common import UserError
 from .exports import node_model
 from ..core.bias_tracker import BiasTracking
 from ..core.errors import TempCompError
+from ..core.learning import FieldLearner, LearningTracking
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics
 from ..core.model_interface import ModelInputs
 from ..core.tracking_bounds import bounds_lines, derive_bounds, RestRecord
@@ -72,7 +75,12 @@ def tracking_section(recordings: list, parameters: dict) -> tuple:
 
 @dataclass(frozen=True)
 class TwinResult:
-    """What the offline twin gives: the tracked rate, per sample, and its report."""
+    """
+    What the offline twin gives: the tracked rate, per sample, and its report.
+
+    With field learning, ``correction_rad_s`` is the learnt correction taken off each
+    sample (before the tracker's offset) and ``learner`` the `FieldLearner` at the end.
+    """
 
     rate_rad_s: np.ndarray
     offset_rad_s: np.ndarray
@@ -80,6 +88,8 @@ class TwinResult:
     still: np.ndarray
     learnt: np.ndarray
     report: dict
+    correction_rad_s: Optional[np.ndarray] = None
+    learner: Optional[FieldLearner] = None
 
 
 def _rms(values: np.ndarray) -> float:
@@ -156,22 +166,27 @@ def _learnt_in_motion(tracker: BiasTracking, learnt: np.ndarray, time_s: np.ndar
 
 
 def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, part: slice,
-                 source: str, average_s: float) -> TwinResult:
+                 source: str, average_s: float, learning=None) -> TwinResult:
     """
     Track ``corrected`` (the model's output of every row) as the node would; see above.
 
     Figures over the rows of ``part``, per sample and of means over ``average_s`` bins.
+    ``learning(tracking settings)`` gives the `LearningSettings` of field learning, run
+    with the tracker (`core.learning.LearningTracking`); None: tracking alone.
     """
     try:
         settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
+        if settings is None:
+            msg = f'{source} turns bias tracking off (bias_tracking.enabled: false)'
+            raise UserError(msg)
+        tracker = BiasTracking(settings, axes, keep_windows=True)
+        stream = None if learning is None else \
+            LearningTracking(tracker, FieldLearner(learning(settings), axes))
     except TempCompError as err:
         raise UserError(f'{source}: {err}') from None
-    if settings is None:
-        msg = f'{source} turns bias tracking off (bias_tracking.enabled: false)'
-        raise UserError(msg)
-    tracker = BiasTracking(settings, axes, keep_windows=True)
-    out = tracker.process(recording.time_s, corrected, recording.temperature_c,
-                          recording.acceleration_m_s2)
+    out = (tracker if stream is None else stream).process(
+        recording.time_s, corrected, recording.temperature_c, recording.acceleration_m_s2)
+    correction = None if stream is None else out.correction_rad_s
     columns = [recording.axes.index(a) for a in axes]
     truth = 0.0 if recording.reference_rad_s is None else \
         recording.reference_rad_s[:, columns]
@@ -199,9 +214,14 @@ def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, pa
         report['learnt_while_moving'] = _learnt_in_motion(
             tracker, learnt[part], recording.time_s[part],
             recording.reference_rad_s[part][:, columns])
-    return TwinResult(rate_rad_s=out.rate_rad_s, offset_rad_s=corrected - out.rate_rad_s,
+    offset = corrected - out.rate_rad_s
+    if stream is not None:
+        offset = offset - correction
+        report['learning'] = {**stream.learner.status(), 'swaps': stream.learner.swaps}
+    return TwinResult(rate_rad_s=out.rate_rad_s, offset_rad_s=offset,
                       offset_std_rad_s=out.std_rad_s, still=out.still, learnt=learnt,
-                      report=report)
+                      report=report, correction_rad_s=correction,
+                      learner=None if stream is None else stream.learner)
 
 
 def twin_lines(report: dict, axes: tuple) -> list:
