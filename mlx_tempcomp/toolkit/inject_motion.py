@@ -16,6 +16,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from .common import (add_recording_options, check_output_file, load, non_negative_int,
                      read_options, UserError, write_json)
 from ..core.errors import TempCompError
@@ -24,6 +26,14 @@ from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSe
 
 SCHEDULES = ('cycle', 'mixed')
 _CSV_FORMAT = '%.17g'   # round trip: the reference is exact
+
+
+def _level_axes(recording) -> tuple:
+    """Give the two sensor axes nearest the horizontal (x and y without an accelerometer)."""
+    if recording.acceleration_m_s2 is None:
+        return ('x', 'y')
+    vertical = int(np.argmax(np.abs(np.mean(recording.acceleration_m_s2, axis=0))))
+    return tuple(a for k, a in enumerate('xyz') if k != vertical)
 
 
 def inject_motion_command(args: argparse.Namespace) -> int:
@@ -36,7 +46,8 @@ def inject_motion_command(args: argparse.Namespace) -> int:
                'a record taken at rest')
         raise UserError(msg)
     try:
-        settings = getattr(ScheduleSettings, args.schedule)(level_rests=not args.free_attitude)
+        settings = getattr(ScheduleSettings, args.schedule)(
+            level_rests=not args.free_attitude, level_axes=_level_axes(recording))
         schedule = motion_schedule(recording.duration_s + 1e-9, settings, args.seed)
         injected = inject_motion(recording.time_s, recording.gyro_rad_s, recording.axes,
                                  schedule, recording.acceleration_m_s2)
@@ -92,6 +103,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--seed', type=non_negative_int, default=0, metavar='N',
                         help='seed of the schedule (default: %(default)s)')
     parser.add_argument('--free-attitude', action='store_true',
-                        help='turns about x and y do not come back: the sensor rests at '
-                             'whatever attitude they leave (default: every rest level)')
+                        help='turns about the horizontal axes (x and y of a sensor lying '
+                             'flat) do not come back: the sensor rests at whatever attitude '
+                             'they leave (default: every rest level)')
     parser.set_defaults(handler=inject_motion_command, per_instance=True)
