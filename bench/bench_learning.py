@@ -12,8 +12,10 @@ matters for heading drift), each beside its baselines from the same run.
   below 0.95x of tracking alone on any axis); and starting from nothing: a zero-order
   polynomial fitted on the record's first rest alone (the ZRO a ``imu/recalibrate_zro``
   at power-up gives, and the noise figures of that rest), the prior's error and the
-  tracker's initial offset set to 1 deg/s (a datasheet's bias over temperature), learning
-  from there (target: within 1.1x of ``fit`` on the whole record, per axis).
+  tracker's initial offset and mean-rate bound set to 1 deg/s (a datasheet's bias over
+  temperature: with no model, a slower mean about gravity cannot be told from the bias),
+  learning from there (target: within 1.1x of ``fit`` on the whole record, per axis), and
+  beside it the same with the bound ``fit`` derived (0.1 deg/s).
 - **Simulated days**: units of the simulated sensor (``mlx-tempcomp simulate``, three
   MLX90609 chips, 25 Hz, a 0-50 C cycle at 3 C/min, g-sensitivity 0.005 deg/s per m/s^2)
   on day 1 (``fit`` at rest, as a calibration) and day 2 (``--day 2``: repeatability,
@@ -125,16 +127,41 @@ def first_rest(moving: Path, folder: Path) -> Path:
     return out
 
 
-def nothing_params(folder: Path, moving: Path) -> Path:
-    """Give 'from nothing': a zero-order polynomial on the first rest, 1 deg/s of error."""
-    params = folder / 'nothing.yaml'
+def nothing_params(folder: Path, moving: Path, bound_rad_s=None) -> Path:
+    """
+    Give 'from nothing': a zero-order polynomial on the first rest, 1 deg/s of error.
+
+    ``bound_rad_s``: the tracker's mean-rate bound raised to it (None: as fit derived it).
+    """
+    params = folder / f'nothing{"" if bound_rad_s is None else "_bound"}.yaml'
     cli('fit', first_rest(moving, folder), '--order', 0, '--out', params)
     document = yaml.safe_load(params.read_text())
     values = document['compensation_node']['ros__parameters']
     values['bias_tracking']['initial_std_rad_s'] = [NOTHING_STD_RAD_S]
+    if bound_rad_s is not None:
+        values['bias_tracking']['max_mean_rate_rad_s'] = bound_rad_s
     values['learning'] = {'prior_std_rad_s': [NOTHING_STD_RAD_S]}
     params.write_text(yaml.safe_dump(document, sort_keys=False))
     return params
+
+
+def turns_taken(moving: Path, learnt_csv: Path, params: Path) -> tuple:
+    """Give the windows learnt while the reference turned, and the largest mean turn there."""
+    truth, out = read(moving), read(learnt_csv)
+    axes = axes_of(params)
+    window_s = yaml.safe_load(params.read_text())['compensation_node']['ros__parameters'][
+        'bias_tracking']['window_s']
+    reference = np.column_stack([truth[f'ref_{a}'] for a in axes])
+    learnt = np.column_stack([out[f'learnt_{a}'] for a in axes]) > 0.5
+    window = np.floor((truth['time'] - truth['time'][0]) / window_s).astype(int)
+    count, largest = 0, 0.0
+    for index in np.unique(window[learnt.any(axis=1)]):
+        rows = window == index
+        means = np.where(learnt[rows].any(axis=0), np.abs(reference[rows].mean(axis=0)), 0.0)
+        means[means < 1e-9] = 0.0       # a tilt turned back leaves float dust
+        count += bool(np.any(means > 0.0))
+        largest = max(largest, float(np.max(means)))
+    return count, largest
 
 
 def measured(folder: Path, shared: Path) -> None:
@@ -145,8 +172,9 @@ def measured(folder: Path, shared: Path) -> None:
     cli('fit', moving, '--out', params)
     axes = axes_of(params)
     fitted = three(folder, 'cycle_fit', moving, params)
-    nothing = nothing_params(folder, moving)
+    nothing = nothing_params(folder, moving, NOTHING_STD_RAD_S)
     start = three(folder, 'cycle_nothing', moving, nothing)
+    held = three(folder, 'cycle_held', moving, nothing_params(folder, moving))
     print(f'measured cycle, cycle schedule (seed 1): RMS of {AVERAGE_S:g} s means over the last '
           'quarter, rad/s')
     print(f'    {"":<28}' + ''.join(f'{a:>11}' for a in axes))
@@ -156,6 +184,8 @@ def measured(folder: Path, shared: Path) -> None:
     print(line('from nothing: the first rest', start['model']))
     print(line('  + tracking alone', start['tracking']))
     print(line('  + learning', start['learning']))
+    print(line('  at 0.1 deg/s: tracking', held['tracking']))
+    print(line('  at 0.1 deg/s: learning', held['learning']))
     ratio = start['learning'] / fitted['model']
     print(f'  target from nothing within {FIT_TARGET}x of fit on the whole record, every axis: '
           f'{verdict(bool(np.all(ratio <= FIT_TARGET)))} ('
@@ -163,6 +193,13 @@ def measured(folder: Path, shared: Path) -> None:
           + '; against fit + tracking: '
           + ', '.join(f'{a} {r:.2f}x' for a, r in
                       zip(axes, start['learning'] / fitted['tracking'])) + ')')
+    count, largest = turns_taken(moving, folder / 'cycle_nothing_learning.csv', nothing)
+    ratio = held['learning'] / fitted['model']
+    print(f'  from nothing the mean-rate bound is the prior\'s 1 deg/s: the tracker learnt from '
+          f'{count} windows while the reference turned, the largest mean turn there '
+          f'{largest:.2e} rad/s; with the bound fit derives on the first rest (0.1 deg/s) it '
+          'holds every axis from the second rest on: '
+          + ', '.join(f'{a} {r:.2f}x' for a, r in zip(axes, ratio)) + ' of fit')
     gain = fitted['tracking'] / fitted['learning']
     print(f'  target from its fit never below {TRACKING_TARGET}x of tracking alone: '
           f'{verdict(bool(np.all(gain >= TRACKING_TARGET)))} ('

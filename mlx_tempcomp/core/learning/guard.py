@@ -173,6 +173,6 @@ def _why_not(paired: Paired, significance: float, what: str) -> str:
     if not (paired.mean_rad_s > 0.0
             and paired.mean_rad_s >= significance * paired.standard_error_rad_s):
         return (f'{what} kept out: mean gain {paired.mean_rad_s:.3g} rad/s over '
-                f'{paired.folds} later still windows, not {significance:g} standard errors '
+                f'{paired.folds} later still windows, not {significance:.3g} standard errors '
                 f'({paired.standard_error_rad_s:.3g} rad/s)')
     return f'{what} kept out: better on {paired.wins} of {paired.folds} windows, not most'

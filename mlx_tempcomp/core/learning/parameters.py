@@ -43,7 +43,7 @@ class Parameter:
 
 
 PARAMETERS = (
-    Parameter('enabled', False,
+    Parameter('enabled', True,
               'renew the temperature model from the still windows the bias tracking learns '
               'from (false: tracking alone)'),
     Parameter('temperature_min_c', -40.0, 'first knot of the learnt correction table, degC',
