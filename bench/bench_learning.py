@@ -195,8 +195,8 @@ def measured(folder: Path, shared: Path) -> None:
                       zip(axes, start['learning'] / fitted['tracking'])) + ')')
     count, largest = turns_taken(moving, folder / 'cycle_nothing_learning.csv', nothing)
     ratio = held['learning'] / fitted['model']
-    print(f'  from nothing the mean-rate bound is the prior\'s 1 deg/s: the tracker learnt from '
-          f'{count} windows while the reference turned, the largest mean turn there '
+    print(f'  from nothing the mean-rate bound is the prior error, 1 deg/s: the tracker '
+          f'learnt from {count} windows while the reference turned, the largest mean turn there '
           f'{largest:.2e} rad/s; with the bound fit derives on the first rest (0.1 deg/s) it '
           'holds every axis from the second rest on: '
           + ', '.join(f'{a} {r:.2f}x' for a, r in zip(axes, ratio)) + ' of fit')
