@@ -11,7 +11,8 @@ Writing: one function per model the toolkit fits builds its
 the relative correction), `linear_btc_parameters`, `effect_parameters` (the
 effect model of ``diagnose``) and `chain_parameters`;
 `model_error_parameters` adds the model's error by temperature to any of
-them. `parameter_file` wraps the mapping in the section of a node and
+them; `learned_parameters` gives a file's section renewed by field learning.
+`parameter_file` wraps the mapping in the section of a node and
 `write_parameter_file` writes it atomically so that ``compensation_node
 --ros-args --params-file FILE`` loads it as is. Every number is a Python
 float (rcl refuses an int for a double parameter) and axis names are quoted
@@ -188,6 +189,24 @@ def effect_parameters(model: EffectModel, axes) -> dict:
     axes = _check_axes(axes, model.axes)
     return {'model': 'effects', 'axes': list(axes),
             'effects': nest_parameters(model.to_parameters(axes))}
+
+
+def learned_parameters(overrides: dict, prior_table, learnt, axes) -> dict:
+    """
+    Give a node section renewed by field learning: ``overrides`` with the correction table.
+
+    ``overrides`` are the flat parameters of the file the model came from
+    (`node_overrides`), kept as they were but their ``correction.*``; ``prior_table``
+    the `CorrectionTable` the model carried already (None: none) and ``learnt`` the
+    one the learner renewed it with, relative to it; the sum is written (none when zero).
+    ``compensation_node`` and ``evaluate --learned-params`` write the same.
+    """
+    table = learnt if prior_table is None else prior_table.added(learnt)
+    parameters = nest_parameters({key: value for key, value in overrides.items()
+                                  if not key.startswith('correction.')})
+    if not table.is_zero:
+        parameters.update(table.to_parameters(_check_axes(axes, table.axes)))
+    return parameters
 
 
 def model_error_parameters(table: ModelErrorTable, axes) -> dict:

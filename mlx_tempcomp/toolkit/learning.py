@@ -17,7 +17,7 @@ from .common import UserError, write_node_parameters
 from ..core.errors import TempCompError
 from ..core.learning import learning_settings, PREFIX
 from ..parameters.compensation import model_error_of
-from ..parameters.files import nest_parameters, node_overrides
+from ..parameters.files import learned_parameters, node_overrides
 from ..parameters.specs import ParameterError
 
 
@@ -49,16 +49,9 @@ def learning_of(params: str, node_name: str, values: dict, model):
 def write_learned(path: str, outputs, params: str, node_name: str, source: str, model,
                   learner, axes: tuple) -> str:
     """Write the model in use as a parameter file (see the module notes); give a line to print."""
-    overrides = node_overrides(params, node_name)
-    table = learner.accepted
-    prior = getattr(model, 'table', None)
-    if prior is not None:
-        table = prior.added(table)
-    flat = {key: value for key, value in overrides.items() if not key.startswith('correction.')}
-    parameters = nest_parameters(flat)
+    parameters = learned_parameters(node_overrides(params, node_name),
+                                    getattr(model, 'table', None), learner.accepted, axes)
     renewed = [a for a, count in zip(axes, learner.renewals) if count]
-    if not table.is_zero:
-        parameters.update(table.to_parameters(axes))
     lines = [f'Model renewed by mlx-tempcomp evaluate --learn from {source}:',
              f'the model of {params} less the learnt correction table (correction.*, rad/s, '
              'relative to it; cubic between the temperatures, held beyond)']
