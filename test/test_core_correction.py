@@ -55,6 +55,8 @@ def test_a_row_gives_the_bits_of_a_block():
         block = table.at(axis, temperature)
         rows = np.array([table.at(axis, float(t)) for t in temperature])
         assert np.array_equal(block, rows, equal_nan=True)
+        assert np.array_equal(block, [table.row(float(t))[axis] for t in temperature],
+                              equal_nan=True)
 
 
 def test_a_table_is_checked_and_adds_on_its_knots():

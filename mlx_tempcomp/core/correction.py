@@ -93,6 +93,12 @@ class CorrectionTable:
             return w0 * column[i0] + w1 * column[i1] + w2 * column[i2] + w3 * column[i3]
         return w0 * values[i0] + w1 * values[i1] + w2 * values[i2] + w3 * values[i3]
 
+    def row(self, temperature_c: float) -> list:
+        """Give every axis's bias at one temperature: the bits of `at`, the weights once."""
+        (i0, w0), (i1, w1), (i2, w2), (i3, w3) = knot_weights(self.temperature_c,
+                                                              temperature_c)
+        return [w0 * v[i0] + w1 * v[i1] + w2 * v[i2] + w3 * v[i3] for v in self.values_rad_s]
+
     def columns(self, temperature_c: np.ndarray) -> np.ndarray:
         """Give the bias (samples, axes) at temperatures (samples, axes)."""
         return np.column_stack([self.at(axis, np.ascontiguousarray(temperature_c[:, axis]))
@@ -257,6 +263,7 @@ class CorrectedStream:
         rates, clamped = self.base_stream.correct_one(rates_rad_s, temperatures_c, inputs)
         table = self.model.table
         if len(temperatures_c) == 1:
-            temperatures_c = list(temperatures_c) * len(rates)
-        return [r - table.at(axis, float(t)) for axis, (r, t) in
-                enumerate(zip(rates, temperatures_c))], clamped
+            values = table.row(float(temperatures_c[0]))
+        else:
+            values = [table.at(axis, float(t)) for axis, t in enumerate(temperatures_c)]
+        return [r - v for r, v in zip(rates, values)], clamped

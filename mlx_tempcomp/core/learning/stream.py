@@ -110,8 +110,7 @@ class LearningTracking:
                     acceleration_m_s2=None) -> tuple:
         """Correct, track and learn one sample: (rates, stds, still, corrections), lists."""
         self._closing(time_s)
-        table = self.learner.applied
-        correction = [table.at(axis, temperature_c) for axis in range(len(rate_rad_s))]
+        correction = self.learner.applied.row(temperature_c)
         out = [r - c for r, c in zip(rate_rad_s, correction)]
         rate, std, still = self.tracker.process_one(time_s, out, temperature_c,
                                                     acceleration_m_s2)
