@@ -43,6 +43,11 @@ into blocks gives the same bits (``test/test_fuzz_bias_tracking.py``).
 
 `seed` sets the offset and its variance (the ZRO recalibration's window); `state` gives
 a plain dict for a state file and `tracking_state` checks one read back.
+
+What a learner beside it reads (`core.learning`): ``learnt``, the windows the last closed
+window made it learn from; ``runs``, the still runs begun, and `in_run`; `open_window` and
+`advance`, which closes the open window before a sample that lies outside it, so a
+correction taken off before the tracker can change exactly where a window starts.
 """
 
 from dataclasses import dataclass, replace
@@ -257,6 +262,9 @@ class BiasTracking:
         self._drifted_windows = 0
         self.reason = 'no window yet'
         self.windows = [] if keep_windows else None
+        # (WindowStatistics, axes) learnt when the last window closed; still runs begun.
+        self.learnt = ()
+        self.runs = 0
 
     def _restore(self, state: TrackingState) -> None:
         if len(state.offset_rad_s) != len(self.axes):
@@ -273,6 +281,30 @@ class BiasTracking:
     def still(self) -> bool:
         """Tell whether the gyro is still now: in a still run, no axis held."""
         return self._still
+
+    @property
+    def in_run(self) -> bool:
+        """Tell whether a still run is going on (its windows learnt, not yet ended)."""
+        return self._run is not None
+
+    @property
+    def open_window(self) -> Optional[tuple]:
+        """Give the (start_s, end_s) of the open window; None before the first sample."""
+        return None if self._window is None else (self._window.start_s, self._window.end_s)
+
+    def advance(self, time_s: float) -> bool:
+        """
+        Close the open window if a sample at ``time_s`` lies outside it, as that sample would.
+
+        Tell whether it closed. The sample itself is then given to `process` or
+        `process_one` as usual (its window is open).
+        """
+        window = self._window
+        if window is None or not math.isfinite(time_s) or \
+                window.start_s <= time_s < window.end_s:
+            return False
+        self._roll(time_s)
+        return True
 
     def seed(self, offset_rad_s, variance_rad2_s2, time_s: Optional[float] = None) -> None:
         """Set the offset and its variance (a ZRO recalibration's mean and noise^2 / n)."""
@@ -457,6 +489,7 @@ class BiasTracking:
         self._still = self._detector.still and not verdict.held
         self.reason = reason or ('still' if self._still else 'moving')
         self._std = [math.sqrt(v) for v in self._variance]
+        self.learnt = learnt
         if self.windows is not None:
             self.windows.append(WindowRecord(
                 start_s=w.start_s, end_s=w.end_s, samples=w.samples, quiet=verdict.quiet,
@@ -475,6 +508,7 @@ class BiasTracking:
         self.zeroing = False
         if self._run is not None:
             self._end_run()
+        self.runs += 1
         before = (list(self._offset), list(self._variance))
         shifted = False
         for order, (window, axes) in enumerate(learn):

@@ -131,8 +131,9 @@ class WindowStatistics:
 
     ``offset_rad_s`` is the tracker's offset in effect during the window and
     ``mean_rad_s`` the mean of the rate less that offset, so ``measured_rad_s``
-    (their sum) is the offset the window measures. ``acceleration_m_s2`` is None
-    without an accelerometer; ``acceleration_partial`` when only some samples had one.
+    (their sum) is the offset the window measures. ``temperature_c`` is the mean
+    temperature. ``acceleration_m_s2`` is None without an accelerometer;
+    ``acceleration_partial`` when only some samples had one.
     """
 
     index: int
@@ -150,6 +151,7 @@ class WindowStatistics:
     acceleration_partial: bool = False
     # The robot said it was at rest over the whole window (set by the tracker at its close).
     hinted: bool = False
+    temperature_c: float = math.nan
 
     @property
     def measured_rad_s(self) -> tuple:
@@ -259,7 +261,8 @@ class WindowSums:
             first_s=self.first_s, last_s=self.last_s, offset_rad_s=self.offset_rad_s,
             mean_rad_s=tuple(mean), spread_rad_s=tuple(spread), temperature_rate_c_s=slope,
             acceleration_m_s2=acceleration, acceleration_spread_m_s2=spread_a,
-            acceleration_partial=0 < self.acceleration_samples < n)
+            acceleration_partial=0 < self.acceleration_samples < n,
+            temperature_c=self.temperature_ref_c + s_temp / n)
 
 
 def _carried_sum(carried: list, columns: np.ndarray) -> list:

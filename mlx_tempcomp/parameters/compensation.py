@@ -2,8 +2,9 @@
 The compensation node's parameters: its specs, and the settings read from their values.
 
 `COMPENSATION_SPECS` are the parameters both nodes share (`specs.COMMON_SPECS`),
-``model`` and each model's own (`models.MODELS`, in that order), the model
-error table, the ZRO recalibration, the inputs, and the bias tracking
+``model`` and each model's own (`models.MODELS`, in that order), the correction
+table any model may carry (`models.CORRECTION_SPECS`), the model error table,
+the ZRO recalibration, the inputs, and the bias tracking
 (``bias_tracking.*``, from `core.tracking_parameters`). `model_error_of`,
 `covariance_noise_of`, `limits_of` and `state_file_of` read the settings the node and the toolkit
 build from the values, raising `ParameterError` naming the parameter.
@@ -13,7 +14,7 @@ import math
 import os
 from typing import Optional
 
-from .models import MODELS
+from .models import CORRECTION_SPECS, MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from ..core.errors import ConfigError
 from ..core.model_error import ModelErrorTable, table_temperatures
@@ -27,7 +28,8 @@ REST_HINT_TYPES = ('nav_msgs/Odometry', 'geometry_msgs/Twist', 'geometry_msgs/Tw
 
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model', choices=tuple(MODELS)),
-) + tuple(spec for kind in MODELS.values() for spec in kind.specs) + (
+) + tuple(spec for kind in MODELS.values() for spec in kind.specs) \
+    + CORRECTION_SPECS + (
     Spec('model_error.temperature_c', NoDefault('double_array'),
          'temperatures of the model error table, strictly increasing, degC (empty: no model '
          'error; mlx-tempcomp diagnose and fit write it)'),

@@ -5,14 +5,16 @@ Reading: `node_values` gives every compensation-node parameter with a node's
 sections of a file (``/**`` first, then the node's), type and range checked as
 rcl checks them, unknown names warned of as the node does (a misspelled name
 of the model refused: `command_line.file_names_check`); `flat_parameters` gives
-a file's keys as rcl names them.
+a file's keys as rcl names them; `node_overrides` every key the sections hold,
+as written.
 
 Writing: one function per model the toolkit fits builds its
 ``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
 the relative correction), `linear_btc_parameters`, `effect_parameters` (the
 effect model of ``diagnose``) and `chain_parameters`;
 `model_error_parameters` adds the model's error by temperature to any of
-them. `parameter_file` wraps the mapping in the section of a node and
+them; `learned_parameters` gives a file's section renewed by field learning.
+`parameter_file` wraps the mapping in the section of a node and
 `write_parameter_file` writes it atomically so that ``compensation_node
 --ros-args --params-file FILE`` loads it as is. Every number is a Python
 float (rcl refuses an int for a double parameter) and axis names are quoted
@@ -79,6 +81,16 @@ def _read_overrides(path: str, node_name: str) -> dict:
             raise ParameterError(msg)
         overrides.update(flat_parameters(parameters))
     return overrides
+
+
+def node_overrides(path: str, node_name: str) -> dict:
+    """
+    Give the flat parameters of ``node_name`` in the file ``path`` as written (``/**`` first).
+
+    Every key, the node's or not (``learning.*``, read by ``evaluate --learn``);
+    `ParameterError` where the file cannot be read as a parameter file.
+    """
+    return _read_overrides(path, node_name)
 
 
 def node_values(path: str, node_name: str, warn=None) -> dict:
@@ -183,6 +195,24 @@ def effect_parameters(model: EffectModel, axes) -> dict:
     axes = _check_axes(axes, model.axes)
     return {'model': 'effects', 'axes': list(axes),
             'effects': nest_parameters(model.to_parameters(axes))}
+
+
+def learned_parameters(overrides: dict, prior_table, learnt, axes) -> dict:
+    """
+    Give a node section renewed by field learning: ``overrides`` with the correction table.
+
+    ``overrides`` are the flat parameters of the file the model came from
+    (`node_overrides`), kept as they were but their ``correction.*``; ``prior_table``
+    the `CorrectionTable` the model carried already (None: none) and ``learnt`` the
+    one the learner renewed it with, relative to it; the sum is written (none when zero).
+    ``compensation_node`` and ``evaluate --learned-params`` write the same.
+    """
+    table = learnt if prior_table is None else prior_table.added(learnt)
+    parameters = nest_parameters({key: value for key, value in overrides.items()
+                                  if not key.startswith('correction.')})
+    if not table.is_zero:
+        parameters.update(table.to_parameters(_check_axes(axes, table.axes)))
+    return parameters
 
 
 def model_error_parameters(table: ModelErrorTable, axes, noise_rad_s=()) -> dict:

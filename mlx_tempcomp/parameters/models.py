@@ -7,7 +7,9 @@ builds the model from the node's parameter values. `build_model` builds the
 model named and probes it before it runs (`check_output`). A model added to
 the package is a row here: its specs join the compensation node's (in this
 order), its name the choices of ``model``, its prefix the parameters whose
-change rebuilds the model.
+change rebuilds the model. Any model may carry a learned correction table
+(``correction.*``, `CORRECTION_SPECS`, `correction_of`): `build_model` then gives
+the `CorrectedModel` of the model less the table.
 """
 
 from dataclasses import dataclass
@@ -22,6 +24,7 @@ from ..core.chain import (CalibrationChain, ChainModel,
                           PARAMETER_DESCRIPTIONS as CHAIN_DESCRIPTIONS)
 from ..core.compensation import table_compensation
 from ..core.conversion import Output
+from ..core.correction import CorrectedModel, CorrectionTable
 from ..core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
                             polynomial_model)
 from ..core.errors import ConfigError
@@ -183,8 +186,47 @@ MODELS = MappingProxyType({
     'effects': ModelKind('effects.', EFFECT_SPECS, _effect_model),
     'chain': ModelKind('chain.', CHAIN_SPECS, _chain_model),
 })
+CORRECTION_PREFIX = 'correction.'
+CORRECTION_SPECS = (
+    Spec('correction.temperature_c', NoDefault('double_array'),
+         'knots of the correction table taken off after any model (mlx-tempcomp evaluate '
+         '--learned-params writes it), strictly increasing, degC (empty: none)'),
+) + tuple(
+    Spec(f'correction.{axis}_rad_s', NoDefault('double_array'),
+         f'axis {axis}: correction at each correction.temperature_c, rad/s; cubic between '
+         'them (Catmull-Rom), held beyond the ends') for axis in AXIS_NAMES
+)
 # Parameters whose change rebuilds the model: ``model`` and those under these prefixes.
-MODEL_PREFIXES = tuple(kind.prefix for kind in MODELS.values())
+MODEL_PREFIXES = tuple(kind.prefix for kind in MODELS.values()) + (CORRECTION_PREFIX,)
+
+
+def correction_of(values: dict) -> Optional[CorrectionTable]:
+    """
+    Give the correction table of the measured axes; None when ``correction.*`` is unset.
+
+    Raise `ParameterError` naming the parameter when it is given in part or is not a
+    table (temperatures not increasing, lengths that differ, values not finite).
+    """
+    axes = axes_of(values)
+    temperature = values['correction.temperature_c']
+    columns = [values[f'correction.{axis}_rad_s'] for axis in axes]
+    if not temperature and not any(columns):
+        return None
+    missing = [axis for axis, column in zip(axes, columns) if not column]
+    if not temperature or missing:
+        name = 'temperature_c' if not temperature else f'{missing[0]}_rad_s'
+        msg = (f'invalid parameter correction.{name}: unset, but the correction table of '
+               f'axes {list(axes)} is given in part; give its temperatures and every axis')
+        raise ParameterError(msg)
+    for axis, column in zip(axes, columns):
+        if len(column) != len(temperature):
+            msg = (f'invalid parameter correction.{axis}_rad_s: needs {len(temperature)} values '
+                   f'(one per correction.temperature_c), got {len(column)}')
+            raise ParameterError(msg)
+    try:
+        return CorrectionTable(tuple(temperature), tuple(tuple(c) for c in columns))
+    except ConfigError as err:
+        raise ParameterError(f'invalid parameter correction: {err}') from None
 
 
 def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: float = 0.0):
@@ -207,6 +249,9 @@ def build_model(values: dict, tables: Optional[tuple] = None, full_scale_dps: fl
     except ConfigError as err:
         msg = f'invalid {name} model parameters: {err}'
         raise ParameterError(msg) from None
+    table = correction_of(values)
+    if model is not None and table is not None:
+        model = CorrectedModel(model, table)
     if model is not None:
         check_output(model, name, axes)
     return model

@@ -89,8 +89,9 @@ class ScheduleSettings:
     (`mixed`). A stretch is turns one after the other, each ``turn_s`` long (a fast one
     ``fast_turn_s``), of kind slow (constant), ramped (a trapezoid up to its rate and
     down) or fast, about ``axes`` in turn. With ``level_rests`` (the default) a turn
-    about x or y goes out and back, as a robot's tilts do, so every rest is at the
-    starting attitude; without, the sensor rests at whatever attitude its turns leave.
+    about one of ``level_axes`` (the horizontal ones: x and y of a sensor lying flat)
+    goes out and back, as a robot's tilts do, so every rest is at the starting attitude;
+    without, the sensor rests at whatever attitude its turns leave.
     """
 
     rest_period_s: float = 0.0
@@ -103,6 +104,7 @@ class ScheduleSettings:
     kinds: tuple = ('slow', 'ramped', 'fast')
     axes: tuple = TURN_AXES
     level_rests: bool = True
+    level_axes: tuple = ('x', 'y')
 
     def __post_init__(self) -> None:
         for name in ('rest_s', 'moving_s', 'turn_s', 'fast_turn_s', 'slow_dps', 'fast_dps'):
@@ -154,7 +156,7 @@ def _turns(rng: np.random.Generator, settings: ScheduleSettings, start_s: float,
     """
     Fill ``start_s`` to ``end_s`` with turns; the kinds and axes go round in turn.
 
-    With ``level_rests`` a turn about x or y is a tilt and its return (the same profile,
+    With ``level_rests`` a turn about a level axis is a tilt and its return (the same profile,
     the other way), so the sensor rests where it started.
     """
     segments = []
@@ -165,7 +167,7 @@ def _turns(rng: np.random.Generator, settings: ScheduleSettings, start_s: float,
         span = settings.fast_turn_s if kind == 'fast' else settings.turn_s
         length = min(float(rng.uniform(*span)), end_s - t)
         knots = _profile(rng, settings, kind, length)
-        if settings.level_rests and axis in ('x', 'y'):
+        if settings.level_rests and axis in settings.level_axes:
             half = length / 2.0
             knots = _profile(rng, settings, kind, half)
             knots += tuple((half + k, -rate) for k, rate in knots)

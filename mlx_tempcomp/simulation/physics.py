@@ -204,6 +204,11 @@ class GyroPhysics:
                                bias_dps=self.rng.normal(0.0, noise.bias_instability_dps),
                                nodes_c=[start_c] * len(truth.effects.gradient_time_constants_s))
 
+    def reseed(self, seed) -> None:
+        """Draw the noise and the bias instability afresh from ``seed`` (another day)."""
+        self.rng = np.random.default_rng(seed)
+        self.state.bias_dps = self.rng.normal(0.0, self.truth.noise.bias_instability_dps)
+
     def advance(self, t: float) -> None:
         """Move the state to time ``t`` (never backwards)."""
         s = self.state

@@ -23,6 +23,10 @@ file's ``model_error.*`` and noise (`parameters.compensation`), with
 builds it; the error over it, RMS per sample and of 60 s means
 (`core.model_error.normalised_error`), over the rows evaluated. ``--out-csv``
 writes it per sample (``std_*``).
+
+``--learn`` runs the field learner with it (`core.learning`, the file's
+``learning.*``) and ``--learned-params`` writes the model in use at the end
+(`toolkit.learning`).
 """
 
 import argparse
@@ -35,6 +39,7 @@ import numpy as np
 
 from .common import (add_recording_options, check_output_file, float_type, load,
                      positive_float, read_options, UserError)
+from .learning import learning_lines, learning_of, write_learned
 from .tracking import offline_twin, rest_hint_column, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
@@ -178,8 +183,9 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 
     With the offline twin of bias tracking, ``gyro_*`` is tracked and ``still`` (0 or 1),
     ``offset_*`` and ``offset_std_*`` (rad/s) and ``learnt_*`` (1 in a window the axis
-    learnt from) follow. Last, ``std_*``: the standard deviation the node publishes with
-    the rate (rad/s), when ``std`` (samples, axes) is given.
+    learnt from) follow; with field learning, ``correction_*`` (rad/s, the learnt
+    correction taken off before the offset). Last, ``std_*``: the standard deviation the
+    node publishes with the rate (rad/s), when ``std`` (samples, axes) is given.
     """
     header = ['time', 'temperature'] + [f'gyro_{a}' for a in axes]
     columns = [corrected]
@@ -188,6 +194,9 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
                                for a in axes]
         columns = [twin.rate_rad_s, twin.still[:, None].astype(int), twin.offset_rad_s,
                    twin.offset_std_rad_s, twin.learnt.astype(int)]
+        if twin.correction_rad_s is not None:
+            header += [f'correction_{a}' for a in axes]
+            columns.append(twin.correction_rad_s)
     if std is not None:
         header += [f'std_{a}' for a in axes]
         columns.append(std)
@@ -205,12 +214,18 @@ def _write_corrected(path: str, staged, time_s: np.ndarray, temperature_c: np.nd
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
-    if args.out_csv is not None:
-        check_output_file(args.out_csv, '--out-csv')
     if args.rest_hint is not None and not args.track_bias:
         raise UserError("--rest-hint is the bias tracking's input: give --track-bias with it")
+    if args.learn and not args.track_bias:
+        raise UserError('--learn runs with the bias tracking: give --track-bias too')
+    if args.learned_params is not None and not args.learn:
+        raise UserError('--learned-params writes what --learn learnt: give --learn too')
+    for path, option in ((args.out_csv, '--out-csv'), (args.learned_params, '--learned-params')):
+        if path is not None:
+            check_output_file(path, option)
     values, axes = _node_values(args.params, args.node_name, args.strict)
     model = _build(values, args.params, args.eeprom, args.input, args.imu_topic)
+    learning = learning_of(args.params, args.node_name, values, model) if args.learn else None
     recording = load(args.input, read_options(args), to_stderr=args.json)
     columns = _columns(recording, axes, model, args.params, args.input)
     inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
@@ -254,7 +269,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         (args.rest_hint, rest_hint_column(args.input, args.rest_hint, read_options(args),
                                           recording))
     twin = offline_twin(values, axes, recording, corrected, part, args.params,
-                        args.average_s, hint) if args.track_bias else None
+                        args.average_s, hint, learning) if args.track_bias else None
     if twin:
         report['bias_tracking'] = twin.report
     noise, variance = _published_variance(values, args.params, temperature_c, twin)
@@ -266,12 +281,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
         _write_corrected(args.out_csv, args.outputs.file(args.out_csv), recording.time_s,
                          recording.temperature_c, axes, corrected,
                          None if variance is None else np.sqrt(variance), twin)
+    written = None
+    if args.learned_params is not None:
+        written = write_learned(args.learned_params, args.outputs, args.params, args.node_name,
+                                args.input, model, twin.learner, axes)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     print('\n'.join(_text_lines(report, part.start, twin)))
-    if args.out_csv is not None:
-        print(f'wrote {args.out_csv}')
+    for path, line in ((args.out_csv, f'wrote {args.out_csv}'), (written, written)):
+        if path is not None:
+            print(line)
     return 0
 
 
@@ -348,6 +368,8 @@ def _text_lines(report: dict, start: int, twin) -> list:
                          f'{s["rms"]:>12.3e}{s["peak"]:>12.3e}')
     if twin:
         lines += twin_lines(twin.report, tuple(report['axes']))
+        if 'learning' in twin.report:
+            lines += learning_lines(twin.report['learning'], tuple(report['axes']))
     return lines + [_covariance_line(report['covariance'])]
 
 
@@ -399,4 +421,11 @@ def add_parser(commands) -> None:
                           help="with --track-bias: the robot's rest hint of each row, a 0/1 "
                                'column of the CSV record (1: at rest; inject-motion writes '
                                'rest_hint), as the node takes bias_tracking.rest_hint_topic')
+    evaluate.add_argument('--learn', action='store_true',
+                          help="with --track-bias: run the node's field learner too (learning.* "
+                               'of the file, whatever learning.enabled says): it renews the model '
+                               'from the still windows the tracker learns from')
+    evaluate.add_argument('--learned-params', metavar='FILE',
+                          help='with --learn: write the model in use at the end as a parameter '
+                               'file (the given one with the learnt correction table)')
     evaluate.set_defaults(handler=evaluate_command)

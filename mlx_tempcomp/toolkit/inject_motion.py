@@ -31,6 +31,14 @@ REST_HINT_COLUMN = 'rest_hint'
 _CSV_FORMAT = '%.17g'   # round trip: the reference is exact
 
 
+def _level_axes(recording) -> tuple:
+    """Give the two sensor axes nearest the horizontal (x and y without an accelerometer)."""
+    if recording.acceleration_m_s2 is None:
+        return ('x', 'y')
+    vertical = int(np.argmax(np.abs(np.mean(recording.acceleration_m_s2, axis=0))))
+    return tuple(a for k, a in enumerate('xyz') if k != vertical)
+
+
 def inject_motion_command(args: argparse.Namespace) -> int:
     check_output_file(args.out, '--out')
     out = Path(args.out)
@@ -41,7 +49,8 @@ def inject_motion_command(args: argparse.Namespace) -> int:
                'a record taken at rest')
         raise UserError(msg)
     try:
-        settings = getattr(ScheduleSettings, args.schedule)(level_rests=not args.free_attitude)
+        settings = getattr(ScheduleSettings, args.schedule)(
+            level_rests=not args.free_attitude, level_axes=_level_axes(recording))
         schedule = motion_schedule(recording.duration_s + 1e-9, settings, args.seed)
         injected = inject_motion(recording.time_s, recording.gyro_rad_s, recording.axes,
                                  schedule, recording.acceleration_m_s2)
@@ -101,6 +110,7 @@ def add_parser(commands) -> None:
     parser.add_argument('--seed', type=non_negative_int, default=0, metavar='N',
                         help='seed of the schedule (default: %(default)s)')
     parser.add_argument('--free-attitude', action='store_true',
-                        help='turns about x and y do not come back: the sensor rests at '
-                             'whatever attitude they leave (default: every rest level)')
+                        help='turns about the horizontal axes (x and y of a sensor lying '
+                             'flat) do not come back: the sensor rests at whatever attitude '
+                             'they leave (default: every rest level)')
     parser.set_defaults(handler=inject_motion_command, per_instance=True)

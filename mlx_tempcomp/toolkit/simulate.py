@@ -34,6 +34,7 @@ from ..hardware.errors import HardwareError
 from ..recordings.bag import STORAGES
 from ..recordings.csv_writer import write_csv
 from ..recordings.recording import AXES, Recording
+from ..simulation.days import day_change, noise_seed
 from ..simulation.physics import Effects, GRAVITY_M_S2, GyroTruth, Noise, NOMINAL_SUPPLY_V
 from ..simulation.turntable import simulate_turntable, TurntableProtocol
 from ..sources.mlx90609 import SimulatedArray, SimulationConfig
@@ -82,6 +83,17 @@ def _time_value(text: str) -> tuple:
     return time_s, number
 
 
+def _day(text: str) -> int:
+    """Parse --day: an integer >= 1 (argparse type)."""
+    try:
+        day = int(text)
+    except ValueError:
+        day = 0
+    if day < 1:
+        raise argparse.ArgumentTypeError(f'a day is an integer from 1, got {text!r}')
+    return day
+
+
 def _supply(items) -> tuple:
     """Give supply waypoints ``(times_s, volts)`` from ``V`` or ``T:V ...``."""
     try:
@@ -115,6 +127,7 @@ class _ChipRun:
     supply_given: bool
     orientation_period_s: float
     zro_slope_shift_dps_per_c: float = 0.0
+    day: int = 1
 
 
 @dataclass(frozen=True)
@@ -174,7 +187,7 @@ def _chip_run(args: argparse.Namespace, rate_hz: float) -> _ChipRun:
     return _ChipRun(config=config, axes=args.axes, rate_hz=rate_hz, duration_s=args.duration_s,
                     supply_times_s=supply_times, supply_v=supply_v,
                     supply_given=args.supply_v is not None,
-                    orientation_period_s=args.orientation_period_s)
+                    orientation_period_s=args.orientation_period_s, day=args.day)
 
 
 def _truth_polynomial_rad_s(truth: GyroTruth, transfer: SensorTransfer) -> list:
@@ -204,8 +217,11 @@ def _device_recording(run: _ChipRun, out: Path, progress_enabled) -> _Simulated:
         raise UnstorableChip(f'simulation: {err}') from None
     except (HardwareError, TempCompError) as err:
         raise UserError(f'simulation: {err}') from None
-    faces = _FACES_M_S2 if run.orientation_period_s else (_FACES_M_S2[0],)
+    change = day_change(run.config.seed, len(run.axes), run.day)
+    faces = _FACES_M_S2[change.face:] + _FACES_M_S2[:change.face]
+    faces = faces if run.orientation_period_s else faces[:1]
     _set_scenario(array, run, faces[0])
+    _set_day(array, run, change)
     codes = _sample(array, run, faces, progress_enabled)
     kept = codes.kept
     nominal = NominalConversion.for_range(tables.full_scale_dps, Output.DIGITAL, len(run.axes),
@@ -213,7 +229,7 @@ def _device_recording(run: _ChipRun, out: Path, progress_enabled) -> _Simulated:
     rate_rad_s = np.radians((codes.rate_code[kept] - nominal.zro) / nominal.sf)
     axis_temperatures_c = transfer.temperature_output_to_c(codes.temperature_code[kept],
                                                            Output.DIGITAL)
-    with_acceleration = run.orientation_period_s or \
+    with_acceleration = run.orientation_period_s or run.day > 1 or \
         any(run.config.effects.acceleration_dps_per_m_s2)
     recording = Recording(
         source=str(out), time_s=codes.time_s[kept],
@@ -222,8 +238,28 @@ def _device_recording(run: _ChipRun, out: Path, progress_enabled) -> _Simulated:
         supply_voltage_v=np.interp(codes.time_s[kept], run.supply_times_s, run.supply_v)
         if run.supply_given else None,
         skipped={'saturated': int(np.count_nonzero(~kept))})
-    return _Simulated(recording, axis_temperatures_c, images,
-                      _device_truth(run, array, transfer))
+    truth = _device_truth(run, array, transfer)
+    if run.day > 1:
+        truth['day'] = {'day': run.day, 'face_up_m_s2': list(faces[0]),
+                        'zro_dps_coefficients_added': {
+                            axis: list(c) for axis, c in zip(run.axes,
+                                                             change.zro_dps_coefficients)},
+                        'notes': 'devices hold the coefficients of this day; the factory '
+                                 'EEPROM was measured on day 1'}
+    return _Simulated(recording, axis_temperatures_c, images, truth)
+
+
+def _set_day(array: SimulatedArray, run: _ChipRun, change) -> None:
+    """Give each chip the day's ZRO change and draw its noise afresh (day 1: nothing)."""
+    if run.day == 1:
+        return
+    for axis, (device, added) in enumerate(zip(array.devices, change.zro_dps_coefficients)):
+        zro = list(device.physics.truth.zro_dps_coefficients)
+        zro += [0.0] * (len(added) - len(zro))
+        zro = [c + a for c, a in zip(zro, added)] + zro[len(added):]
+        device.physics.truth = dataclasses.replace(device.physics.truth,
+                                                   zro_dps_coefficients=tuple(zro))
+        device.physics.reseed(noise_seed(run.config.seed, axis, run.day))
 
 
 def _set_scenario(array: SimulatedArray, run: _ChipRun, face_m_s2: tuple) -> None:
@@ -342,6 +378,8 @@ def _write_csv(path: Path, recording: Recording, target: Path) -> None:
 # Options of the chip simulation that --turntable refuses.
 _CHIP_ONLY = ('thermal_lag_s', 'hysteresis_dps', 'zro_supply_dps_per_v', 'bias_step',
               'orientation_period_s', 'bias_random_walk_dps_rt_s')
+# Given with --turntable, these are refused too (their defaults are not falsy).
+_CHIP_ONLY_VALUES = {'day': 1}
 
 
 def simulate_command(args: argparse.Namespace) -> int:
@@ -353,6 +391,8 @@ def simulate_command(args: argparse.Namespace) -> int:
             given.append('acceleration_dps_per_m_s2')
         if args.supply_v is not None:
             given.append('supply_v')
+        given += [name for name, default in _CHIP_ONLY_VALUES.items()
+                  if getattr(args, name) != default]
         if given:
             names = ', '.join('--' + name.replace('_', '-') for name in given)
             msg = f'{names}: effects apply to the chip simulation, not to --turntable'
@@ -590,6 +630,11 @@ def _add_effect_options(simulate) -> None:
     effects.add_argument('--orientation-period-s', type=non_negative_float, default=0.0,
                          metavar='S', help='turn the board to the next of six faces up every '
                                            'S seconds (writes acc_x|y|z)')
+    effects.add_argument('--day', type=_day, default=1, metavar='N',
+                         help='the unit on day N (1: as drawn): from the seed, its bias(T) '
+                              'moved by a repeatability offset, ageing of the curve and a '
+                              'turn onto another face (with --acceleration-dps-per-m-s2 that '
+                              'moves each bias), fresh noise; the EEPROM stays that of day 1')
     effects.add_argument('--zro-supply-dps-per-v', type=float, default=0.0, metavar='K',
                          help='ZRO shift per volt off the nominal 5 V')
     effects.add_argument('--supply-v', nargs='+', metavar='V',

@@ -13,12 +13,14 @@ the model's output of the whole record in one block (the node gets blocks of 1 t
 compares the error with and without tracking, at rest and in motion when the record has
 a reference (moving: any reference rate not zero). ``--rest-hint COLUMN`` gives each sample
 the hint of its row, a 0/1 column of a CSV record (1: the robot said it was at rest;
-`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`).
+`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`). With ``--learn`` the field
+learner rides on the tracker (`core.learning.LearningTracking`, the same bits for any split too).
 """
 
 from dataclasses import dataclass
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -26,6 +28,7 @@ from .common import UserError
 from .exports import node_model
 from ..core.bias_tracker import BiasTracking
 from ..core.errors import TempCompError
+from ..core.learning import FieldLearner, LearningTracking
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics
 from ..core.model_interface import ModelInputs
 from ..core.tracking_bounds import bounds_lines, derive_bounds, RestRecord
@@ -80,7 +83,12 @@ def tracking_section(recordings: list, parameters: dict) -> tuple:
 
 @dataclass(frozen=True)
 class TwinResult:
-    """What the offline twin gives: the tracked rate, per sample, and its report."""
+    """
+    What the offline twin gives: the tracked rate, per sample, and its report.
+
+    With field learning, ``correction_rad_s`` is the learnt correction taken off each
+    sample (before the tracker's offset) and ``learner`` the `FieldLearner` at the end.
+    """
 
     rate_rad_s: np.ndarray
     offset_rad_s: np.ndarray
@@ -88,6 +96,8 @@ class TwinResult:
     still: np.ndarray
     learnt: np.ndarray
     report: dict
+    correction_rad_s: Optional[np.ndarray] = None
+    learner: Optional[FieldLearner] = None
 
 
 def _rms(values: np.ndarray) -> float:
@@ -197,24 +207,29 @@ def rest_hint_column(path: str, name: str, options, recording) -> np.ndarray:
 
 
 def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, part: slice,
-                 source: str, average_s: float, rest_hint=None) -> TwinResult:
+                 source: str, average_s: float, rest_hint=None, learning=None) -> TwinResult:
     """
     Track ``corrected`` (the model's output of every row) as the node would; see above.
 
     Figures over the rows of ``part``, per sample and of means over ``average_s`` bins.
     ``rest_hint``: (name, each row's hint) or None.
+    ``learning(tracking settings)`` gives the `LearningSettings` of field learning, run
+    with the tracker (`core.learning.LearningTracking`); None: tracking alone.
     """
     try:
         settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
+        if settings is None:
+            msg = f'{source} turns bias tracking off (bias_tracking.enabled: false)'
+            raise UserError(msg)
+        tracker = BiasTracking(settings, axes, keep_windows=True)
+        stream = None if learning is None else \
+            LearningTracking(tracker, FieldLearner(learning(settings), axes))
     except TempCompError as err:
         raise UserError(f'{source}: {err}') from None
-    if settings is None:
-        msg = f'{source} turns bias tracking off (bias_tracking.enabled: false)'
-        raise UserError(msg)
-    tracker = BiasTracking(settings, axes, keep_windows=True)
-    out = tracker.process(recording.time_s, corrected, recording.temperature_c,
-                          recording.acceleration_m_s2,
-                          None if rest_hint is None else rest_hint[1])
+    hint = None if rest_hint is None else rest_hint[1]
+    out = (tracker if stream is None else stream).process(
+        recording.time_s, corrected, recording.temperature_c, recording.acceleration_m_s2, hint)
+    correction = None if stream is None else out.correction_rad_s
     columns = [recording.axes.index(a) for a in axes]
     truth = 0.0 if recording.reference_rad_s is None else \
         recording.reference_rad_s[:, columns]
@@ -248,9 +263,14 @@ def offline_twin(values: dict, axes: tuple, recording, corrected: np.ndarray, pa
         report['learnt_while_moving'] = _learnt_in_motion(
             tracker, learnt[part], recording.time_s[part],
             recording.reference_rad_s[part][:, columns])
-    return TwinResult(rate_rad_s=out.rate_rad_s, offset_rad_s=corrected - out.rate_rad_s,
+    offset = corrected - out.rate_rad_s
+    if stream is not None:
+        offset = offset - correction
+        report['learning'] = {**stream.learner.status(), 'swaps': stream.learner.swaps}
+    return TwinResult(rate_rad_s=out.rate_rad_s, offset_rad_s=offset,
                       offset_std_rad_s=out.std_rad_s, still=out.still, learnt=learnt,
-                      report=report)
+                      report=report, correction_rad_s=correction,
+                      learner=None if stream is None else stream.learner)
 
 
 def twin_lines(report: dict, axes: tuple) -> list:
