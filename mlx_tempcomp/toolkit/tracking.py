@@ -13,8 +13,9 @@ the model's output of the whole record in one block (the node gets blocks of 1 t
 compares the error with and without tracking, at rest and in motion when the record has
 a reference (moving: any reference rate not zero). ``--rest-hint COLUMN`` gives each sample
 the hint of its row, a 0/1 column of a CSV record (1: the robot said it was at rest;
-`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`). With ``--learn`` the field
-learner rides on the tracker (`core.learning.LearningTracking`, the same bits for any split too).
+`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`). With
+``--learn`` the field learner rides on the tracker (`core.learning.LearningTracking`, the
+same bits for any split too).
 """
 
 from dataclasses import dataclass
