@@ -133,7 +133,7 @@ def test_evaluate_learn_refuses_what_does_not_go_together(learnt, capsys):
     bad.write_text(yaml.safe_dump(document))
     assert_user_error(main(['evaluate', str(moving), '--params', str(bad), '--track-bias',
                             '--learn']), capsys,
-                      f'{bad}: invalid parameter learning.knot_step_c: must be a number')
+                      f'{bad}: invalid parameter learning.knot_step_c: -1.0 is outside 0.5 to 100')
 
 
 def test_simulate_day_moves_the_unit_from_the_seed(tmp_path, capsys):

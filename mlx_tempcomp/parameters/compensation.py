@@ -5,7 +5,8 @@ The compensation node's parameters: its specs, and the settings read from their 
 ``model`` and each model's own (`models.MODELS`, in that order), the correction
 table any model may carry (`models.CORRECTION_SPECS`), the model error table,
 the ZRO recalibration, the inputs, and the bias tracking
-(``bias_tracking.*``, from `core.tracking_parameters`). `model_error_of`,
+(``bias_tracking.*``, from `core.tracking_parameters`) with its field learning
+(``learning.*``, from `core.learning.parameters`). `model_error_of`,
 `covariance_noise_of`, `limits_of` and `state_file_of` read the settings the node and the toolkit
 build from the values, raising `ParameterError` naming the parameter.
 """
@@ -20,6 +21,7 @@ from ..core.errors import ConfigError
 from ..core.model_error import ModelErrorTable, table_temperatures
 from ..core.models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
+from ..core.learning.parameters import PARAMETERS as LEARNING_PARAMETERS, PREFIX as LEARNING
 from ..core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
 
 # The messages a rest hint may come as (`ros/rest_hint.py` reads each).
@@ -85,7 +87,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec(TRACKING + 'rest_hint_max_angular_rad_s', 0.001,
          'and its angular speed at most this, rad/s (0.057 deg/s: far below a slow turn)',
          low=0.0, high=100.0),
-)
+) + tuple(Spec(LEARNING + p.name, p.default, p.description, low=p.low, high=p.high)
+          for p in LEARNING_PARAMETERS)
 
 
 def limits_of(values: dict) -> RecalibrationLimits:
