@@ -1,11 +1,17 @@
 """
-Pair samples of several streams by stamp: exactly (rate, temperature...) or by holding.
+Pair samples of several streams by stamp: exactly, by holding, or by interpolating.
 
-A slow input (a battery monitor's supply voltage) carries stamps of its own;
-`zero_order_hold` gives each sample the latest value at or before its stamp.
+`StampPairer` pairs streams that share stamps (a driver that stamps rate and
+temperature alike). A slower input carries stamps of its own: `zero_order_hold`
+gives each sample the latest value at or before its stamp (a battery monitor's
+supply voltage), and `ReadingPairer` does so, or interpolates, for readings that
+arrive as a stream while the samples do (a driver's temperature at 1 Hz beside its
+rate at 100 Hz), deciding each sample as soon as its readings allow.
 """
 
-from typing import Dict, List, Tuple
+import bisect
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -79,3 +85,175 @@ def zero_order_hold(sample_stamps_ns, stamps_ns, values, max_age_ns: int):
     usable = np.abs(samples - stamps[index]) <= max_age_ns
     held[usable] = np.asarray(values, dtype=np.float64)[index[usable]]
     return held, usable
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What a sample got of one reading stream: the value, the reading when exact, the age."""
+
+    value: float
+    exact: object       # the payload of a reading stamped like the sample, else None
+    age_ns: int         # from the sample to the farthest reading used, either way
+
+
+# A sample's verdict while its readings may still come.
+WAIT = 'wait'
+# Consecutive samples paired exactly (or not) that switch the wait for the same stamp on (off).
+_SWITCH_RUN = 2
+
+
+class ReadingPairer:
+    """
+    Give each sample the readings of slower streams: held or interpolated, within an age.
+
+    Samples (``add_sample``: the rate) and readings (``add_reading``: each
+    temperature stream) come in any order; `pop` gives the samples now decided,
+    in stamp order, each with a `Reading` per stream, or as unpaired:
+
+    - a reading stamped like the sample is its own (exact, whatever the mode);
+    - ``hold``: else the latest reading stamped before it, within ``max_age_ns``
+      (a sample older than every reading takes the first one, within the age). It
+      is decided at once with what has come: a sample does not wait for a slower
+      stream. Only while the streams share stamps (the last samples each found a
+      reading of their own stamp: a driver that stamps both alike) does a sample
+      wait for its own, so the choice does not depend on which topic came first;
+      a reading stamped after it, or ``max_age_ns`` of later samples, end the wait.
+    - ``interpolate``: linear between the readings before and after it, both
+      within the age; a sample waits for the reading after it, at most until
+      samples stamped ``max_age_ns`` later have come (then it is unpaired).
+
+    Before the first reading of a stream, samples wait, at most ``max_age_ns`` of
+    later samples; those that expire are counted apart (`expired_before_first`).
+    At most ``capacity`` samples wait (the oldest then goes unpaired) and
+    ``history`` readings per stream are kept.
+    """
+
+    def __init__(self, streams: Tuple[str, ...], interpolate: bool, max_age_ns: int,
+                 capacity: int = 20000, history: int = 256):
+        self.streams = tuple(streams)
+        self.interpolate = interpolate
+        self.max_age_ns = int(max_age_ns)
+        self.capacity = capacity
+        self.history = history
+        self._stamps: Dict[str, list] = {s: [] for s in self.streams}
+        self._readings: Dict[str, list] = {s: [] for s in self.streams}
+        self._pending: list = []         # (stamp_ns, arrival, sample), ascending
+        self._arrivals = 0
+        self.newest_sample_ns: Optional[int] = None
+        self.shared_stamps = True        # presumed until samples show otherwise
+        self._run = (_SWITCH_RUN, 0)     # (exact, not exact) samples in a row
+        self.paired = 0
+        self.unpaired = 0
+        self.expired_before_first = 0
+
+    @property
+    def waiting(self) -> int:
+        return len(self._pending)
+
+    def has_readings(self) -> bool:
+        """Tell whether every stream gave a reading."""
+        return all(self._stamps[s] for s in self.streams)
+
+    def add_reading(self, stream: str, stamp_ns: int, value: float, payload=None) -> None:
+        """Keep a reading: a late one slots in by stamp, a repeated stamp replaces."""
+        stamps, readings = self._stamps[stream], self._readings[stream]
+        index = bisect.bisect_left(stamps, stamp_ns)
+        if index < len(stamps) and stamps[index] == stamp_ns:
+            readings[index] = (float(value), payload)
+            return
+        stamps.insert(index, stamp_ns)
+        readings.insert(index, (float(value), payload))
+        if len(stamps) > 2 * self.history:   # trimmed now and then, not at every reading
+            del stamps[:-self.history]
+            del readings[:-self.history]
+
+    def add_sample(self, stamp_ns: int, sample) -> None:
+        """Queue a sample to pair; `pop` gives it once decided."""
+        self._arrivals += 1
+        entry = (stamp_ns, self._arrivals, sample)
+        if not self._pending or self._pending[-1][0] <= stamp_ns:
+            self._pending.append(entry)
+        else:
+            bisect.insort(self._pending, entry, key=lambda e: (e[0], e[1]))
+        if self.newest_sample_ns is None or stamp_ns > self.newest_sample_ns:
+            self.newest_sample_ns = stamp_ns
+
+    def pop(self) -> Tuple[list, list]:
+        """
+        Give (paired, unpaired) samples decided now, each in stamp order.
+
+        ``paired``: (stamp_ns, sample, {stream: `Reading`}); ``unpaired``:
+        (stamp_ns, sample) with no usable reading within the age.
+        """
+        paired, unpaired = [], []
+        pending = self._pending
+        decided = 0
+        while decided < len(pending):
+            stamp, _, sample = pending[decided]
+            readings = self._decide(stamp, len(pending) - decided > self.capacity)
+            if readings is WAIT:
+                break
+            decided += 1
+            if readings is None:
+                self.unpaired += 1
+                unpaired.append((stamp, sample))
+                continue
+            self.paired += 1
+            paired.append((stamp, sample, readings))
+            self._follow(all(r.exact is not None for r in readings.values()))
+        del pending[:decided]
+        return paired, unpaired
+
+    def _follow(self, exact: bool) -> None:
+        """Switch the wait for the same stamp by the last samples' pairing."""
+        hits, misses = self._run
+        self._run = (hits + 1, 0) if exact else (0, misses + 1)
+        if self._run[0] >= _SWITCH_RUN:
+            self.shared_stamps = True
+        elif self._run[1] >= _SWITCH_RUN:
+            self.shared_stamps = False
+
+    def _decide(self, stamp: int, overflow: bool):
+        """Give the sample's {stream: Reading}, None when it cannot be paired, or WAIT."""
+        expired = overflow or self.newest_sample_ns - stamp > self.max_age_ns
+        readings = {}
+        for stream in self.streams:
+            reading = self._reading(stream, stamp, expired)
+            if reading is None and not self._stamps[stream]:
+                if expired:
+                    self.expired_before_first += 1
+                return WAIT if not expired else None
+            if reading is WAIT or reading is None:
+                return reading
+            readings[stream] = reading
+        return readings
+
+    def _reading(self, stream: str, stamp: int, expired: bool):
+        """One stream's `Reading` for a sample at ``stamp``, None (none usable) or WAIT."""
+        stamps, readings = self._stamps[stream], self._readings[stream]
+        if not stamps:
+            return None
+        index = bisect.bisect_right(stamps, stamp) - 1
+        if index >= 0 and stamps[index] == stamp:
+            value, payload = readings[index]
+            return Reading(value, payload, 0)
+        if index < 0:
+            # Older than every reading: the first one, as a hold does.
+            age = stamps[0] - stamp
+            return Reading(readings[0][0], None, age) if age <= self.max_age_ns else None
+        before = stamp - stamps[index]
+        if index + 1 < len(stamps):
+            if not self.interpolate:
+                return Reading(readings[index][0], None, before) \
+                    if before <= self.max_age_ns else None
+            after = stamps[index + 1] - stamp
+            if max(before, after) > self.max_age_ns:
+                return None
+            low, high = readings[index][0], readings[index + 1][0]
+            return Reading(low + (high - low) * (before / (before + after)), None,
+                           max(before, after))
+        if not expired and (self.interpolate or self.shared_stamps):
+            return WAIT
+        if self.interpolate or before > self.max_age_ns:
+            return None
+        return Reading(readings[index][0], None, before)

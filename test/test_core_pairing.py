@@ -1,0 +1,265 @@
+"""
+ReadingPairer on plain numbers: temperature readings held or interpolated for rate samples.
+
+Each test builds the arrival order of samples and readings from their stamps (a
+driver's rate at one rate, its temperature at another, on stamps of its own,
+maybe late) and checks what each sample got and when it was decided, counted in
+arrivals, never in time.
+"""
+
+import math
+
+from mlx_tempcomp.core.pairing import ReadingPairer
+import pytest
+
+S = 1_000_000_000     # ns per second
+MS = 1_000_000
+
+
+def temperature_at(stamp_ns: int) -> float:
+    """Give a temperature ramp: 20 C plus 0.1 C/s, so held and interpolated values differ."""
+    return 20.0 + 0.1 * stamp_ns / S
+
+
+def arrivals(sample_period_ns: int, reading_period_ns: int, duration_ns: int,
+             reading_offset_ns: int = 0, reading_delay_ns: int = 0, readings_until_ns=None):
+    """
+    Give the events of a driver in arrival order: ('sample', stamp) and ('reading', stamp).
+
+    Readings are stamped at ``reading_offset_ns`` + k x period and arrive
+    ``reading_delay_ns`` after their stamp, i.e. just after the sample of that time;
+    none is stamped after ``readings_until_ns``.
+    """
+    events = [(stamp, 1, ('sample', stamp)) for stamp in range(0, duration_ns, sample_period_ns)]
+    stamp = reading_offset_ns
+    while stamp < duration_ns and (readings_until_ns is None or stamp <= readings_until_ns):
+        events.append((stamp + reading_delay_ns, 2, ('reading', stamp)))
+        stamp += reading_period_ns
+    return Events(event for _, _, event in sorted(events))
+
+
+class Events(list):
+    """Events with their arrival index looked up in constant time."""
+
+    def index(self, event) -> int:
+        if not hasattr(self, 'position'):
+            self.position = {e: i for i, e in enumerate(self)}
+        return self.position[event]
+
+
+def run(pairer: ReadingPairer, events, stream: str = 'temperature') -> dict:
+    """Feed ``events`` one by one; give {sample stamp: (arrival index decided, Reading or None)}."""
+    decided = {}
+    for index, (kind, stamp) in enumerate(events):
+        if kind == 'sample':
+            pairer.add_sample(stamp, stamp)
+        else:
+            pairer.add_reading(stream, stamp, temperature_at(stamp), payload=('msg', stamp))
+        paired, unpaired = pairer.pop()
+        order = [s for s, *_ in paired] + [s for s, _ in unpaired]
+        assert not set(order) & set(decided), 'a sample decided twice'
+        for stamp_ns, sample, readings in paired:
+            assert sample == stamp_ns
+            decided[stamp_ns] = (index, readings[stream])
+        for stamp_ns, _ in unpaired:
+            decided[stamp_ns] = (index, None)
+    return decided
+
+
+def arrival_index(events, stamp: int) -> int:
+    return events.index(('sample', stamp))
+
+
+def latest_before(stamp: int, readings) -> int:
+    return max(r for r in readings if r <= stamp)
+
+
+@pytest.mark.parametrize('sample_hz, reading_hz', [(100, 1), (1000, 10)])
+def test_hold_pairs_every_sample_at_once_with_the_latest_reading(sample_hz, reading_hz):
+    period, reading_period = S // sample_hz, S // reading_hz
+    offset = 370 * MS % reading_period + 1   # stamps of its own, never a sample's
+    events = arrivals(period, reading_period, 2000 * period, reading_offset_ns=offset)
+    readings = [stamp for kind, stamp in events if kind == 'reading']
+    pairer = ReadingPairer(('temperature',), interpolate=False, max_age_ns=2 * S)
+    decided = run(pairer, events)
+    samples = [stamp for kind, stamp in events if kind == 'sample']
+    assert len(decided) == len(samples)
+    for stamp in samples:
+        index, reading = decided[stamp]
+        assert reading is not None, stamp
+        if stamp < readings[0]:
+            # Before the first reading: held back until it came, then given it.
+            assert index == events.index(('reading', readings[0]))
+            assert reading.value == temperature_at(readings[0])
+            continue
+        held = latest_before(stamp, readings)
+        assert reading.value == temperature_at(held)
+        assert reading.exact is None and reading.age_ns == stamp - held
+        assert reading.age_ns < reading_period
+        assert index == arrival_index(events, stamp), 'a sample waited for a reading'
+    assert not pairer.shared_stamps
+
+
+@pytest.mark.parametrize('sample_hz, reading_hz', [(100, 1), (1000, 10)])
+def test_interpolate_waits_for_the_next_reading_and_interpolates(sample_hz, reading_hz):
+    period, reading_period = S // sample_hz, S // reading_hz
+    offset = reading_period // 3 + 1
+    events = arrivals(period, reading_period, 2000 * period, reading_offset_ns=offset)
+    readings = [stamp for kind, stamp in events if kind == 'reading']
+    pairer = ReadingPairer(('temperature',), interpolate=True, max_age_ns=2 * S)
+    decided = run(pairer, events)
+    for stamp in (s for kind, s in events if kind == 'sample'):
+        if stamp > readings[-1]:
+            assert stamp not in decided, 'decided without the reading after it'
+            continue
+        index, reading = decided[stamp]
+        if stamp < readings[0]:
+            assert reading.value == temperature_at(readings[0])
+            continue
+        before = latest_before(stamp, readings)
+        after = min(r for r in readings if r >= stamp)
+        assert index == events.index(('reading', after)), 'not decided when the reading came'
+        assert reading.value == pytest.approx(temperature_at(stamp), abs=1e-12)
+        assert reading.age_ns == max(stamp - before, after - stamp)
+    assert pairer.waiting == sum(1 for kind, s in events if kind == 'sample' and s > readings[-1])
+
+
+def test_readings_half_a_second_late():
+    """A 1 Hz temperature arriving 0.5 s after its stamp: held at once, interpolated later."""
+    events = arrivals(S // 100, S, 30 * S, reading_offset_ns=S // 4, reading_delay_ns=S // 2)
+    readings = [stamp for kind, stamp in events if kind == 'reading']
+    samples = [stamp for kind, stamp in events if kind == 'sample']
+    first = readings[0] + S // 2   # when the first reading arrives
+    held = run(ReadingPairer(('temperature',), False, 2 * S), events)
+    for stamp in samples:
+        index, reading = held[stamp]
+        assert reading is not None
+        if stamp > first:
+            assert index == arrival_index(events, stamp), 'held back'
+            # The latest reading that had arrived: up to 1.5 s old.
+            arrived = [r for r in readings if r + S // 2 < stamp]
+            assert reading.value == temperature_at(max(arrived))
+            assert reading.age_ns <= 3 * S // 2
+    interpolated = run(ReadingPairer(('temperature',), True, 2 * S), events)
+    for stamp in samples:
+        if readings[0] <= stamp <= readings[-1]:
+            index, reading = interpolated[stamp]
+            after = min(r for r in readings if r >= stamp)
+            assert index == events.index(('reading', after))
+            assert reading.value == pytest.approx(temperature_at(stamp), abs=1e-12)
+
+
+@pytest.mark.parametrize('interpolate', [False, True], ids=['hold', 'interpolate'])
+def test_readings_that_stop(interpolate):
+    """The temperature stops at 10 s: paired within the age, then unpaired and counted."""
+    events = arrivals(S // 100, S, 20 * S, reading_offset_ns=S // 2,
+                      readings_until_ns=10 * S)
+    last = 10 * S + S // 2 - S   # the last reading's stamp: 9.5 s
+    pairer = ReadingPairer(('temperature',), interpolate, 2 * S)
+    decided = run(pairer, events)
+    samples = [stamp for kind, stamp in events if kind == 'sample']
+    for stamp in samples:
+        if stamp <= last:
+            assert decided[stamp][1] is not None
+        elif interpolate or stamp - last > 2 * S:
+            if stamp < samples[-1] - 2 * S:
+                assert decided[stamp][1] is None, stamp
+        else:
+            assert decided[stamp][1].value == temperature_at(last)
+    unpaired = [s for s, (_, r) in decided.items() if r is None]
+    assert pairer.unpaired == len(unpaired) > 0
+    assert pairer.expired_before_first == 0
+    # Unpaired: held, at once; interpolated, once samples 2 s later came, no later.
+    for stamp in unpaired:
+        index, _ = decided[stamp]
+        assert index == arrival_index(events, stamp + 2 * S + S // 100 if interpolate else stamp)
+
+
+def test_a_driver_stamping_both_alike_is_paired_exactly_whatever_comes_first():
+    """Equal stamps, the temperature arriving after its sample: each waits for its own."""
+    stamps = [k * S // 100 for k in range(300)]
+    events = Events()
+    for stamp in stamps:
+        events += [('sample', stamp), ('reading', stamp)]
+    lost = stamps[150]
+    events.remove(('reading', lost))
+    pairer = ReadingPairer(('temperature',), False, 2 * S)
+    decided = run(pairer, events)
+    for stamp in stamps:
+        index, reading = decided[stamp]
+        if stamp == lost:
+            # Lost: held with the one before, once the next one showed it will not come.
+            assert reading.exact is None and reading.value == temperature_at(stamps[149])
+            assert index == events.index(('reading', stamps[151]))
+            continue
+        assert reading.exact == ('msg', stamp) and reading.value == temperature_at(stamp)
+        assert index == events.index(('reading', stamp))
+    assert pairer.shared_stamps
+
+
+def test_a_slow_temperature_stamped_like_every_hundredth_sample_does_not_hold_the_rate_back():
+    events = arrivals(S // 100, S, 20 * S)   # readings at whole seconds, a sample's stamp too
+    pairer = ReadingPairer(('temperature',), False, 2 * S)
+    decided = run(pairer, events)
+    late = [stamp for stamp, (index, _) in decided.items()
+            if index != arrival_index(events, stamp) and stamp % S]
+    # Presumed to share stamps at start: the first second's samples wait for the second
+    # reading, then the pairer knows better.
+    assert late and max(late) < S
+    # Afterwards each is decided with what has come: a sample at a whole second comes just
+    # before its reading, and is held with the one before.
+    assert all(decided[stamp][1].value == temperature_at(stamp - S)
+               for stamp in decided if stamp % S == 0 and stamp > S)
+    assert not pairer.shared_stamps
+
+
+def test_several_streams_each_paired():
+    pairer = ReadingPairer(('x', 'y'), interpolate=True, max_age_ns=2 * S)
+    pairer.add_reading('x', 0, 10.0)
+    pairer.add_reading('y', S // 2, 20.0)
+    pairer.add_sample(S, 'a')
+    assert pairer.pop() == ([], [])
+    pairer.add_reading('x', 2 * S, 12.0)
+    assert pairer.pop() == ([], [])    # y has no reading after it yet
+    pairer.add_reading('y', 3 * S // 2, 22.0)
+    (stamp, sample, readings), = pairer.pop()[0]
+    assert (stamp, sample) == (S, 'a')
+    assert readings['x'].value == 11.0 and readings['y'].value == 21.0
+    assert readings['x'].age_ns == S and readings['y'].age_ns == S // 2
+
+
+def test_late_samples_and_readings_slot_in_by_stamp():
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=5 * S)
+    for stamp, value in ((0, 1.0), (2 * S, 3.0), (S, 2.0)):
+        pairer.add_reading('t', stamp, value)
+    pairer.add_reading('t', S, 2.5)   # the same stamp again replaces
+    pairer._run, pairer.shared_stamps = (0, 2), False
+    for stamp in (3 * S // 2, S // 2):
+        pairer.add_sample(stamp, stamp)
+    paired, unpaired = pairer.pop()
+    assert [(s, r['t'].value) for s, _, r in paired] == [(S // 2, 1.0), (3 * S // 2, 2.5)]
+    assert unpaired == []
+
+
+def test_samples_before_any_reading_wait_within_the_age_then_count_apart():
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=S)
+    for k in range(30):
+        pairer.add_sample(k * S // 10, k)
+    paired, unpaired = pairer.pop()
+    # 0.0 to 1.8 s are more than 1 s older than the newest (2.9 s): they can never pair.
+    assert paired == [] and [s for _, s in unpaired] == list(range(19))
+    assert pairer.expired_before_first == 19 and pairer.waiting == 11
+    pairer.add_reading('t', 3 * S, 7.0)
+    paired, unpaired = pairer.pop()
+    assert [s for _, s, _ in paired] == list(range(20, 30))    # within 1 s of the reading
+    assert [s for _, s in unpaired] == [19]
+    assert pairer.expired_before_first == 19
+
+
+def test_the_waiting_samples_are_bounded():
+    pairer = ReadingPairer(('t',), interpolate=True, max_age_ns=10 ** 18, capacity=100)
+    for k in range(150):
+        pairer.add_sample(k, k)
+    paired, unpaired = pairer.pop()
+    assert len(unpaired) == 50 and pairer.waiting == 100
+    assert math.isclose(pairer.unpaired, 50)
