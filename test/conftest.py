@@ -1,8 +1,10 @@
 """Session-wide test set-up: private DDS traffic and hardware-only tests."""
 
+import atexit
 import fcntl
 import glob
 import os
+import shutil
 import tempfile
 
 from hypothesis import HealthCheck, settings
@@ -37,6 +39,20 @@ _DOMAIN_LOCKS = []
 os.environ['ROS_DOMAIN_ID'] = str(_claim_domain_id())
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
+
+
+def _scratch_ros_home() -> str:
+    """Give a ROS_HOME of this session's own, removed when it ends."""
+    folder = tempfile.mkdtemp(prefix='mlx_tempcomp_ros_home_')
+    atexit.register(shutil.rmtree, folder, True)
+    return folder
+
+
+# The nodes keep their state files under ROS_HOME by default (parameters/state_paths.py):
+# a session of its own, so no state an earlier run left there (or in ~/.ros) changes what
+# a test sees, and none is left behind. docs_check.py imports this module too, so each doc
+# it checks runs in a ROS_HOME of its own.
+os.environ['ROS_HOME'] = _scratch_ros_home()
 
 # Property-based tests (test_fuzz_*.py): the same examples on every run by default, so the
 # suite gives one answer; HYPOTHESIS_PROFILE=explore draws new ones each run. Either way a

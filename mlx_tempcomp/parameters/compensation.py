@@ -10,11 +10,11 @@ build from the values, raising `ParameterError` naming the parameter.
 """
 
 import math
-import os
 from typing import Optional
 
 from .models import MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
+from .state_paths import state_path
 from ..core.errors import ConfigError
 from ..core.model_error import ModelErrorTable, table_temperatures
 from ..core.models import AXIS_NAMES
@@ -42,7 +42,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('recalibration.max_temperature_change_c', 0.5,
          'temperature change within the window above this is refused', low=1e-3, high=100.0),
     Spec('recalibration.state_file', '',
-         "ZRO state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_zro.yaml)", read_only=True),
+         "ZRO and bias tracking state YAML ('' = $ROS_HOME/mlx_tempcomp/<namespace>/<node "
+         'name>_zro.yaml, ROS_HOME defaulting to ~/.ros)', read_only=True),
     Spec('stale_timeout_s', 1.0, 'no input for this long is reported as stale', low=0.01,
          high=3600.0),
     Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
@@ -109,8 +110,6 @@ def model_error_of(values: dict) -> Optional[ModelErrorTable]:
     return ModelErrorTable(tuple(temperature), tuple(tuple(column) for column in errors))
 
 
-def state_file_of(values: dict, node_name: str) -> str:
-    path = values['recalibration.state_file']
-    if not path:
-        path = os.path.join('~', '.ros', 'mlx_tempcomp', f'{node_name}_zro.yaml')
-    return os.path.expanduser(path)
+def state_file_of(values: dict, fully_qualified_name: str, log) -> str:
+    """Give the node's state file: the parameter, else its default (`state_paths.state_path`)."""
+    return state_path(values['recalibration.state_file'], fully_qualified_name, '_zro.yaml', log)

@@ -77,8 +77,9 @@ class CompensationNode(Node):
         self.eeprom_error = ''
         # The model first: a node that cannot start leaves its state file as it is.
         model = build_model(self.values)
-        self.recalibration = ZroRecalibration(state_file_of(self.values, self.get_name()),
-                                              self.axes, self.get_logger())
+        self.recalibration = ZroRecalibration(
+            state_file_of(self.values, self.get_fully_qualified_name(), self.get_logger().warn),
+            self.axes, self.get_logger())
         self.recalibration.load(self._full_scale_rad_s())
         model = self._with_saved_offset(model)
         self.model = None
