@@ -48,7 +48,7 @@ class Events(list):
 
 
 def run(pairer: ReadingPairer, events, stream: str = 'temperature') -> dict:
-    """Feed ``events`` one by one; give {sample stamp: (arrival index decided, Reading or None)}."""
+    """Feed ``events`` one by one; give {sample stamp: (arrival decided at, Reading or None)}."""
     decided = {}
     for index, (kind, stamp) in enumerate(events):
         if kind == 'sample':
