@@ -9,7 +9,7 @@ arrivals, never in time.
 
 import math
 
-from mlx_tempcomp.core.pairing import ReadingPairer
+from mlx_tempcomp.core.pairing import APART, ReadingPairer, SHARED
 import pytest
 
 S = 1_000_000_000     # ns per second
@@ -94,10 +94,10 @@ def test_hold_pairs_every_sample_at_once_with_the_latest_reading(sample_hz, read
             continue
         held = latest_before(stamp, readings)
         assert reading.value == temperature_at(held)
-        assert reading.exact is None and reading.age_ns == stamp - held
+        assert not reading.exact and reading.age_ns == stamp - held
         assert reading.age_ns < reading_period
         assert index == arrival_index(events, stamp), 'a sample waited for a reading'
-    assert not pairer.shared_stamps
+    assert pairer.stamps == APART
 
 
 @pytest.mark.parametrize('sample_hz, reading_hz', [(100, 1), (1000, 10)])
@@ -176,7 +176,7 @@ def test_readings_that_stop(interpolate):
 
 
 def test_a_driver_stamping_both_alike_is_paired_exactly_whatever_comes_first():
-    """Equal stamps, the temperature arriving after its sample: each waits for its own."""
+    """Equal stamps, the temperature after its sample: each waits for its own, as by stamp."""
     stamps = [k * S // 100 for k in range(300)]
     events = Events()
     for stamp in stamps:
@@ -188,13 +188,14 @@ def test_a_driver_stamping_both_alike_is_paired_exactly_whatever_comes_first():
     for stamp in stamps:
         index, reading = decided[stamp]
         if stamp == lost:
-            # Lost: held with the one before, once the next one showed it will not come.
-            assert reading.exact is None and reading.value == temperature_at(stamps[149])
+            # Lost: unpaired, as exact pairing drops it, once the next one showed it is.
+            assert reading is None
             assert index == events.index(('reading', stamps[151]))
             continue
-        assert reading.exact == ('msg', stamp) and reading.value == temperature_at(stamp)
+        assert reading.exact and reading.payload == ('msg', stamp)
+        assert reading.value == temperature_at(stamp)
         assert index == events.index(('reading', stamp))
-    assert pairer.shared_stamps
+    assert pairer.stamps == SHARED and pairer.lost == pairer.unpaired == 1
 
 
 def test_a_slow_temperature_stamped_like_every_hundredth_sample_does_not_hold_the_rate_back():
@@ -210,7 +211,7 @@ def test_a_slow_temperature_stamped_like_every_hundredth_sample_does_not_hold_th
     # before its reading, and is held with the one before.
     assert all(decided[stamp][1].value == temperature_at(stamp - S)
                for stamp in decided if stamp % S == 0 and stamp > S)
-    assert not pairer.shared_stamps
+    assert pairer.stamps == APART
 
 
 def test_several_streams_each_paired():
@@ -233,7 +234,7 @@ def test_late_samples_and_readings_slot_in_by_stamp():
     for stamp, value in ((0, 1.0), (2 * S, 3.0), (S, 2.0)):
         pairer.add_reading('t', stamp, value)
     pairer.add_reading('t', S, 2.5)   # the same stamp again replaces
-    pairer._run, pairer.shared_stamps = (0, 2), False
+    pairer.stamps = APART
     for stamp in (3 * S // 2, S // 2):
         pairer.add_sample(stamp, stamp)
     paired, unpaired = pairer.pop()

@@ -89,17 +89,21 @@ def zero_order_hold(sample_stamps_ns, stamps_ns, values, max_age_ns: int):
 
 @dataclass(frozen=True)
 class Reading:
-    """What a sample got of one reading stream: the value, the reading when exact, the age."""
+    """What a sample got of one reading stream: the value, the reading, exact or not, the age."""
 
     value: float
-    exact: object       # the payload of a reading stamped like the sample, else None
+    payload: object     # of the reading held (interpolated: of the one before)
+    exact: bool         # the reading is stamped like the sample: value and payload are its own
     age_ns: int         # from the sample to the farthest reading used, either way
 
 
-# A sample's verdict while its readings may still come.
+# A sample's verdicts besides its readings: they may still come; its own reading was lost.
 WAIT = 'wait'
-# Consecutive samples paired exactly (or not) that switch the wait for the same stamp on (off).
+LOST = 'lost'
+# Consecutive samples paired exactly (or not) that tell the streams share stamps (or not).
 _SWITCH_RUN = 2
+# How the streams stamp: not known yet, alike (every sample has a reading of its stamp), apart.
+PRESUMED, SHARED, APART = 'presumed', 'shared', 'apart'
 
 
 class ReadingPairer:
@@ -114,10 +118,14 @@ class ReadingPairer:
     - ``hold``: else the latest reading stamped before it, within ``max_age_ns``
       (a sample older than every reading takes the first one, within the age). It
       is decided at once with what has come: a sample does not wait for a slower
-      stream. Only while the streams share stamps (the last samples each found a
-      reading of their own stamp: a driver that stamps both alike) does a sample
-      wait for its own, so the choice does not depend on which topic came first;
-      a reading stamped after it, or ``max_age_ns`` of later samples, end the wait.
+      stream. Only while the streams share stamps (``stamps`` SHARED: the last
+      samples each found a reading of their own stamp, a driver that stamps both
+      alike) does a sample wait for its own, so the choice does not depend on
+      which topic came first, and one whose reading was lost (a reading stamped
+      after it came first) is unpaired and counted (``lost``), as exact pairing
+      drops it; ``max_age_ns`` of later samples end the wait with a hold. Until
+      samples show how the streams stamp (PRESUMED, at start), a sample waits for
+      its own too, and is held when a later reading comes first.
     - ``interpolate``: linear between the readings before and after it, both
       within the age; a sample waits for the reading after it, at most until
       samples stamped ``max_age_ns`` later have come (then it is unpaired).
@@ -140,19 +148,16 @@ class ReadingPairer:
         self._pending: list = []         # (stamp_ns, arrival, sample), ascending
         self._arrivals = 0
         self.newest_sample_ns: Optional[int] = None
-        self.shared_stamps = True        # presumed until samples show otherwise
-        self._run = (_SWITCH_RUN, 0)     # (exact, not exact) samples in a row
+        self.stamps = PRESUMED
+        self._run = (0, 0)               # (exact, not exact) samples in a row
         self.paired = 0
         self.unpaired = 0
         self.expired_before_first = 0
+        self.lost = 0
 
     @property
     def waiting(self) -> int:
         return len(self._pending)
-
-    def has_readings(self) -> bool:
-        """Tell whether every stream gave a reading."""
-        return all(self._stamps[s] for s in self.streams)
 
     def add_reading(self, stream: str, stamp_ns: int, value: float, payload=None) -> None:
         """Keep a reading: a late one slots in by stamp, a repeated stamp replaces."""
@@ -194,13 +199,16 @@ class ReadingPairer:
             if readings is WAIT:
                 break
             decided += 1
-            if readings is None:
+            if readings is None or readings is LOST:
                 self.unpaired += 1
                 unpaired.append((stamp, sample))
+                if readings is LOST:
+                    self.lost += 1
+                    self._follow(False)
                 continue
             self.paired += 1
             paired.append((stamp, sample, readings))
-            self._follow(all(r.exact is not None for r in readings.values()))
+            self._follow(all(r.exact for r in readings.values()))
         del pending[:decided]
         return paired, unpaired
 
@@ -209,9 +217,9 @@ class ReadingPairer:
         hits, misses = self._run
         self._run = (hits + 1, 0) if exact else (0, misses + 1)
         if self._run[0] >= _SWITCH_RUN:
-            self.shared_stamps = True
+            self.stamps = SHARED
         elif self._run[1] >= _SWITCH_RUN:
-            self.shared_stamps = False
+            self.stamps = APART
 
     def _decide(self, stamp: int, overflow: bool):
         """Give the sample's {stream: Reading}, None when it cannot be paired, or WAIT."""
@@ -223,37 +231,55 @@ class ReadingPairer:
                 if expired:
                     self.expired_before_first += 1
                 return WAIT if not expired else None
-            if reading is WAIT or reading is None:
+            if reading is WAIT or reading is None or reading is LOST:
                 return reading
             readings[stream] = reading
         return readings
 
     def _reading(self, stream: str, stamp: int, expired: bool):
-        """One stream's `Reading` for a sample at ``stamp``, None (none usable) or WAIT."""
+        """One stream's `Reading` for a sample at ``stamp``, None (none usable), WAIT, LOST."""
         stamps, readings = self._stamps[stream], self._readings[stream]
         if not stamps:
             return None
         index = bisect.bisect_right(stamps, stamp) - 1
         if index >= 0 and stamps[index] == stamp:
             value, payload = readings[index]
-            return Reading(value, payload, 0)
+            return Reading(value, payload, True, 0)
         if index < 0:
             # Older than every reading: the first one, as a hold does.
             age = stamps[0] - stamp
-            return Reading(readings[0][0], None, age) if age <= self.max_age_ns else None
+            return Reading(*readings[0], False, age) if age <= self.max_age_ns else None
         before = stamp - stamps[index]
         if index + 1 < len(stamps):
             if not self.interpolate:
-                return Reading(readings[index][0], None, before) \
+                if self.stamps == SHARED:
+                    return LOST
+                return Reading(*readings[index], False, before) \
                     if before <= self.max_age_ns else None
             after = stamps[index + 1] - stamp
             if max(before, after) > self.max_age_ns:
                 return None
-            low, high = readings[index][0], readings[index + 1][0]
-            return Reading(low + (high - low) * (before / (before + after)), None,
+            (low, payload), high = readings[index], readings[index + 1][0]
+            return Reading(low + (high - low) * (before / (before + after)), payload, False,
                            max(before, after))
-        if not expired and (self.interpolate or self.shared_stamps):
+        if not expired and (self.interpolate or self.stamps != APART):
             return WAIT
         if self.interpolate or before > self.max_age_ns:
             return None
-        return Reading(readings[index][0], None, before)
+        return Reading(*readings[index], False, before)
+
+    def has_readings(self, streams=None) -> bool:
+        """Tell whether each of ``streams`` (default: all) gave a reading."""
+        return all(self._stamps[s] for s in (self.streams if streams is None else streams))
+
+    def set_streams(self, streams: Tuple[str, ...]) -> None:
+        """Pair with ``streams`` from now on: the readings of those kept stay."""
+        self._stamps = {s: self._stamps.get(s, []) for s in streams}
+        self._readings = {s: self._readings.get(s, []) for s in streams}
+        self.streams = tuple(streams)
+
+    def take_waiting(self) -> list:
+        """Give the samples waiting, (stamp_ns, sample) in stamp order, and forget them."""
+        waiting = [(stamp, sample) for stamp, _, sample in self._pending]
+        self._pending = []
+        return waiting

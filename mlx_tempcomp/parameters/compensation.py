@@ -56,6 +56,26 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('supply_voltage.max_age_s', 5.0,
          'hold: a voltage further than this from the sample stamp is not used; the sample '
          'is skipped and counted', low=0.0, high=3600.0),
+    Spec('temperature.pairing', 'hold',
+         'how imu/temperature_raw (and a second temperature) pairs with the Imu samples: '
+         'hold = the latest reading stamped at or before each sample, at once (a driver that '
+         'rates and stamps its temperature its own way; one that stamps both alike is paired '
+         'exactly); interpolate = linear between the readings before and after, which waits '
+         'for the one after; stamp = the reading with the same stamp only; none = the driver '
+         'sends no temperature: the rate only, less the tracked offset',
+         read_only=True, choices=('hold', 'interpolate', 'stamp', 'none')),
+    Spec('temperature.max_age_s', 2.0,
+         'hold, interpolate: a reading further than this from the sample stamp is not used; '
+         'the sample is skipped and counted (a sample waits at most this long, in sensor '
+         'time, for a reading)', read_only=True, low=0.0, high=3600.0),
+    Spec('temperature.wait_s', 5.0,
+         'Imu samples with no temperature at all this long after the first one (sensor '
+         'time) go on with the rate only, less the tracked offset, until a temperature comes',
+         read_only=True, low=0.0, high=3600.0),
+    Spec('rate_only.offset_std_rad_s', math.radians(1.0),
+         'with the rate only (no temperature, or no factory tables for the eeprom model): '
+         "the raw rate offset's standard deviation before the tracking learns it, and the "
+         'most it grows to; its square goes into the Imu covariance', low=0.0, high=10.0),
 ) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
           for p in TRACKING_PARAMETERS) + (
     # The node's own, not the unit's: fit and diagnose do not write it.

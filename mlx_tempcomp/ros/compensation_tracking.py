@@ -23,6 +23,7 @@ write, at most once every ``bias_tracking.save_period_s`` of sensor time, and at
 stop; read back at start (`tracking_state`) and applied when the model matches.
 """
 
+from dataclasses import replace
 from datetime import datetime, timezone
 import math
 import reprlib
@@ -109,6 +110,7 @@ class CompensationTracking:
         self.save_period_s = values['bias_tracking.save_period_s']
         self.tracker: Optional[BiasTracking] = None
         self.key = None
+        self.initial_std_rad_s = None   # the followed model's own, else the settings'
         self.held_state = None          # the state while tracking is off, to resume from
         self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
         self.written_updates = None     # the tracker's updates at the last write
@@ -194,16 +196,18 @@ class CompensationTracking:
 
     # The model and the parameters.
 
-    def follow(self, model) -> None:
+    def follow(self, model, initial_std_rad_s=None) -> None:
         """
         Track relative to ``model`` from the next sample on.
 
         The same coefficients keep the tracker (a new ZRO offset comes with a `seed`);
         others start it from the saved state if that was learnt on this very model and
-        ZRO offset, else from nothing.
+        ZRO offset, else from nothing. ``initial_std_rad_s`` (per axis) replaces the
+        settings' for this model: the rate only's offset is not a model's residual.
         """
         if model is None:
             return
+        self.initial_std_rad_s = initial_std_rad_s
         key = _model_key(model)
         if self.key is not None and key[:2] == self.key[:2]:
             self.key = key
@@ -229,8 +233,11 @@ class CompensationTracking:
         self.written_updates = None if self.tracker is None else self.tracker.updates
 
     def _build(self, state) -> None:
-        self.tracker = None if self.settings is None or self.key is None else \
-            BiasTracking(self.settings, self.axes, state=state)
+        settings = self.settings
+        if settings is not None and self.initial_std_rad_s is not None:
+            settings = replace(settings, initial_std_rad_s=tuple(self.initial_std_rad_s))
+        self.tracker = None if settings is None or self.key is None else \
+            BiasTracking(settings, self.axes, state=state)
 
     def configure(self, values: dict) -> None:
         """Take new ``bias_tracking.*`` values (checked before); the offset carries over."""
