@@ -264,12 +264,16 @@ class CompensationInputs:
             return []   # an auxiliary input, subscribed for an earlier model
         complete = self._add(stream, msg)
         budget = max_block - 1
+        active = [(name, subscription) for name, subscription in self.subscriptions.items()
+                  if name in streams]
         while budget > 0:
             taken = 0
-            for name, subscription in self.subscriptions.items():
-                if name not in streams:
-                    continue
-                for message in itertools.islice(waiting_messages(subscription), budget):
+            # In turns: a burst of rate must not use the budget up before the temperature
+            # that goes with it is taken.
+            turn = max(1, budget // max(1, len(active)))
+            for name, subscription in active:
+                for message in itertools.islice(waiting_messages(subscription),
+                                                min(turn, budget)):
                     complete += self._add(name, message)
                     taken += 1
                     budget -= 1

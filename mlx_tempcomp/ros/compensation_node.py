@@ -23,6 +23,7 @@ stamp like the temperature (``stamp``). The ``imu/recalibrate_zro`` service
 (std_srvs/Trigger) learns the ZRO residual at rest, seeds the tracker and persists both.
 """
 
+import bisect
 from dataclasses import replace
 import math
 import time
@@ -267,10 +268,15 @@ class CompensationNode(Node):
 
     def _process(self, samples: list, has_temperature: bool) -> None:
         """Compensate samples all with or all without a temperature as one block."""
-        stream = self._running(has_temperature, samples[-1][0])
-        if stream is None:
-            self.inputs.samples_waiting += len(samples)
-            return
+        if has_temperature and self.stream is None:
+            # The eeprom model without its tables: the samples wait eeprom.wait_s of stamps.
+            wait_ns = self.inputs.first_imu_ns + int(self.values['eeprom.wait_s'] * 1e9)
+            waiting = bisect.bisect_left([stamp for stamp, _ in samples], wait_ns)
+            self.inputs.samples_waiting += waiting
+            samples = samples[waiting:]
+            if not samples:
+                return
+        stream = self._running(has_temperature)
         alone = stream is self.rate_only_stream
         block = self.inputs.block(samples, self.values['supply_voltage.max_age_s'], not alone)
         if block is None:
@@ -285,8 +291,8 @@ class CompensationNode(Node):
         self.outputs.publish(block, tracked, clamped, stds)
         self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, rates)
 
-    def _running(self, has_temperature: bool, stamp_ns: int):
-        """Give the stream to run: the model's, the rate only's, or None (samples wait)."""
+    def _running(self, has_temperature: bool):
+        """Give the stream to run: the model's, else the rate only's (`alone` says why)."""
         if has_temperature and self.stream is not None:
             if self.alone:
                 self.alone = ''
@@ -295,9 +301,6 @@ class CompensationNode(Node):
                                        '(a temperature and the model are there)')
             return self.stream
         if has_temperature:
-            waited_s = (stamp_ns - self.inputs.first_imu_ns) / 1e9
-            if waited_s < self.values['eeprom.wait_s']:
-                return None
             reason = (f'no factory tables on imu/eeprom {self.values["eeprom.wait_s"]:g} s '
                       'after the first sample: the eeprom model needs an MLX90609 driver; with '
                       'another, give a fitted model (mlx-tempcomp fit) or polynomial')
