@@ -96,7 +96,12 @@ def test_hold_pairs_every_sample_at_once_with_the_latest_reading(sample_hz, read
         assert reading.value == temperature_at(held)
         assert not reading.exact and reading.age_ns == stamp - held
         assert reading.age_ns < reading_period
-        assert index == arrival_index(events, stamp), 'a sample waited for a reading'
+        if stamp < readings[1]:
+            # At start it is not known yet how the streams stamp: a sample waits for a
+            # reading of its own stamp until the next reading shows there is none, once.
+            assert index == events.index(('reading', readings[1]))
+        else:
+            assert index == arrival_index(events, stamp), 'a sample waited for a reading'
     assert pairer.stamps == APART
 
 
@@ -129,12 +134,11 @@ def test_readings_half_a_second_late():
     events = arrivals(S // 100, S, 30 * S, reading_offset_ns=S // 4, reading_delay_ns=S // 2)
     readings = [stamp for kind, stamp in events if kind == 'reading']
     samples = [stamp for kind, stamp in events if kind == 'sample']
-    first = readings[0] + S // 2   # when the first reading arrives
     held = run(ReadingPairer(('temperature',), False, 2 * S), events)
     for stamp in samples:
         index, reading = held[stamp]
         assert reading is not None
-        if stamp > first:
+        if stamp > readings[1] + S // 2:
             assert index == arrival_index(events, stamp), 'held back'
             # The latest reading that had arrived: up to 1.5 s old.
             arrived = [r for r in readings if r + S // 2 < stamp]
@@ -264,3 +268,84 @@ def test_the_waiting_samples_are_bounded():
     paired, unpaired = pairer.pop()
     assert len(unpaired) == 50 and pairer.waiting == 100
     assert math.isclose(pairer.unpaired, 50)
+
+
+def shared_stamps(pairer: ReadingPairer, stamps, lost=()) -> dict:
+    """Feed samples and readings stamped alike, each reading after its sample, some lost."""
+    decided = {}
+    for stamp in stamps:
+        pairer.add_sample(stamp, stamp)
+        if stamp not in lost:
+            pairer.add_reading('t', stamp, temperature_at(stamp))
+        paired, unpaired = pairer.pop()
+        decided.update({s: r['t'] for s, _, r in paired})
+        decided.update({s: None for s, _ in unpaired})
+    return decided
+
+
+def test_shared_stamps_survive_readings_lost_now_and_then():
+    """Best effort loses a reading now and then: those samples drop, the rest stay exact."""
+    stamps = [k * S // 100 for k in range(200)]
+    lost = set(stamps[50:70]) | {stamps[100]}
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=2 * S)
+    decided = shared_stamps(pairer, stamps, lost)
+    assert pairer.stamps == SHARED
+    assert [s for s, r in decided.items() if r is None] == sorted(lost)
+    assert all(r.exact for r in decided.values() if r is not None)
+    assert pairer.lost == len(lost)
+
+
+def test_shared_stamps_end_when_readings_stop_coming_with_every_sample():
+    """Half the last samples without their own (a slower temperature now): apart, held."""
+    stamps = [k * S // 100 for k in range(400)]
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=2 * S)
+    shared_stamps(pairer, stamps[:200])
+    assert pairer.stamps == SHARED
+    # From now on a reading with every tenth sample only: half a second dropped.
+    decided = shared_stamps(pairer, stamps[200:], lost=set(stamps[200:]) - set(stamps[200::10]))
+    assert pairer.stamps == APART
+    assert 0 < pairer.lost <= 50
+    assert all(decided[s] is not None for s in stamps[260:])
+
+
+def test_samples_older_than_every_reading_tell_nothing_of_how_the_streams_stamp():
+    """A temperature subscription matched late: its first readings never came."""
+    stamps = [k * S // 100 for k in range(20)]
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=2 * S)
+    for stamp in stamps[:10]:
+        pairer.add_sample(stamp, stamp)
+    assert pairer.pop() == ([], [])
+    decided = shared_stamps(pairer, stamps[10:])
+    assert all(decided[s].value == temperature_at(stamps[10]) for s in stamps[:10])
+    assert all(decided[s].exact for s in stamps[10:])
+    assert pairer.stamps == SHARED
+
+
+def test_streams_change_and_waiting_samples_are_taken():
+    pairer = ReadingPairer(('a',), interpolate=False, max_age_ns=S)
+    pairer.add_reading('a', 0, 1.0)
+    assert pairer.has_readings()
+    pairer.set_streams(('a', 'b'))
+    assert not pairer.has_readings() and pairer.has_readings(('a',))
+    pairer.add_sample(S // 2, 'x')
+    assert pairer.pop() == ([], []) and pairer.waiting == 1   # b has no reading yet
+    assert pairer.take_waiting() == [(S // 2, 'x')] and pairer.waiting == 0
+
+
+def test_shared_stamps_that_stop_are_dropped_as_by_stamp_then_held_then_unpaired():
+    stamps = [k * S // 100 for k in range(800)]
+    pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=2 * S, shared_wait_ns=3 * S)
+    decided = shared_stamps(pairer, stamps[:300], lost=set(stamps[100:]))
+    last = stamps[99]
+    # Each waits for its own, as pairing by stamp does, up to 3 s of later samples...
+    assert pairer.waiting == 200 and pairer.waiting_ns == stamps[299] - stamps[100]
+    assert pairer.stamps == SHARED and all(s not in decided for s in stamps[100:])
+    decided.update(shared_stamps(pairer, stamps[300:], lost=set(stamps)))
+    # ... then it is dropped, until half the last samples are: then apart, held within the
+    # age, then none.
+    dropped = [s for s in stamps[100:] if decided[s] is None and s - last <= 2 * S]
+    assert 0 < len(dropped) == pairer.lost <= 50 and pairer.stamps == APART
+    held = [s for s in stamps[100:] if decided[s]]
+    assert held and all(decided[s].value == temperature_at(last) for s in held)
+    assert all(decided[s] is None for s in stamps[100:] if s - last > 2 * S)
+    assert pairer.waiting == 0

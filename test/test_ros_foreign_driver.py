@@ -402,3 +402,27 @@ def test_temperature_pairing_none_runs_the_rate_only_from_the_first_sample(launc
     start = next(line for line in node.output().splitlines() if 'waits for' in line)
     assert 'no temperature (temperature.pairing none): the rate only' in start
     assert 'imu/temperature_raw' not in start.partition('publishes')[0]
+
+
+def test_a_temperature_without_imu_is_told_apart_from_nothing_at_all(launcher, probe,
+                                                                     tmp_path, fitted):
+    start_node(launcher, tmp_path, {**UNTRACKED, 'stale_timeout_s': 1.0}, [fitted])
+    probe.subscribe_diagnostics()
+    driver = ForeignDriver(probe)
+    driver.wait_for(launcher)
+    sent = []
+
+    def one_more_reading_then_said():
+        msg = Temperature()
+        msg.header.stamp = messages.ns_to_stamp(START_NS + len(sent) * S // 10)
+        msg.temperature = 25.0
+        driver.temperature.publish(msg)
+        sent.append(msg)
+        return [s for s in compensation_statuses(probe) if s.message == (
+            'stale input: no Imu samples on imu/data_raw yet while the temperature arrives')]
+    said = probe.spin_until(one_more_reading_then_said, TIMEOUT_S,
+                            'the status of a temperature without Imu', launcher)
+    values = status_values(said[-1])
+    assert said[-1].level == DiagnosticStatus.ERROR
+    assert values['imu_age_s'] == 'nan' and float(values['temperature_age_s']) < 1.0
+    assert values['samples_out'] == '0'

@@ -10,6 +10,7 @@ rate at 100 Hz), deciding each sample as soon as its readings allow.
 """
 
 import bisect
+import collections
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
@@ -100,8 +101,12 @@ class Reading:
 # A sample's verdicts besides its readings: they may still come; its own reading was lost.
 WAIT = 'wait'
 LOST = 'lost'
-# Consecutive samples paired exactly (or not) that tell the streams share stamps (or not).
-_SWITCH_RUN = 2
+# How the streams stamp is read from the last samples decided: shared when at least 3 in 4
+# found a reading of their own stamp (a best-effort stream on a loaded machine loses a run
+# of them now and then), apart at half or less (a temperature at a tenth of the rate,
+# stamped like every tenth sample).
+_OUTCOMES = 100
+_SHARED_SHARE, _APART_SHARE = 0.75, 0.5
 # How the streams stamp: not known yet, alike (every sample has a reading of its stamp), apart.
 PRESUMED, SHARED, APART = 'presumed', 'shared', 'apart'
 
@@ -119,13 +124,17 @@ class ReadingPairer:
       (a sample older than every reading takes the first one, within the age). It
       is decided at once with what has come: a sample does not wait for a slower
       stream. Only while the streams share stamps (``stamps`` SHARED: the last
-      samples each found a reading of their own stamp, a driver that stamps both
-      alike) does a sample wait for its own, so the choice does not depend on
-      which topic came first, and one whose reading was lost (a reading stamped
-      after it came first) is unpaired and counted (``lost``), as exact pairing
-      drops it; ``max_age_ns`` of later samples end the wait with a hold. Until
-      samples show how the streams stamp (PRESUMED, at start), a sample waits for
-      its own too, and is held when a later reading comes first.
+      samples found a reading of their own stamp, a driver that stamps both
+      alike) is it paired as by stamp: a sample waits for its own reading, so the
+      choice does not depend on which topic came first, and one whose reading
+      was lost (a reading stamped after it came first, or ``shared_wait_ns`` of
+      later samples: a loaded machine may hold one topic back for seconds of a
+      fast driver's stamps) is unpaired and counted (``lost``), as exact pairing
+      drops it.
+      Until samples show how the streams stamp (PRESUMED, at start), a sample
+      waits for its own too, and is held when a later reading comes first. The share of the
+      last samples (2 to 20) paired exactly tells SHARED (3 in 4) or APART (half
+      or less); a sample older than every reading (they began after it) tells nothing.
     - ``interpolate``: linear between the readings before and after it, both
       within the age; a sample waits for the reading after it, at most until
       samples stamped ``max_age_ns`` later have come (then it is unpaired).
@@ -137,10 +146,11 @@ class ReadingPairer:
     """
 
     def __init__(self, streams: Tuple[str, ...], interpolate: bool, max_age_ns: int,
-                 capacity: int = 20000, history: int = 256):
+                 capacity: int = 20000, history: int = 256, shared_wait_ns: int = 10 * 10 ** 9):
         self.streams = tuple(streams)
         self.interpolate = interpolate
         self.max_age_ns = int(max_age_ns)
+        self.shared_wait_ns = max(int(shared_wait_ns), self.max_age_ns)
         self.capacity = capacity
         self.history = history
         self._stamps: Dict[str, list] = {s: [] for s in self.streams}
@@ -149,7 +159,8 @@ class ReadingPairer:
         self._arrivals = 0
         self.newest_sample_ns: Optional[int] = None
         self.stamps = PRESUMED
-        self._run = (0, 0)               # (exact, not exact) samples in a row
+        self._outcomes = collections.deque(maxlen=_OUTCOMES)   # exact or not, the last
+        self._before_every_reading = False
         self.paired = 0
         self.unpaired = 0
         self.expired_before_first = 0
@@ -158,6 +169,11 @@ class ReadingPairer:
     @property
     def waiting(self) -> int:
         return len(self._pending)
+
+    @property
+    def waiting_ns(self) -> int:
+        """Give how long in stamps the oldest sample waiting has waited (0: none waits)."""
+        return self.newest_sample_ns - self._pending[0][0] if self._pending else 0
 
     def add_reading(self, stream: str, stamp_ns: int, value: float, payload=None) -> None:
         """Keep a reading: a late one slots in by stamp, a repeated stamp replaces."""
@@ -208,25 +224,32 @@ class ReadingPairer:
                 continue
             self.paired += 1
             paired.append((stamp, sample, readings))
-            self._follow(all(r.exact for r in readings.values()))
+            if not self._before_every_reading:
+                self._follow(all(r.exact for r in readings.values()))
         del pending[:decided]
         return paired, unpaired
 
     def _follow(self, exact: bool) -> None:
-        """Switch the wait for the same stamp by the last samples' pairing."""
-        hits, misses = self._run
-        self._run = (hits + 1, 0) if exact else (0, misses + 1)
-        if self._run[0] >= _SWITCH_RUN:
+        """Tell how the streams stamp from the last samples' pairing."""
+        outcomes = self._outcomes
+        outcomes.append(exact)
+        if len(outcomes) < 2:
+            return
+        share = sum(outcomes) / len(outcomes)
+        if share >= _SHARED_SHARE:
             self.stamps = SHARED
-        elif self._run[1] >= _SWITCH_RUN:
+        elif share <= _APART_SHARE:
             self.stamps = APART
 
     def _decide(self, stamp: int, overflow: bool):
-        """Give the sample's {stream: Reading}, None when it cannot be paired, or WAIT."""
-        expired = overflow or self.newest_sample_ns - stamp > self.max_age_ns
+        """Give the sample's {stream: Reading}, None when it cannot be paired, WAIT or LOST."""
+        newer_ns = self.newest_sample_ns - stamp
+        expired = overflow or newer_ns > self.max_age_ns
+        late = overflow or newer_ns > self.shared_wait_ns
+        self._before_every_reading = False
         readings = {}
         for stream in self.streams:
-            reading = self._reading(stream, stamp, expired)
+            reading = self._reading(stream, stamp, expired, late)
             if reading is None and not self._stamps[stream]:
                 if expired:
                     self.expired_before_first += 1
@@ -236,7 +259,7 @@ class ReadingPairer:
             readings[stream] = reading
         return readings
 
-    def _reading(self, stream: str, stamp: int, expired: bool):
+    def _reading(self, stream: str, stamp: int, expired: bool, late: bool):
         """One stream's `Reading` for a sample at ``stamp``, None (none usable), WAIT, LOST."""
         stamps, readings = self._stamps[stream], self._readings[stream]
         if not stamps:
@@ -245,15 +268,17 @@ class ReadingPairer:
         if index >= 0 and stamps[index] == stamp:
             value, payload = readings[index]
             return Reading(value, payload, True, 0)
+        if self.stamps == SHARED and not self.interpolate:
+            # As by stamp: its own reading, or none (one stamped after it came first).
+            return LOST if index < 0 or index + 1 < len(stamps) or late else WAIT
         if index < 0:
             # Older than every reading: the first one, as a hold does.
+            self._before_every_reading = True
             age = stamps[0] - stamp
             return Reading(*readings[0], False, age) if age <= self.max_age_ns else None
         before = stamp - stamps[index]
         if index + 1 < len(stamps):
             if not self.interpolate:
-                if self.stamps == SHARED:
-                    return LOST
                 return Reading(*readings[index], False, before) \
                     if before <= self.max_age_ns else None
             after = stamps[index + 1] - stamp

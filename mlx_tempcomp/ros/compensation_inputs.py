@@ -193,6 +193,14 @@ class CompensationInputs:
         return not self.without_temperature and self.first_imu_ns is not None and \
             not self._temperature_came()
 
+    @property
+    def held_back(self) -> tuple:
+        """Give (samples waiting for their readings, the oldest one's wait in stamps, s)."""
+        readings = self.readings
+        if readings is None or not readings.waiting:
+            return 0, 0.0
+        return readings.waiting, readings.waiting_ns / 1e9
+
     def clear_recent(self) -> None:
         """Start a new status period: no sample left out recently."""
         self.no_acceleration_recent = False

@@ -216,7 +216,8 @@ class CompensationNode(Node):
                 (lambda msg, s=stream: self.on_input(s, msg))
             inputs.subscriptions[stream] = stream_subscription(
                 self, auxiliary.message_type, auxiliary.topic, callback)
-        self.tracking.follow(model)
+        if not self.alone:   # else the tracker follows the rate only until the model runs
+            self.tracking.follow(model)
 
     # Stream.
     def on_eeprom(self, msg: UInt8MultiArray) -> None:
@@ -313,11 +314,12 @@ class CompensationNode(Node):
             self.alone = reason
             std = self.values['rate_only.offset_std_rad_s']
             self.tracking.follow(self.rate_only, [std] * len(self.axes))
+            until = '' if self.values['temperature.pairing'] == 'none' else \
+                ', until they come' if has_temperature else ', until one comes'
             self.get_logger().warn(
-                f'{reason}: the rate only, less the tracked offset, no temperature model, '
-                f'until {"they come" if has_temperature else "one comes"}; Imu covariance: '
-                f'rate noise + offset std {math.degrees(std):.3g} deg/s at most '
-                '(rate_only.offset_std_rad_s)')
+                f'{reason}: the rate only, less the tracked offset, no temperature model'
+                f'{until}; Imu covariance: rate noise + offset std {math.degrees(std):.3g} '
+                'deg/s at most (rate_only.offset_std_rad_s)')
         return self.rate_only_stream
 
     # Recalibration.

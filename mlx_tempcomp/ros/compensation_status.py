@@ -80,6 +80,7 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str, alone
         'no_temperature_samples': inputs.no_temperature_samples,
         'imu_age_s': imu_age_s, 'temperature_age_s': temperature_age_s,
         'temperature_stamp_age_s': inputs.temperature_stamp_age_ns / 1e9,
+        'samples_waiting_for_temperature': inputs.held_back[0],
         'temperature_clamped_samples': outputs.clamped_samples,
         'model_error_temperatures': 0 if model_error is None else
         len(model_error.temperature_c),
@@ -106,8 +107,9 @@ def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, trackin
     topics = ', '.join(inputs.temperature_topics.values())
     if not imu_age_s <= stale_s:   # NaN before the first too
         if temperature_age_s <= stale_s:
+            since = 'yet' if inputs.last_imu is None else f'for {imu_age_s:.3g} s'
             return (DiagnosticStatus.ERROR, f'stale input: no Imu samples on imu/data_raw '
-                    f'for {imu_age_s:.3g} s while the temperature arrives')
+                    f'{since} while the temperature arrives')
         return DiagnosticStatus.ERROR, 'stale input: no raw samples'
     if inputs.no_temperature_recent:
         return (DiagnosticStatus.ERROR,
@@ -128,6 +130,11 @@ def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, trackin
                        'imu/supply_voltage gave none within supply_voltage.max_age_s '
                        f'({values["supply_voltage.max_age_s"]:g} s) of the samples: '
                        f'{inputs.no_supply_samples} samples not compensated')
+    elif inputs.held_back[1] > values['temperature.max_age_s']:
+        waiting, waited_s = inputs.held_back
+        level, text = (DiagnosticStatus.WARN,
+                       f'{waiting} Imu samples waiting for the temperature of their own stamp '
+                       f'on {topics}, the oldest {waited_s:.3g} s (stamps): it comes late')
     elif alone:
         level, text = (DiagnosticStatus.WARN,
                        f'rate only: {alone}; the raw rate less the tracked offset, no '
