@@ -86,12 +86,11 @@ def test_hold_pairs_every_sample_at_once_with_the_latest_reading(sample_hz, read
     assert len(decided) == len(samples)
     for stamp in samples:
         index, reading = decided[stamp]
-        assert reading is not None, stamp
         if stamp < readings[0]:
-            # Before the first reading: held back until it came, then given it.
-            assert index == events.index(('reading', readings[0]))
-            assert reading.value == temperature_at(readings[0])
+            # Nothing measured before the first reading: unpaired once it came.
+            assert reading is None and index == events.index(('reading', readings[0]))
             continue
+        assert reading is not None, stamp
         held = latest_before(stamp, readings)
         assert reading.value == temperature_at(held)
         assert not reading.exact and reading.age_ns == stamp - held
@@ -119,7 +118,7 @@ def test_interpolate_waits_for_the_next_reading_and_interpolates(sample_hz, read
             continue
         index, reading = decided[stamp]
         if stamp < readings[0]:
-            assert reading.value == temperature_at(readings[0])
+            assert reading is None
             continue
         before = latest_before(stamp, readings)
         after = min(r for r in readings if r >= stamp)
@@ -137,7 +136,7 @@ def test_readings_half_a_second_late():
     held = run(ReadingPairer(('temperature',), False, 2 * S), events)
     for stamp in samples:
         index, reading = held[stamp]
-        assert reading is not None
+        assert (reading is None) == (stamp < readings[0])
         if stamp > readings[1] + S // 2:
             assert index == arrival_index(events, stamp), 'held back'
             # The latest reading that had arrived: up to 1.5 s old.
@@ -163,16 +162,18 @@ def test_readings_that_stop(interpolate):
     decided = run(pairer, events)
     samples = [stamp for kind, stamp in events if kind == 'sample']
     for stamp in samples:
-        if stamp <= last:
+        if stamp < S // 2:
+            assert decided[stamp][1] is None   # before the first reading
+        elif stamp <= last:
             assert decided[stamp][1] is not None
         elif interpolate or stamp - last > 2 * S:
             if stamp < samples[-1] - 2 * S:
                 assert decided[stamp][1] is None, stamp
         else:
             assert decided[stamp][1].value == temperature_at(last)
-    unpaired = [s for s, (_, r) in decided.items() if r is None]
-    assert pairer.unpaired == len(unpaired) > 0
-    assert pairer.expired_before_first == 0
+    unpaired = [s for s, (_, r) in decided.items() if r is None and s > S // 2]
+    assert pairer.unpaired == len(unpaired) + pairer.before_first
+    assert pairer.before_first == S // 2 // (S // 100)   # the samples before 0.5 s
     # Unpaired: held, at once; interpolated, once samples 2 s later came, no later.
     for stamp in unpaired:
         index, _ = decided[stamp]
@@ -251,14 +252,17 @@ def test_samples_before_any_reading_wait_within_the_age_then_count_apart():
     for k in range(30):
         pairer.add_sample(k * S // 10, k)
     paired, unpaired = pairer.pop()
-    # 0.0 to 1.8 s are more than 1 s older than the newest (2.9 s): they can never pair.
+    # 0.0 to 1.8 s are more than 1 s older than the newest (2.9 s): no reading can come late
+    # enough for them.
     assert paired == [] and [s for _, s in unpaired] == list(range(19))
-    assert pairer.expired_before_first == 19 and pairer.waiting == 11
-    pairer.add_reading('t', 3 * S, 7.0)
+    assert pairer.before_first == 19 and pairer.waiting == 11
+    pairer.add_reading('t', 5 * S // 2, 7.0)
     paired, unpaired = pairer.pop()
-    assert [s for _, s, _ in paired] == list(range(20, 30))    # within 1 s of the reading
-    assert [s for _, s in unpaired] == [19]
-    assert pairer.expired_before_first == 19
+    # Stamped before the first reading (2.5 s): nothing measured then.
+    assert [s for _, s in unpaired] == list(range(19, 25))
+    assert pairer.before_first == 25
+    # 2.5 s is its own; the others wait to see whether the streams share stamps.
+    assert [s for _, s, _ in paired] == [25] and pairer.waiting == 4
 
 
 def test_the_waiting_samples_are_bounded():
@@ -308,15 +312,15 @@ def test_shared_stamps_end_when_readings_stop_coming_with_every_sample():
     assert all(decided[s] is not None for s in stamps[260:])
 
 
-def test_samples_older_than_every_reading_tell_nothing_of_how_the_streams_stamp():
-    """A temperature subscription matched late: its first readings never came."""
+def test_a_temperature_matched_late_drops_the_samples_before_it_then_pairs_exactly():
+    """A temperature subscription matched later than the rate's: dropped as by stamp."""
     stamps = [k * S // 100 for k in range(20)]
     pairer = ReadingPairer(('t',), interpolate=False, max_age_ns=2 * S)
     for stamp in stamps[:10]:
         pairer.add_sample(stamp, stamp)
     assert pairer.pop() == ([], [])
     decided = shared_stamps(pairer, stamps[10:])
-    assert all(decided[s].value == temperature_at(stamps[10]) for s in stamps[:10])
+    assert all(decided[s] is None for s in stamps[:10]) and pairer.before_first == 10
     assert all(decided[s].exact for s in stamps[10:])
     assert pairer.stamps == SHARED
 

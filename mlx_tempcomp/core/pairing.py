@@ -120,33 +120,34 @@ class ReadingPairer:
     in stamp order, each with a `Reading` per stream, or as unpaired:
 
     - a reading stamped like the sample is its own (exact, whatever the mode);
-    - ``hold``: else the latest reading stamped before it, within ``max_age_ns``
-      (a sample older than every reading takes the first one, within the age). It
-      is decided at once with what has come: a sample does not wait for a slower
-      stream. Only while the streams share stamps (``stamps`` SHARED: the last
-      samples found a reading of their own stamp, a driver that stamps both
-      alike) is it paired as by stamp: a sample waits for its own reading, so the
-      choice does not depend on which topic came first, and one whose reading
-      was lost (a reading stamped after it came first, or ``shared_wait_ns`` of
-      later samples: a loaded machine may hold one topic back for seconds of a
-      fast driver's stamps) is unpaired and counted (``lost``), as exact pairing
-      drops it.
-      Until samples show how the streams stamp (PRESUMED, at start), a sample
-      waits for its own too, and is held when a later reading comes first. The share of the
-      last samples (2 to 20) paired exactly tells SHARED (3 in 4) or APART (half
-      or less); a sample older than every reading (they began after it) tells nothing.
+    - ``hold``: else the latest reading stamped before it, within ``max_age_ns``.
+      It is decided at once with what has come: a sample does not wait for a
+      slower stream.
     - ``interpolate``: linear between the readings before and after it, both
       within the age; a sample waits for the reading after it, at most until
       samples stamped ``max_age_ns`` later have come (then it is unpaired).
 
+    How the streams stamp is read from the share of the last samples (2 to 100)
+    paired exactly: SHARED at 3 in 4 (a driver that stamps both alike), APART at
+    half or less, PRESUMED before. While SHARED, a sample pairs as by stamp: it
+    waits for its own reading, so the choice does not depend on which topic came
+    first, and one whose reading was lost (a reading stamped after it came first,
+    or ``shared_wait_ns`` of later samples: a loaded machine may hold one topic
+    back for seconds of a fast driver's stamps) is unpaired and counted
+    (``lost``), as pairing by stamp drops it. While PRESUMED (at start) a sample
+    waits for its own too, and is held when a later reading comes first.
+
     Before the first reading of a stream, samples wait, at most ``max_age_ns`` of
-    later samples; those that expire are counted apart (`expired_before_first`).
-    At most ``capacity`` samples wait (the oldest then goes unpaired) and
-    ``history`` readings per stream are kept.
+    later samples (a late reading may still come for them); those that expire, and
+    those stamped before the first reading (nothing was measured before them: a
+    driver's temperature began later, or its topic was matched later), are
+    unpaired and counted apart (`before_first`). At most ``capacity`` samples wait
+    (the oldest then goes unpaired) and ``history`` readings per stream are kept.
     """
 
     def __init__(self, streams: Tuple[str, ...], interpolate: bool, max_age_ns: int,
-                 capacity: int = 20000, history: int = 256, shared_wait_ns: int = 10 * 10 ** 9):
+                 capacity: int = 20000, history: int = 1024,
+                 shared_wait_ns: int = 10 * 10 ** 9):
         self.streams = tuple(streams)
         self.interpolate = interpolate
         self.max_age_ns = int(max_age_ns)
@@ -160,10 +161,9 @@ class ReadingPairer:
         self.newest_sample_ns: Optional[int] = None
         self.stamps = PRESUMED
         self._outcomes = collections.deque(maxlen=_OUTCOMES)   # exact or not, the last
-        self._before_every_reading = False
         self.paired = 0
         self.unpaired = 0
-        self.expired_before_first = 0
+        self.before_first = 0
         self.lost = 0
 
     @property
@@ -224,8 +224,7 @@ class ReadingPairer:
                 continue
             self.paired += 1
             paired.append((stamp, sample, readings))
-            if not self._before_every_reading:
-                self._follow(all(r.exact for r in readings.values()))
+            self._follow(all(r.exact for r in readings.values()))
         del pending[:decided]
         return paired, unpaired
 
@@ -246,14 +245,17 @@ class ReadingPairer:
         newer_ns = self.newest_sample_ns - stamp
         expired = overflow or newer_ns > self.max_age_ns
         late = overflow or newer_ns > self.shared_wait_ns
-        self._before_every_reading = False
         readings = {}
         for stream in self.streams:
+            stamps = self._stamps[stream]
+            if not stamps and not expired:
+                return WAIT
+            if not stamps or stamp < stamps[0]:
+                if stamps and self.stamps == SHARED and not self.interpolate:
+                    return LOST   # its own was lost, as by stamp
+                self.before_first += 1
+                return None
             reading = self._reading(stream, stamp, expired, late)
-            if reading is None and not self._stamps[stream]:
-                if expired:
-                    self.expired_before_first += 1
-                return WAIT if not expired else None
             if reading is WAIT or reading is None or reading is LOST:
                 return reading
             readings[stream] = reading
@@ -262,20 +264,13 @@ class ReadingPairer:
     def _reading(self, stream: str, stamp: int, expired: bool, late: bool):
         """One stream's `Reading` for a sample at ``stamp``, None (none usable), WAIT, LOST."""
         stamps, readings = self._stamps[stream], self._readings[stream]
-        if not stamps:
-            return None
         index = bisect.bisect_right(stamps, stamp) - 1
         if index >= 0 and stamps[index] == stamp:
             value, payload = readings[index]
             return Reading(value, payload, True, 0)
         if self.stamps == SHARED and not self.interpolate:
             # As by stamp: its own reading, or none (one stamped after it came first).
-            return LOST if index < 0 or index + 1 < len(stamps) or late else WAIT
-        if index < 0:
-            # Older than every reading: the first one, as a hold does.
-            self._before_every_reading = True
-            age = stamps[0] - stamp
-            return Reading(*readings[0], False, age) if age <= self.max_age_ns else None
+            return LOST if index + 1 < len(stamps) or late else WAIT
         before = stamp - stamps[index]
         if index + 1 < len(stamps):
             if not self.interpolate:

@@ -70,7 +70,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          'time, for a reading)', read_only=True, low=0.0, high=3600.0),
     Spec('temperature.wait_s', 5.0,
          'Imu samples with no temperature at all this long after the first one (sensor '
-         'time) go on with the rate only, less the tracked offset, until a temperature comes',
+         'time; ten times as long while a publisher of the temperature topic is matched) go '
+         'on with the rate only, less the tracked offset, until a temperature comes',
          read_only=True, low=0.0, high=3600.0),
     Spec('rate_only.offset_std_rad_s', math.radians(1.0),
          'with the rate only (no temperature, or no factory tables for the eeprom model): '

@@ -57,6 +57,8 @@ HELD_SUPPLY = 64
 HELD_PAIRINGS = ('hold', 'interpolate')
 PAIRINGS = HELD_PAIRINGS + ('stamp', 'none')
 NAN = math.nan
+# With a temperature publisher matched, the samples wait this many times temperature.wait_s.
+PUBLISHED_WAIT = 10
 
 
 def waiting_messages(subscription):
@@ -304,6 +306,23 @@ class CompensationInputs:
             return self.readings.has_readings(self.temperature_streams)
         return self.last_temperature is not None
 
+    def _waited_in_vain(self) -> bool:
+        """
+        Tell whether the samples waited long enough for a first temperature.
+
+        ``temperature.wait_s`` of stamps from the first sample when nothing publishes
+        the temperature; ten times as long when a publisher is matched (its first
+        reading may come behind a burst of samples that span seconds of stamps).
+        """
+        if self.first_imu_ns is None:
+            return False
+        waited_ns = self.newest_imu_ns - self.first_imu_ns
+        if waited_ns < self.wait_ns:
+            return False
+        published = any(self.subscriptions[s].get_publisher_count()
+                        for s in self.temperature_streams if s in self.subscriptions)
+        return not published or waited_ns >= PUBLISHED_WAIT * self.wait_ns
+
     def _paired(self) -> list:
         """Give the samples the readings now decide; count those without a temperature."""
         came = self._temperature_came()
@@ -311,8 +330,7 @@ class CompensationInputs:
             if came and self.pairing != 'none':
                 self.without_temperature = False   # a temperature at last: paired from now on
             return []
-        if not came and self.first_imu_ns is not None and \
-                self.newest_imu_ns - self.first_imu_ns >= self.wait_ns:
+        if not came and self._waited_in_vain():
             # No temperature within temperature.wait_s: the samples go on without one.
             self.without_temperature = True
             self.pairer.clear()
@@ -320,11 +338,11 @@ class CompensationInputs:
         readings = self.readings
         if readings is None:
             return []
-        expired, lost = readings.expired_before_first, readings.lost
+        before_first, lost = readings.before_first, readings.lost
         paired, unpaired = readings.pop()
         if unpaired:
             # Before the first reading: waited; own reading lost: dropped as by stamp.
-            waited = readings.expired_before_first - expired
+            waited = readings.before_first - before_first
             self.samples_waiting += waited
             stale = len(unpaired) - waited - (readings.lost - lost)
             if stale:
