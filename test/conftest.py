@@ -20,8 +20,7 @@ def _claim_domain_id() -> int:
     """
     for offset in range(101):
         domain_id = (os.getpid() + offset) % 101 + 1
-        lock = open(os.path.join(tempfile.gettempdir(),
-                                 f'mlx_tempcomp_test_domain_{domain_id}.lock'), 'w')
+        lock = open(os.path.join(_LOCK_DIR, f'mlx_tempcomp_test_domain_{domain_id}.lock'), 'w')
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -33,6 +32,10 @@ def _claim_domain_id() -> int:
 
 
 _DOMAIN_LOCKS = []
+# Machine-wide, whatever TMPDIR says: docs_check.py gives the commands it runs a TMPDIR of
+# their own, and their tests must still see the domains other sessions hold (sharing one,
+# a node of another session fed this one's: its EEPROM, its samples).
+_LOCK_DIR = '/tmp' if os.path.isdir('/tmp') else tempfile.gettempdir()
 # Set at import time, before any test initializes rclpy. Every subprocess a test starts
 # inherits os.environ, so nodes it launches join the same private, localhost-only domain
 # and never see (or disturb) a robot or another test session on the network.

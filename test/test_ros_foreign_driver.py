@@ -28,6 +28,7 @@ from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.ros import messages
 import numpy as np
 import pytest
+from rclpy.duration import Duration
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, executable, rates, reliable,
                          RELIABLE_RECORD_QOS, status_values, UNTRACKED, write_params)
 from sensor_msgs.msg import Imu, Temperature
@@ -148,6 +149,10 @@ class ForeignDriver:
                 msg.temperature = value
                 msg.variance = 0.01
                 self.temperature.publish(msg)
+                # Received before the samples after it are sent, as a driver's would be: a
+                # subscription matched a moment after the publisher saw it gets a reliable
+                # sample only at the next heartbeat, seconds of a fast test's stamps later.
+                assert self.temperature.wait_for_all_acked(Duration(seconds=TIMEOUT_S))
         probe.wait_quiet(['imu/data'], 1.0, TIMEOUT_S, launcher)
 
 
