@@ -1,5 +1,5 @@
 # Developer entry points for a plain virtual environment (no ROS install needed).
-# On a robot, build with colcon instead: see test/test_colcon_build.py.
+# On a robot, build with colcon instead: see test/ros/test_colcon_build.py.
 
 PYTHON ?= python3
 VENV := .venv
@@ -38,16 +38,16 @@ demo: $(NODES_STAMP)
 test: venv
 	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
-# The suite without the tests marked ros (nodes over DDS) or slow (setup.cfg): the quick check
-# while working.
+# The suite without test/ros/ (the nodes over DDS) and the tests marked slow or ros
+# elsewhere (setup.cfg): the quick check while working.
 test-fast: venv
-	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile -m 'not ros and not slow' \
-		$(PYTEST_ARGS)
+	$(VENV_PY) -m pytest test --ignore=test/ros -n $(TEST_WORKERS) --dist loadfile \
+		-m 'not ros and not slow' $(PYTEST_ARGS)
 
 # The marked commands of README.md and docs/, run from README's set-up, what they print compared
-# with the docs (test/docs_check.py; .ci/run runs it after make test).
+# with the docs (test/support/docs_check.py; .ci/run runs it after make test).
 docs-check: venv
-	$(VENV_PY) test/docs_check.py --jobs 2
+	$(VENV_PY) test/support/docs_check.py --jobs 2
 
 bench: venv
 	@set -e; for script in bench/*.py; do \

@@ -49,7 +49,7 @@ setup(
         ],
         # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
         # so lint results change only when someone bumps them), and colcon for
-        # test/test_colcon_build.py.
+        # test/ros/test_colcon_build.py.
         'test': [
             'pytest',
             'pytest-xdist',   # make test: two test processes (Makefile TEST_WORKERS)

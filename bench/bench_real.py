@@ -57,7 +57,7 @@ SHARED_DATA = FLIGHT_LOGS.parent
 MIN_SWING_C = 10.0
 TEST_FRACTION = 0.25
 
-# The simulated chamber of test/test_diagnose.py: -20..70 C three times at 1, 2 and
+# The simulated chamber of test/toolkit/test_diagnose.py: -20..70 C three times at 1, 2 and
 # 3 C/min with 10 min holds, 1 Hz, a cubic ZRO, a wandering supply recorded alongside.
 PROFILE = chamber_profile(((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0), (-20.0, 2.0), (70.0, 1.0),
                            (-20.0, 3.0)))

@@ -1,14 +1,25 @@
-"""Session-wide test set-up: private DDS traffic and hardware-only tests."""
+"""
+Session-wide test set-up: the helpers' folder, private DDS traffic and hardware-only tests.
+
+The tests live in folders that mirror the package; what several share is in
+``test/support/``, importable by name from any of them (and from nothing else: pytest
+imports each test module on its own, ``--import-mode=importlib``, so no test module
+imports another).
+"""
 
 import atexit
 import fcntl
 import glob
 import os
+from pathlib import Path
 import shutil
+import sys
 import tempfile
 
 from hypothesis import HealthCheck, settings
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / 'support'))
 
 
 def _claim_domain_id() -> int:
@@ -82,5 +93,5 @@ def pytest_collection_modifyitems(config, items):
 
 
 # Fixtures of the ROS tests (launcher: node subprocesses, probe: an rclpy node with its own
-# context) and their helpers live in test/ros_harness.py.
+# context) and their helpers live in test/support/ros_harness.py.
 pytest_plugins = ['ros_harness']

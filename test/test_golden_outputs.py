@@ -5,10 +5,10 @@ The commands' outputs stay bit-identical: SHA-256 of every file they write, agai
 simulated record, and ``diagnose`` and ``fit`` on the measured thermal
 cycle, through the CLI's code path in a scratch folder; the digests of
 ``params.yaml``, ``report.json``, the fit's parameter file and ``evaluate
---json``'s output are held against ``test/golden/outputs.json``. The commands
+--json``'s output are held against ``test/support/golden/outputs.json``. The commands
 use relative paths, and the outputs hold no timing, version or absolute path:
 nothing is normalised before hashing. The digests are regenerated on purpose
-when an issue changes behaviour (``.venv/bin/python test/golden_outputs.py
+when an issue changes behaviour (``.venv/bin/python test/support/golden_outputs.py
 --write``, committed with the change); a failure names each output that
 changed, where this run's files are, and how to diff them against the
 stored commit's (golden_outputs.py's docstring).

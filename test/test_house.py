@@ -150,3 +150,38 @@ def test_the_readme_stays_under_160_lines():
     """A newcomer's first page: the rest belongs in docs/."""
     lines = (PACKAGE.parent / 'README.md').read_text(encoding='utf-8').splitlines()
     assert len(lines) < 160, f'README.md has {len(lines)} lines'
+
+
+TESTS = PACKAGE.parent / 'test'
+MAX_FLAT_TESTS = 10
+
+
+def test_the_tests_live_in_folders_that_mirror_the_package():
+    """Each folder of test/ is a layer of the package, but support/: the helpers."""
+    folders = {path.name for path in TESTS.iterdir() if path.is_dir()
+               and not path.name.startswith(('.', '__'))}
+    layers = {path.name for path in PACKAGE.iterdir() if (path / '__init__.py').exists()}
+    assert sorted(folders - layers - {'support'}) == []
+    flat = sorted(path.name for path in TESTS.glob('test_*.py'))
+    assert len(flat) <= MAX_FLAT_TESTS, flat
+
+
+def test_no_test_module_imports_another():
+    """What tests share lives in test/support/; a test module is imported by pytest alone."""
+    tests = {path.stem for path in TESTS.rglob('test_*.py')}
+    found = {}
+    for path in sorted(TESTS.rglob('*.py')):
+        for name in _imported_names(ast.parse(path.read_text())):
+            if name.split('.')[0] in tests:
+                found.setdefault(str(path.relative_to(TESTS)), []).append(name)
+    assert found == {}
+
+
+def _imported_names(tree) -> list:
+    names = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.append(node.module)
+    return names

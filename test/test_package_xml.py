@@ -74,7 +74,7 @@ PIP_NAMES = {'rosbags': 'rosbags', 'allantools': 'allantools', 'pyulog': 'pyulog
 @functools.lru_cache(maxsize=None)
 def _imports() -> dict:
     """Give {top-level module: set of SOURCES kinds importing it} for third-party imports."""
-    local = {path.stem for path in (ROOT / 'test').glob('*.py')} | {'mlx_tempcomp'}
+    local = {path.stem for path in (ROOT / 'test').rglob('*.py')} | {'mlx_tempcomp'}
     found = {}
     for folder, kind in SOURCES.items():
         for path in sorted((ROOT / folder).rglob('*.py')):

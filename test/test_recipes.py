@@ -127,20 +127,20 @@ EFFECT_STEPS = {
              '    #   gradient_time_constants_s, gradient_rad_s_per_c, supply_voltage, '
              'secondary,\n',
              f'    #   {TOY_FIELD}: {{<a>: 0.0}}\n', before=True),),
-    6: (Edit('test/test_core_effects.py', ('_full_model',),
+    6: (Edit('test/core/test_effects.py', ('_full_model',),
              '        AxisTerms(bias=(0.01, 0.002, -0.001), thermal_lag_s=20.0, '
              'hysteresis_half_width_c=2.0,\n',
              f'                  {TOY_FIELD}=0.004,\n'),
-        Edit('test/test_core_effects.py', (),
+        Edit('test/core/test_effects.py', (),
              '\n\ndef test_polynomial_only_model_is_the_polynomial():', TOY_FORMULA_TEST,
              before=True),
-        Edit('test/test_fuzz_effect_rows.py', ('ONE_EFFECT',),
+        Edit('test/core/test_fuzz_effect_rows.py', ('ONE_EFFECT',),
              "    'temperature_rate': lambda c: ({'temperature_rate_rad_s_per_c_s': c},) * 2,\n",
              f"    '{TOY}': lambda c: ({{'{TOY_FIELD}': c}},) * 2,\n"),
-        Edit('test/test_diagnose.py', ('EFFECTS',),
+        Edit('test/toolkit/test_diagnose.py', ('EFFECTS',),
              "    'temperature_rate': (Effects(zro_dps_per_c_s=4.0), QUIET),\n",
              f"    '{TOY}': (Effects({TOY_SIMULATED}={TOY_DPS}), QUIET),\n"),
-        Edit('test/test_diagnose.py', ('RECOVERED',), 'RECOVERED = {\n', TOY_RECOVERED)),
+        Edit('test/toolkit/test_diagnose.py', ('RECOVERED',), 'RECOVERED = {\n', TOY_RECOVERED)),
     7: (Edit('docs/diagnose.md', (), '| `temperature_rate` | ',
              f'| `{TOY}` | + k \\|dT/dt\\|, the same slope | live | k |\n', before=True),
         Edit('docs/ros.md', (), '| `effects.temperature_rate_rad_s_per_c_s.<a>` |',
@@ -153,13 +153,13 @@ EFFECT_STEPS = {
 PART = 'toygyro'
 PART_SETTING = f'{PART}.bandwidth_hz'
 SENSOR_STEPS = {
-    1: (StandIn('mlx_tempcomp/hardware/<part>.py'), StandIn('test/test_hardware_<part>.py')),
+    1: (StandIn('mlx_tempcomp/hardware/<part>.py'), StandIn('test/hardware/test_<part>.py')),
     2: (StandIn('mlx_tempcomp/simulation/<part>.py'),),
     3: (StandIn('mlx_tempcomp/sources/<part>.py'),
-        Edit('test/test_sources_protocol.py', ('SOURCES',),
+        Edit('test/sources/test_protocol.py', ('SOURCES',),
              "    'adis16130': lambda: adis16130.SimulatedSensor(),\n",
              f"    '{PART}': lambda: adis16130.SimulatedSensor(),\n")),
-    4: (StandIn('mlx_tempcomp/ros/<part>_stream.py'), StandIn('test/test_ros_devices.py')),
+    4: (StandIn('mlx_tempcomp/ros/<part>_stream.py'), StandIn('test/ros/test_devices.py')),
     5: (Edit('mlx_tempcomp/ros/driver_node.py', ('STREAMS',), "'mpu6000': MpuStream",
              f", '{PART}': AdisStream"),),
     6: (Edit('mlx_tempcomp/parameters/driver.py', ('DEVICES',), "'adis16130', 'mpu6000'",
@@ -351,9 +351,11 @@ def test_a_toy_effect_is_diagnosed_written_and_evaluated(effect_copy, diagnosed)
 
 @pytest.mark.slow
 def test_the_tests_that_hold_effects_to_the_table_pass_on_the_copy(effect_copy):
-    report = _pytest(effect_copy, 'test/test_core_effects.py', 'test/test_fuzz_effect_rows.py',
-                     'test/test_parameters.py::test_the_shipped_config_lists_every_parameter',
-                     'test/test_diagnose.py', '-k',
+    report = _pytest(effect_copy, 'test/core/test_effects.py',
+                     'test/core/test_fuzz_effect_rows.py',
+                     'test/parameters/test_specs.py::'
+                     'test_the_shipped_config_lists_every_parameter',
+                     'test/toolkit/test_diagnose.py', '-k',
                      f'not test_diagnose or {TOY} or adds_nothing')
     for test in ('test_toy_rate_magnitude_is_k_times_the_magnitude_of_the_slope',
                  f'test_signed_zeros_keep_their_sign_through_each_effect_row_by_row[{TOY}]',
@@ -411,7 +413,7 @@ def test_a_toy_part_is_accepted_by_the_driver_s_parameters_and_listed(sensor_cop
     refused, devices = _run(sensor_copy, '-c', CHECK_PART).splitlines()
     assert refused == f'invalid parameter {PART_SETTING}: 5000.0 is outside 1 to 1000'
     assert PART in devices.split()
-    report = _pytest(sensor_copy, 'test/test_parameters.py', 'test/test_sources_protocol.py',
+    report = _pytest(sensor_copy, 'test/parameters/test_specs.py', 'test/sources/test_protocol.py',
                      '-k', 'config or device or source')
     for test in ('test_the_shipped_config_lists_every_parameter',
                  'test_every_device_is_listed_where_a_user_looks',
@@ -434,5 +436,5 @@ START_DRIVER = textwrap.dedent(f"""
 @pytest.mark.ros
 def test_the_driver_node_picks_the_toy_part_s_stream(sensor_copy):
     assert _run(sensor_copy, '-c', START_DRIVER).split()[-2:] == ['AdisStream', '200.0']
-    report = _pytest(sensor_copy, 'test/test_ros_devices.py::test_every_device_has_a_stream')
+    report = _pytest(sensor_copy, 'test/ros/test_devices.py::test_every_device_has_a_stream')
     assert re.search(r'^PASSED \S+::test_every_device_has_a_stream$', report, re.M)

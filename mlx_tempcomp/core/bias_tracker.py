@@ -39,7 +39,7 @@ is learnt: the temperature model carries the shape, the offset stays (and fades)
 Every sample goes through the same steps whether it comes in a block (`process`, numpy)
 or alone (`process_one`, plain floats): the offset changes only when a window closes,
 the window sums are added in sample order, the decisions are plain floats. Any split
-into blocks gives the same bits (``test/test_fuzz_bias_tracking.py``).
+into blocks gives the same bits (``test/core/test_fuzz_bias_tracking.py``).
 
 `seed` sets the offset and its variance (the ZRO recalibration's window); `state` gives
 a plain dict for a state file and `tracking_state` checks one read back.

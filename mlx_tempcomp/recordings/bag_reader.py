@@ -29,7 +29,7 @@ except ImportError:  # pragma: no cover
 _NS_PER_S = 1_000_000_000
 # rosbags reading a corrupt file: besides its ReaderError, a flipped byte or a cut file
 # surfaces as a bad UTF-8 name or a negative seek (ValueError), an unknown type or schema
-# id (KeyError), or a length too large to allocate (found by test/test_fuzz_readers.py).
+# id (KeyError), or a length too large to allocate (found by test/recordings/test_fuzz_readers.py).
 _CORRUPT_FILE_ERRORS = (ValueError, KeyError, MemoryError, OverflowError, struct.error)
 _STORAGE_ERRORS = (ReaderError, OSError, SqliteError) + _CORRUPT_FILE_ERRORS
 

@@ -5,7 +5,7 @@ Every part the driver streams (`mlx90609.Mlx90609Array`,
 `adis16130.Adis16130Sensor`, `mpu6000.MpuSource`) is read one `Reading` at a
 time, counts its bus errors and closes its transport; a simulated one also
 runs on a simulated clock the driver advances. A new sensor's source
-satisfies these protocols (test/test_sources_protocol.py checks each).
+satisfies these protocols (test/sources/test_protocol.py checks each).
 
 The readings stay three types: `mlx90609.RawSample` holds ADC codes, which
 only the EEPROM tables the driver reads (and publishes, so the raw topics

@@ -9,7 +9,7 @@ gives the noise, the random walk and the bounds.
 `offline_twin` is ``mlx-tempcomp evaluate --track-bias``: the `BiasTracking` the node runs,
 built from the parameter file's ``bias_tracking.*`` by the same `tracking_settings`, over
 the model's output of the whole record in one block (the node gets blocks of 1 to
-``max_block`` samples: the same bits, ``test/test_fuzz_bias_tracking.py``). Its report
+``max_block`` samples: the same bits, ``test/core/test_fuzz_bias_tracking.py``). Its report
 compares the error with and without tracking, at rest and in motion when the record has
 a reference (moving: any reference rate not zero). ``--rest-hint COLUMN`` gives each sample
 the hint of its row, a 0/1 column of a CSV record (1: the robot said it was at rest;

@@ -6,7 +6,7 @@ diagnosed effects, heating and cooling coloured, the two panels of an axis
 on one y-scale; the held-out error per step and the error by temperature
 (`toolkit.uncertainty`), each beside PX4's cubic clamped at its range, the
 reference. Legends lie below the panels, outside them, so no label covers
-another (`test/plot_checks.py` checks it).
+another (`test/support/plot_checks.py` checks it).
 """
 
 import math

@@ -48,14 +48,14 @@ shell variables, and the nodes they start in a localhost-only ROS domain that
 no test session holds (claimed as test/conftest.py claims one), with a ROS_HOME
 of the doc's own (where the nodes keep their state files by default). When the
 set-up's ``$SHARED`` does not exist (a worktree), the shared folder is looked
-up as the tests do (test/measured_data.py), and without it the blocks that
+up as the tests do (test/support/measured_data.py), and without it the blocks that
 name ``$SHARED`` are skipped, saying so.
 
 Usage (from anywhere; after ``make venv``)::
 
-    .venv/bin/python test/docs_check.py [DOC ...]    # run and compare; exit 1 on a mismatch
-    .venv/bin/python test/docs_check.py --list       # which blocks are checked, which not
-    .venv/bin/python test/docs_check.py --jobs 2     # two docs at once (make docs-check)
+    .venv/bin/python test/support/docs_check.py [DOC ...]  # run and compare; exit 1 on a mismatch
+    .venv/bin/python test/support/docs_check.py --list     # which blocks are checked, which not
+    .venv/bin/python test/support/docs_check.py --jobs 2     # two docs at once (make docs-check)
 """
 
 import argparse
@@ -70,7 +70,7 @@ import sys
 import tempfile
 import time
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MARK = re.compile(r'^\s*<!--\s*docs-check\b:?\s*(.*?)\s*-->\s*$')
 FENCE = re.compile(r'^(\s*)(```+|~~~+)\s*([\w-]*)')
 NUMBER = r'(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?'

@@ -14,6 +14,7 @@ import json
 import math
 
 from cli_checks import assert_user_error
+from diagnose_runs import device_run, NOISE_DPS, parameters_of, QUIET, run_cli, TEMPERATURE_NOISE_C
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
 from mlx_tempcomp.core.effects import EffectModel
@@ -28,8 +29,6 @@ from mlx_tempcomp.simulation.physics import Effects, Scenario
 from mlx_tempcomp.toolkit.running import run_handler
 import numpy as np
 import pytest
-from test_diagnose import (device_run, NOISE_DPS, parameters_of, QUIET, run_cli,
-                           TEMPERATURE_NOISE_C)
 
 LAG_S = 200.0
 REZERO_S = 10.0  # 11 samples at 1 Hz: imu/recalibrate_zro takes no fewer than 10

@@ -90,7 +90,7 @@ RELIABLE_RECORD_QOS = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST,
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.VOLATILE)
 # The model alone, for tests of what a model computes: bias tracking would take off the
-# offset it learns while the simulated gyro rests (test_ros_tracking.py tests it).
+# offset it learns while the simulated gyro rests (ros/test_tracking.py tests it).
 UNTRACKED = {'bias_tracking.enabled': False}
 REPLAY_INPUTS = ('imu/data_raw', 'imu/temperature_raw', 'imu/temperature_raw/x',
                  'imu/temperature_raw/y', 'imu/temperature_raw/z', 'imu/temperature_2_raw',

@@ -1,7 +1,7 @@
 """
 The node executables: console scripts of this package, clean start and stop.
 
-test/test_colcon_build.py proves the ``ros2 run`` layout; here the executables of
+test/ros/test_colcon_build.py proves the ``ros2 run`` layout; here the executables of
 the virtual environment run, and ``bringup`` (both nodes in one process) is checked.
 """
 

@@ -12,16 +12,14 @@ and kills one while units run.
 
 import contextlib
 from dataclasses import replace
-import io
 import json
 from pathlib import Path
 import shutil
 import signal
 import subprocess
 import sys
-import time
 
-from mlx_tempcomp.cli import main
+from fleet_runs import DASK, ROWS, run_cli, SLOPE_RAD_S_PER_C, wait_for, write_record
 from mlx_tempcomp.fleet.manifest import read_manifest, RecordSpec, UnitSpec
 from mlx_tempcomp.fleet.prior import FLEET_PARAMS, PRIOR_JSON, SHRUNK_PARAMS
 from mlx_tempcomp.fleet.report import (COUNT_METRICS, FALSE_FLAGS_PER_FLEET, flag_groups,
@@ -35,44 +33,10 @@ import pytest
 
 GOOD_UNITS = ('a1', 'a2', 'a3', 'a4', 'a5', 'odd')
 BAD_UNITS = {'gone': 'missing.csv', 'junk': 'junk.csv'}
-SLOPE_RAD_S_PER_C = 2e-4
-ROWS = 600
 # A unit of two records (one chip, re-mounted: the second PAIR_OFFSET_RAD_S off): one
 # diagnosis of both, as mlx-tempcomp diagnose pair-1.csv pair-2.csv.
 PAIR = ('pair-1.csv', 'pair-2.csv')
 PAIR_OFFSET_RAD_S = 0.002
-DASK = Path(sys.executable).with_name('dask')
-
-
-def write_record(path: Path, seed: int, slope_factor: float = 1.0, noise_seed=None,
-                 offset_rad_s: float = 0.0) -> str:
-    """
-    Write a CSV record of one gyro: two -20..70 C cycles, bias(T) of this unit, noise.
-
-    ``seed`` draws the unit (and the noise, unless ``noise_seed`` draws it: another
-    record of the same unit), ``offset_rad_s`` is added (a re-mount).
-    """
-    rng = np.random.default_rng(seed)
-    noise = rng if noise_seed is None else np.random.default_rng(noise_seed)
-    time_s = np.arange(ROWS) * 12.0
-    phase = (2.0 * np.arange(ROWS) / ROWS) % 1.0
-    temperature_c = 25.0 + 45.0 * (1.0 - 4.0 * np.abs(phase - 0.5)) + \
-        noise.normal(0.0, 0.02, ROWS)
-    slope = SLOPE_RAD_S_PER_C * slope_factor * (1.0 + 0.1 * rng.standard_normal())
-    bias = 0.01 * (1.0 + 0.2 * rng.standard_normal()) + slope * (temperature_c - 25.0) + \
-        2e-6 * (1.0 + 0.2 * rng.standard_normal()) * (temperature_c - 25.0) ** 2
-    rate = bias + offset_rad_s + noise.normal(0.0, 5e-4, ROWS)
-    np.savetxt(path, np.column_stack([time_s, temperature_c, rate]), delimiter=',',
-               header='time,temperature,gyro_z', comments='', fmt='%.17g')
-    return str(path)
-
-
-def run_cli(argv: list) -> tuple:
-    """Run mlx-tempcomp in this process; give (exit code, stdout, stderr)."""
-    stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main([str(arg) for arg in argv])
-    return code, stdout.getvalue(), stderr.getvalue()
 
 
 @pytest.fixture(scope='module')
@@ -459,7 +423,7 @@ def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         # Not a staging folder (.a1.xxxx): a Ctrl-C before its rename removes it.
-        _wait_for(lambda: list(out.glob('units/[!.]*/unit.json')), 120.0, 'the first unit')
+        wait_for(lambda: list(out.glob('units/[!.]*/unit.json')), 120.0, 'the first unit')
         run.send_signal(signal.SIGINT)
         stdout, stderr = run.communicate(timeout=60)
     finally:
@@ -535,13 +499,6 @@ def test_a_fleet_chip_the_factory_could_not_store_is_drawn_again(tmp_path):
     assert code == 2 and 'is outside what the EEPROM byte can store' in stderr
 
 
-def _wait_for(predicate, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, f'timed out waiting for {what}'
-        time.sleep(0.1)
-
-
 @pytest.mark.slow
 def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
     """A real scheduler and two workers; one is killed mid-run; the results are identical."""
@@ -555,7 +512,7 @@ def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
             [DASK, 'scheduler', '--host', '127.0.0.1', '--port', '0', '--no-dashboard',
              '--scheduler-file', scheduler_file], stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL))
-        _wait_for(scheduler_file.exists, 60.0, 'the scheduler file')
+        wait_for(scheduler_file.exists, 60.0, 'the scheduler file')
         for name in ('w1', 'w2'):
             started.append(subprocess.Popen(
                 [DASK, 'worker', '--scheduler-file', scheduler_file, '--nthreads', '1',
@@ -568,8 +525,8 @@ def test_a_killed_worker_costs_nothing(records, fleet_run, tmp_path):
              manifest, '--out', out, '--scheduler', address], stdout=subprocess.PIPE,
             stderr=subprocess.PIPE, text=True)
         started.append(fleet)
-        _wait_for(lambda: len(list(out.glob('units/*/unit.json'))) >= 1, 120.0,
-                  'the first unit')
+        wait_for(lambda: len(list(out.glob('units/*/unit.json'))) >= 1, 120.0,
+                 'the first unit')
         assert fleet.poll() is None, 'the run must still be going when the worker dies'
         started[1].send_signal(signal.SIGKILL)
         stdout, stderr = fleet.communicate(timeout=180)

@@ -27,9 +27,9 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 import dask
 from dask.distributed import Client, Security
+from fleet_runs import DASK, run_cli, wait_for, write_record
 from mlx_tempcomp.fleet.run import connect
 import pytest
-from test_fleet import _wait_for, DASK, run_cli, write_record
 
 UNITS = ('t1', 't2', 't3')
 # What the fleet's subprocesses and the Dask processes get: a generous connect timeout.
@@ -121,7 +121,7 @@ def tls_scheduler(certificates, tmp_path_factory) -> str:
             [DASK, 'scheduler', '--protocol', 'tls', '--host', '127.0.0.1', '--port', '0',
              '--no-dashboard', '--scheduler-file', scheduler_file, *tls], env=env,
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        _wait_for(scheduler_file.exists, 120.0, 'the scheduler file')
+        wait_for(scheduler_file.exists, 120.0, 'the scheduler file')
         address = json.loads(scheduler_file.read_text())['address']
         assert address.startswith('tls://127.0.0.1:')
         started.append(subprocess.Popen(

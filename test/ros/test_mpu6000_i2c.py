@@ -9,6 +9,7 @@ parameter checks start the real executable (the absent /dev/i2c-N through smbus2
 
 import math
 
+from device_runs import gyro_mean_after_change_dps, mpu_truth, SEED
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
@@ -16,7 +17,6 @@ from ros_harness import (COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, rates, star
                          status_values)
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
-from test_ros_devices import gyro_mean_after_change_dps, mpu_truth, SEED
 import yaml
 
 pytestmark = pytest.mark.ros

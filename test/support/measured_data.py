@@ -15,7 +15,7 @@ from pathlib import Path
 import subprocess
 
 RELATIVE = Path('data') / 'tofupilot_imu_thermal_sweep' / 'imu_raw_data.csv'
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _git(*arguments) -> str:

@@ -1,7 +1,7 @@
 """
 A record at rest for the bias-tracking tests: a cubic in T, a wandering offset, noise, gravity.
 
-Shared by the toolkit's tests (test_cli_tracking.py) and the node's (test_ros_tracking.py),
+Shared by the toolkit's tests (toolkit/test_tracking.py) and the node's (ros/test_tracking.py),
 which inject the same motion into it; `offset_record` adds an offset the fit never saw.
 """
 

@@ -57,7 +57,7 @@ def test_each_spec_has_an_rcl_type_and_its_descriptor(spec):
 
 def test_the_shipped_config_lists_every_parameter():
     """config/mlx_tempcomp.yaml says it lists every parameter: hold it to that."""
-    config = Path(__file__).resolve().parents[1] / 'config' / 'mlx_tempcomp.yaml'
+    config = Path(__file__).resolve().parents[2] / 'config' / 'mlx_tempcomp.yaml'
     text = config.read_text()
     listed = set(flat_parameters(yaml.safe_load(text)['/**']['ros__parameters']))
     specs = {spec.name: spec for spec in DRIVER_SPECS + COMPENSATION_SPECS}
@@ -74,7 +74,7 @@ def test_the_shipped_config_lists_every_parameter():
 
 def test_every_device_is_listed_where_a_user_looks():
     """The config's device line, the README's device row and docs/ros.md's device table."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     config = (root / 'config' / 'mlx_tempcomp.yaml').read_text()
     (device_line,) = [line for line in config.splitlines() if line.strip().startswith('device:')]
     readme = (root / 'README.md').read_text()

@@ -7,15 +7,14 @@ holds, sampled at 1 Hz, a cubic ZRO, white rate noise, a wandering supply
 voltage recorded alongside, and one effect the diagnosis is not told about.
 """
 
-import contextlib
 from dataclasses import replace
 import functools
-import io
 import json
 import math
 import warnings
 
 from cli_checks import assert_user_error
+from diagnose_runs import device_run, NOISE_DPS, parameters_of, QUIET, run_cli, TEMPERATURE_NOISE_C
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import (diagnose, DiagnosisSettings, HeldOutError,
@@ -31,24 +30,20 @@ from mlx_tempcomp.parameters.compensation import covariance_noise_of, model_erro
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.recordings.recording import Recording
-from mlx_tempcomp.simulation.chamber import chamber_profile, CHAMBER_ZRO_DPS, device_offsets
-from mlx_tempcomp.simulation.physics import Effects, GyroTruth, Noise, Scenario
+from mlx_tempcomp.simulation.chamber import chamber_profile
+from mlx_tempcomp.simulation.physics import Effects, Noise, Scenario
 from mlx_tempcomp.toolkit.uncertainty import (outside_lines, outside_range_json,
                                               params_model_error)
 import numpy as np
 from plot_checks import drawn_figures
 import pytest
-import yaml
 
-NOISE_DPS = 0.02
-TEMPERATURE_NOISE_C = 0.02
 STEP_TIME_S = 9000.0
 # Issue 15's record: a step of 1.9e-3 rad/s at 3840 s and nothing else.
 SMALL_STEP_TIME_S = 3840.0
 SMALL_STEP_RAD_S = 1.9e-3
 LAG_S = 200.0
 TEST_FRACTION = 0.25
-QUIET = Noise(bias_instability_dps=0.0)
 EFFECTS = {
     'clean': (Effects(), QUIET),
     'random_walk': (Effects(), Noise(bias_instability_dps=0.0, rate_random_walk_dps_rt_s=2e-4)),
@@ -68,13 +63,6 @@ PROFILE = chamber_profile(((70.0, 2.0), (-20.0, 1.0), (70.0, 3.0), (-20.0, 2.0),
                            (-20.0, 3.0)))
 SUPPLY_TIMES_S = tuple(float(t) for t in np.arange(0.0, PROFILE.duration_s + 400.0, 400.0))
 SUPPLY_V = tuple(float(v) for v in 5.0 + 0.25 * np.sin(2.1 * np.arange(len(SUPPLY_TIMES_S))))
-
-
-def device_run(effects: Effects, noise: Noise, scenario: Scenario, seed: int) -> tuple:
-    """Return (time s, sensor temperature C, ZRO deg/s) of the device at 1 Hz, noiseless."""
-    truth = GyroTruth(zro_dps_coefficients=CHAMBER_ZRO_DPS, effects=effects, noise=noise)
-    time_s = np.arange(1.0, float(int(scenario.thermal.duration_s)) + 1.0)
-    return (time_s, *device_offsets(truth, scenario, seed, time_s))
 
 
 @functools.lru_cache(maxsize=None)
@@ -502,15 +490,6 @@ def write_csv(tmp_path, rows=None) -> str:
     return str(path)
 
 
-def run_cli(argv: list) -> tuple:
-    """Run mlx-tempcomp in this process; give (stdout, stderr) (capsys is per test)."""
-    stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main([str(arg) for arg in argv])
-    assert code == 0, stderr.getvalue()
-    return stdout.getvalue(), stderr.getvalue()
-
-
 @pytest.fixture(scope='module')
 def cli_run(tmp_path_factory):
     """Run diagnose on the CSV with a test fraction; give (csv, out dir, stdout, stderr)."""
@@ -520,11 +499,6 @@ def cli_run(tmp_path_factory):
     stdout, stderr = run_cli(['diagnose', path, '--out', out, '--test', TEST_FRACTION,
                               '--progress'])
     return path, out, stdout, stderr
-
-
-def parameters_of(out) -> dict:
-    return yaml.safe_load((out / 'params.yaml').read_text())['compensation_node'][
-        'ros__parameters']
 
 
 def test_cli_writes_report_plots_and_parameters(cli_run):

@@ -9,6 +9,7 @@ offsets follow a bias model fitted by the toolkit as the temperature ramps.
 
 import math
 
+from device_runs import gyro_mean_after_change_dps, mpu_truth, SEED, TIMEOUT_S
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
@@ -31,14 +32,7 @@ import yaml
 
 pytestmark = pytest.mark.ros
 
-TIMEOUT_S = 60.0
-SEED = 4
 MPU_AXES = ['x', 'y', 'z']
-
-
-def mpu_truth(seed: int = SEED) -> MpuTruth:
-    """Return the part the driver simulates for ``seed`` (same draw)."""
-    return MpuTruth.random(np.random.default_rng(seed))
 
 
 def mean_dps(msgs, index: int) -> float:
@@ -145,28 +139,6 @@ def gyro_mean_dps(launcher, probe, samples: int = 200) -> np.ndarray:
     probe.clear()
     raw = probe.wait_count('imu/data_raw', samples, TIMEOUT_S, launcher)
     return np.array([mean_dps(raw[:samples], i) for i in range(3)])
-
-
-def gyro_mean_after_change_dps(launcher, probe, old_dps, samples: int = 200) -> np.ndarray:
-    """
-    Return the mean raw rate of the ``samples`` samples after the last one near ``old_dps``.
-
-    Samples published before the registers changed may still be on their way to the probe
-    (on a loaded machine it lags the stream): they are told apart by value, the old level
-    being degrees per second from the new one (near 0).
-    """
-    probe.clear()
-
-    def after() -> np.ndarray:
-        msgs = by_stamp(probe.received['imu/data_raw'])
-        dps = np.degrees(np.array([rates(msgs[s]) for s in sorted(msgs)]).reshape(-1, 3))
-        old = np.linalg.norm(dps - old_dps, axis=1) < np.linalg.norm(dps, axis=1)
-        start = int(np.flatnonzero(old)[-1]) + 1 if old.any() else 0
-        return dps[start:start + samples]
-
-    probe.spin_until(lambda: len(after()) >= samples, TIMEOUT_S,
-                     f'{samples} samples after the registers changed', launcher)
-    return after().mean(axis=0)
 
 
 def start_mpu(launcher, probe, path, label: str):

@@ -16,15 +16,15 @@ The digests belong to one environment: numpy and its OpenBLAS (which picks
 kernels by CPU) may change the last bits of a fit. They are regenerated on
 purpose, with the change that moves them, when an issue changes behaviour::
 
-    .venv/bin/python test/golden_outputs.py --write      # rewrite outputs.json
-    .venv/bin/python test/golden_outputs.py --out DIR    # keep the outputs, compare
+    .venv/bin/python test/support/golden_outputs.py --write      # rewrite outputs.json
+    .venv/bin/python test/support/golden_outputs.py --out DIR    # keep the outputs, compare
 
 To see what changed, write the outputs of both commits and diff them (the
 script runs the package of the checkout it lies in)::
 
     mkdir /tmp/golden-before && git archive <commit> | tar -x -C /tmp/golden-before
-    .venv/bin/python /tmp/golden-before/test/golden_outputs.py --out /tmp/before
-    .venv/bin/python test/golden_outputs.py --out /tmp/after
+    .venv/bin/python /tmp/golden-before/test/support/golden_outputs.py --out /tmp/before
+    .venv/bin/python test/support/golden_outputs.py --out /tmp/after
     diff -r /tmp/before /tmp/after
 
 The measured case reads the measured thermal cycle where measured_data.py
@@ -46,9 +46,9 @@ import tempfile
 
 from measured_data import MEASURED_CSV
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STORED = Path(__file__).resolve().parent / 'golden' / 'outputs.json'
-REGENERATE = '.venv/bin/python test/golden_outputs.py --write'
+REGENERATE = '.venv/bin/python test/support/golden_outputs.py --write'
 
 
 @dataclass(frozen=True)
@@ -193,7 +193,8 @@ def _write(results: dict) -> None:
     cases = {case.name: {'commands': case.lines(), 'outputs': results[case.name]}
              for case in CASES}
     about = ('SHA-256 of the files the commands write, run in a scratch folder by '
-             'test/golden_outputs.py (see its docstring); test_golden_outputs.py holds them. '
+             'test/support/golden_outputs.py (see its docstring); test_golden_outputs.py holds '
+             'them. '
              f'Regenerate on purpose, with the change that moves them: {REGENERATE}')
     STORED.parent.mkdir(exist_ok=True)
     STORED.write_text(json.dumps({'about': about, 'cases': cases}, indent=2) + '\n',

@@ -1,7 +1,7 @@
 """
 What the launch file starts, started here as launch_ros starts it, over DDS.
 
-``launch`` is not installable here (test/test_launch.py), so the plan the
+``launch`` is not installable here (test/parameters/test_launch_plan.py), so the plan the
 launch file gets from `launch_plan` is run with the command line launch_ros's
 Node builds from it (Jazzy: ``EXE --ros-args [-r __node:=NAME] -r __ns:=NS
 --params-file F ...``, the files in order): the shipped config, a file of this

@@ -15,7 +15,7 @@ from mlx_tempcomp.simulation.physics import GyroTruth
 import numpy as np
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 FIELDS = EepromFields(range_code=15, version=2, tc_mv=(1861, 2507, 3093),
                       ee_zro=(17, 128, 251), ee_sf=(3, 129, 254))
 

@@ -254,7 +254,7 @@ def test_each_effect_is_present_and_needs_its_inputs_when_its_coefficients_are_s
 
 def test_every_effect_and_parameter_is_documented():
     """The table's docstring and docs/diagnose.md give each effect, docs/ros.md each parameter."""
-    docs = Path(__file__).resolve().parents[1] / 'docs'
+    docs = Path(__file__).resolve().parents[2] / 'docs'
     effects = (docs / 'diagnose.md').read_text().partition('\n## Effects\n')[2].partition(
         '\n## ')[0]
     for name in EFFECT_NAMES:

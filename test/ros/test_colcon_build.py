@@ -20,7 +20,7 @@ import pytest
 
 PACKAGE = 'mlx_tempcomp'
 EXECUTABLE = 'mlx-tempcomp'
-SOURCE = Path(__file__).resolve().parents[1]
+SOURCE = Path(__file__).resolve().parents[2]
 # What a ROS checkout of the package needs to build; tests and tooling stay behind.
 SOURCE_ITEMS = ('package.xml', 'setup.py', 'setup.cfg', 'resource', PACKAGE, 'config', 'launch')
 # Environment that would make the build or the lookup depend on this machine.

@@ -7,7 +7,7 @@ index this machine reaches, so what the launch file starts is decided by
 file itself is run twice: with the real ``launch`` where it is importable
 (skipped here, with the reason), and here with stand-ins of the few launch
 classes it uses, keyword for keyword as Jazzy declares them, to check its
-wiring (argument names, what reaches each Node). test/test_ros_launch.py
+wiring (argument names, what reaches each Node). test/ros/test_launch.py
 starts the nodes as launch_ros would from a plan, over DDS.
 """
 
@@ -22,7 +22,7 @@ from mlx_tempcomp.parameters.specs import ParameterError
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH_FILE = ROOT / 'launch' / 'mlx_tempcomp.launch.py'
 CONFIG = ROOT / 'config' / 'mlx_tempcomp.yaml'
 # What mlx-tempcomp fit writes: the compensation node's section, by its relative name.

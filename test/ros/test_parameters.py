@@ -90,7 +90,7 @@ def test_parameter_file_rcl_cannot_parse_exits_1_without_traceback(launcher, tmp
             "e.g. axes: ['x', 'y', 'z']") in fatal[0]
 
 
-SHIPPED_CONFIG = str(Path(__file__).resolve().parents[1] / 'config' / 'mlx_tempcomp.yaml')
+SHIPPED_CONFIG = str(Path(__file__).resolve().parents[2] / 'config' / 'mlx_tempcomp.yaml')
 
 
 def test_a_p_after_the_shipped_config_takes_effect(launcher, probe, tmp_path):

@@ -36,7 +36,7 @@ from std_srvs.srv import Trigger
 
 pytestmark = pytest.mark.ros
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SHIPPED = os.path.join(ROOT, 'config', 'mlx_tempcomp.yaml')
 TIMEOUT_S = 120.0
 S = 1_000_000_000

@@ -58,7 +58,7 @@ def test_convert_prints_the_replay_command_of_docs_ros(tmp_path, capsys):
     hint = capsys.readouterr().out.splitlines()[-1]
     assert hint == (f'replay: driver_node --ros-args -p source:=bag -p bag.path:={tmp_path}/bag '
                     '-p bag.rate_factor:=0.0 -p "axes:=[\'z\']"')
-    ros = (Path(__file__).resolve().parent.parent / 'docs' / 'ros.md').read_text()
+    ros = (Path(__file__).resolve().parents[2] / 'docs' / 'ros.md').read_text()
     assert '-p bag.rate_factor:=0.0' in ros
 
 
