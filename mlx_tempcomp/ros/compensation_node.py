@@ -44,11 +44,11 @@ from ..core.conversion import Output
 from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
-from ..core.tracking_parameters import tracking_settings
 from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
                                        state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
+from ..parameters.tracking import tracking_settings
 
 _MODEL_ERROR_PREFIX = 'model_error.'
 # Parameters the bias tracking's settings depend on.
