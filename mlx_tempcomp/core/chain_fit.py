@@ -215,18 +215,6 @@ def stage_errors(chain: CalibrationChain, reference_rad_s, measured_rad_s, tempe
     return tuple(rows)
 
 
-def format_stage_table(rows) -> str:
-    """Render `StageError` rows as text, in % of full scale and in rad/s."""
-    lines = [f'{"stage":<13}{"axis":<5}{"mean %FS":>10}{"1 sigma":>10}{"peak":>10}'
-             f'{"mean rad/s":>13}{"1 sigma":>11}{"peak":>11}{"RMS":>11}']
-    for row in rows:
-        lines.append(f'{row.stage:<13}{row.axis:<5}{row.mean_percent_fs:>10.4f}'
-                     f'{row.sigma_percent_fs:>10.4f}{row.peak_percent_fs:>10.4f}'
-                     f'{row.mean_rad_s:>13.3e}{row.sigma_rad_s:>11.3e}'
-                     f'{row.peak_rad_s:>11.3e}{row.rms_rad_s:>11.3e}')
-    return '\n'.join(lines)
-
-
 def fit_chain(reference_rad_s, measured_rad_s, temperature_c, temperature_2_c, plateau_id,
               settings: ChainSettings) -> ChainFit:
     """
