@@ -18,7 +18,7 @@ from .chain import (apply_nonlinearity, apply_offset, apply_sensitivity, Calibra
                     checked_column, checked_rates, finite, polyfit, polyval, STAGE_NAMES)
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import AXIS_NAMES
+from .rate_models import AXIS_NAMES
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import numpy as np
 from .baseline import cubic_scale_c, CubicSums, fit_cubic, PX4_ORDER, solve_cubic
 from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
-from .models import AXIS_NAMES
+from .rate_models import AXIS_NAMES
 from .validation import (BASELINE_MARGIN, block_bounds, cubic_instead, DEFAULT_BLOCKS,
                          DEFAULT_FOLDS, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                          DEFAULT_VALIDATION, FORWARD,

@@ -21,7 +21,7 @@ from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from .tracking import TRACKING_SPECS
 from ..core.errors import ConfigError
 from ..core.model_error import ModelErrorTable, table_temperatures
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
 
 COMPENSATION_SPECS = COMMON_SPECS + (

@@ -32,7 +32,7 @@ from .state_file import atomic_write
 from ..core.chain import ChainModel
 from ..core.effects import EffectModel, LinearBtc
 from ..core.model_error import ModelErrorTable
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 
 _WILDCARDS = ('/**', '**')
 

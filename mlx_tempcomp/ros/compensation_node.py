@@ -42,7 +42,7 @@ from .service_window import await_window
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
-from ..core.table import sensor_tables
+from ..core.factory_table import sensor_tables
 from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
                                        state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES

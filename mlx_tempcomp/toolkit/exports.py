@@ -48,7 +48,7 @@ from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..recordings.dataflash import board_rotation
 from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log
 

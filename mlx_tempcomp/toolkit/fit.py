@@ -33,7 +33,7 @@ from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
 from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, relative_polynomial,
                             select_orders, table_step_c)
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..core.validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
                                held_out_outside_range, split)
 from ..parameters.files import (chain_parameters, linear_btc_parameters, node_model,

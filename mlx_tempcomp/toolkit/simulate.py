@@ -26,10 +26,10 @@ from .common import (check_output_file, check_output_folder, non_negative_float,
                      non_negative_int, positive_float, UserError, write_json, write_result)
 from .convert import write_raw_bag
 from .progress import add_progress_option, Progress
-from ..core.compensation import NominalConversion
 from ..core.conversion import Output, SensorTransfer
 from ..core.errors import EepromError, TempCompError
-from ..core.table import sensor_tables
+from ..core.factory_table import sensor_tables
+from ..core.table_compensation import NominalConversion
 from ..hardware.errors import HardwareError
 from ..recordings.bag import STORAGES
 from ..recordings.csv_writer import write_csv

@@ -90,10 +90,10 @@ from .loop import diagnose
 from .results import (AxisDiagnosis, BinnedResidual, Candidate, Diagnosis, ErrorByTemperature,
                       HeldOutError, METHODS, ModelChoice, OutsideFittedRange, RecordFit, Step)
 from .settings import (BASE_EFFECT, DEFAULT_ERROR_BINS, DEFAULT_REZERO_S, DiagnosisSettings,
-                       Progress, RECORD_SEARCH, REZERO_MIN_SAMPLES, SEARCH_EFFECTS)
+                       ProgressCallback, RECORD_SEARCH, REZERO_MIN_SAMPLES, SEARCH_EFFECTS)
 
 __all__ = ['ALL_ROWS', 'AxisDiagnosis', 'BASE_EFFECT', 'BinnedResidual', 'Candidate',
            'DEFAULT_ERROR_BINS', 'DEFAULT_REZERO_S', 'default_rezero_s', 'diagnose', 'Diagnosis',
            'DiagnosisSettings', 'ErrorByTemperature', 'HeldOutError', 'INSIDE_ROWS', 'METHODS',
-           'ModelChoice', 'OutsideFittedRange', 'Progress', 'RECORD_SEARCH', 'RecordFit',
+           'ModelChoice', 'OutsideFittedRange', 'ProgressCallback', 'RECORD_SEARCH', 'RecordFit',
            'REZERO_MIN_SAMPLES', 'rezero_window_rows', 'SCORING', 'SEARCH_EFFECTS', 'Step']

@@ -19,7 +19,7 @@ import numpy as np
 
 from .folds import cut_bins, Folds, weighted_rms
 from .results import HeldOutError
-from .settings import DiagnosisSettings, Progress
+from .settings import DiagnosisSettings, ProgressCallback
 from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, solve_cubic
 from ..effects import FirstOrderLag, temperature_rate_c_s
 from ..errors import CalibrationError
@@ -68,7 +68,8 @@ class DiagnosisData:
     (`held_out_part.diagnosed_rows`).
     """
 
-    def __init__(self, records, rows: int, settings: DiagnosisSettings, progress: Progress):
+    def __init__(self, records, rows: int, settings: DiagnosisSettings,
+                 progress: ProgressCallback):
         self.settings = settings
         self.progress = progress
         recording = self.records = records

@@ -16,7 +16,7 @@ from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_
 from .problem import DiagnosisProblem, HeldOutRun
 from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
                       RecordFit, Step)
-from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
+from .settings import BASE_EFFECT, DiagnosisSettings, ProgressCallback, RECORD_SEARCH
 from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
 from ..model_interface import INPUTS
@@ -177,7 +177,7 @@ class _Written:
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
-             progress: Progress = None) -> Diagnosis:
+             progress: ProgressCallback = None) -> Diagnosis:
     """
     Run the loop on a recording and return the `Diagnosis`.
 
