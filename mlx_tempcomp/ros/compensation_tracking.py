@@ -30,6 +30,7 @@ are kept across the trackers a parameter change or a recalibration builds; the s
 zeroing (``bias_tracking.zero_at_start``) is done once per start.
 """
 
+from dataclasses import replace
 from datetime import datetime, timezone
 import math
 import reprlib
@@ -119,6 +120,7 @@ class CompensationTracking:
         self.save_period_s = values['bias_tracking.save_period_s']
         self.tracker: Optional[BiasTracking] = None
         self.key = None
+        self.initial_std_rad_s = None   # the followed model's own, else the settings'
         self.held_state = None          # the state while tracking is off, to resume from
         self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
         self.written_updates = None     # the tracker's updates at the last write
@@ -214,16 +216,18 @@ class CompensationTracking:
 
     # The model and the parameters.
 
-    def follow(self, model) -> None:
+    def follow(self, model, initial_std_rad_s=None) -> None:
         """
         Track relative to ``model`` from the next sample on.
 
         The same coefficients keep the tracker (a new ZRO offset comes with a `seed`);
         others start it from the saved state if that was learnt on this very model and
-        ZRO offset, else from nothing.
+        ZRO offset, else from nothing. ``initial_std_rad_s`` (per axis) replaces the
+        settings' for this model: the rate only's offset is not a model's residual.
         """
         if model is None:
             return
+        self.initial_std_rad_s = initial_std_rad_s
         key = _model_key(model)
         if self.key is not None and key[:2] == self.key[:2]:
             self.key = key
@@ -249,8 +253,11 @@ class CompensationTracking:
         self.written_updates = None if self.tracker is None else self.tracker.updates
 
     def _build(self, state) -> None:
-        self.tracker = None if self.settings is None or self.key is None else \
-            BiasTracking(self.settings, self.axes, state=state, hints=self.hints)
+        settings = self.settings
+        if settings is not None and self.initial_std_rad_s is not None:
+            settings = replace(settings, initial_std_rad_s=tuple(self.initial_std_rad_s))
+        self.tracker = None if settings is None or self.key is None else \
+            BiasTracking(settings, self.axes, state=state, hints=self.hints)
         if self.tracker is not None and self.zeroed_at_start:
             self.tracker.zeroing = False
 
