@@ -24,9 +24,9 @@ import tempfile
 import time
 
 from mlx_tempcomp.core.bias_tracker import BiasTracking
-from mlx_tempcomp.core.tracking_parameters import tracking_settings
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
+from mlx_tempcomp.parameters.tracking import tracking_settings
 import numpy as np
 import yaml
 

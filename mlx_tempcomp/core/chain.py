@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
-from .models import AXIS_NAMES, model_fingerprint, OffsetModel, one_row
+from .rate_models import AXIS_NAMES, model_fingerprint, OffsetModel, one_row
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 

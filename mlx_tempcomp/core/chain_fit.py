@@ -18,7 +18,7 @@ from .chain import (apply_nonlinearity, apply_offset, apply_sensitivity, Calibra
                     checked_column, checked_rates, finite, polyfit, polyval, STAGE_NAMES)
 from .errors import CalibrationError, ConfigError
 from .metrics import ErrorStatistics
-from .models import AXIS_NAMES
+from .rate_models import AXIS_NAMES
 
 
 @dataclass(frozen=True)
@@ -213,18 +213,6 @@ def stage_errors(chain: CalibrationChain, reference_rad_s, measured_rad_s, tempe
         for axis, values in zip(AXIS_NAMES + ('all',), (*error.T, error)):
             rows.append(_statistics_row(stage, axis, values, chain.full_scale_rad_s))
     return tuple(rows)
-
-
-def format_stage_table(rows) -> str:
-    """Render `StageError` rows as text, in % of full scale and in rad/s."""
-    lines = [f'{"stage":<13}{"axis":<5}{"mean %FS":>10}{"1 sigma":>10}{"peak":>10}'
-             f'{"mean rad/s":>13}{"1 sigma":>11}{"peak":>11}{"RMS":>11}']
-    for row in rows:
-        lines.append(f'{row.stage:<13}{row.axis:<5}{row.mean_percent_fs:>10.4f}'
-                     f'{row.sigma_percent_fs:>10.4f}{row.peak_percent_fs:>10.4f}'
-                     f'{row.mean_rad_s:>13.3e}{row.sigma_rad_s:>11.3e}'
-                     f'{row.peak_rad_s:>11.3e}{row.rms_rad_s:>11.3e}')
-    return '\n'.join(lines)
 
 
 def fit_chain(reference_rad_s, measured_rad_s, temperature_c, temperature_2_c, plateau_id,

@@ -25,7 +25,7 @@ import numpy as np
 from .errors import ConfigError
 from .model_error import table_temperatures
 from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
-from .models import model_fingerprint, rate_temperature_columns
+from .rate_models import model_fingerprint, rate_temperature_columns
 
 
 @dataclass(frozen=True)

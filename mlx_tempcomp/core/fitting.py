@@ -24,7 +24,7 @@ import numpy as np
 from .baseline import cubic_scale_c, CubicSums, fit_cubic, PX4_ORDER, solve_cubic
 from .effects import EffectModel, LinearBtc, polynomial_model
 from .errors import CalibrationError
-from .models import AXIS_NAMES
+from .rate_models import AXIS_NAMES
 from .validation import (BASELINE_MARGIN, block_bounds, cubic_instead, DEFAULT_BLOCKS,
                          DEFAULT_FOLDS, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                          DEFAULT_VALIDATION, FORWARD,
@@ -382,29 +382,6 @@ def _without_cubic(name: str, scores: tuple, dealt) -> OrderSelection:
     return OrderSelection(axis=name, order=chosen, scores=scores, rule=rule)
 
 
-def format_order_table(selections) -> str:
-    """Return a table of every order's held-out RMS per axis, the chosen order marked."""
-    header = ('axis', 'order', 'mean held-out RMS (rad/s)', '(deg/s)', 'standard error (rad/s)',
-              'chosen')
-    rows = []
-    for selection in selections:
-        for score in selection.scores:
-            if math.isfinite(score.mean_rms_rad_s):
-                mean_text = f'{score.mean_rms_rad_s:.3e}'
-                degrees_text = f'{math.degrees(score.mean_rms_rad_s):.4g}'
-                error_text = f'{score.standard_error_rad_s:.3e}'
-            else:
-                mean_text = 'unsupported'
-                degrees_text = error_text = '-'
-            rows.append((selection.axis, str(score.order), mean_text, degrees_text, error_text,
-                         '*' if score.order == selection.order else ''))
-    widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
-    lines = ['  '.join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip()
-             for row in (header, *rows)]
-    lines.extend(f'{selection.axis}: {selection.rule}' for selection in selections)
-    return '\n'.join(lines)
-
-
 def relative_polynomial(model: EffectModel, true_temperature_c: float) -> EffectModel:
     """
     Shift each bias polynomial so that it is zero at ``true_temperature_c``.
@@ -464,28 +441,3 @@ def table_step_c(extent_c: float, rows_each_side: int) -> float:
     raw = extent_c / rows_each_side
     decade = 10.0 ** math.floor(math.log10(raw))
     return next(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= raw * (1 - 1e-12))
-
-
-def format_btc_table(model: EffectModel, axes, step_c: float, rows_each_side: int = 6) -> str:
-    """
-    Return the ADIS16130 note's Table 6 for a linear_btc model: (TEMP - T3) and (TEMP - T3) x BTC.
-
-    Rows run from +rows_each_side to -rows_each_side steps of ``step_c``; the
-    columns after the first give the correction per axis in rad/s and, beside
-    it, in deg/s as the note prints it.
-    """
-    def text(value: float, digits: int) -> str:
-        return '0' if value == 0.0 else f'{value:+.{digits}g}'
-
-    header = ('TEMP - T3 (C)', *(f'{axis} ({unit})' for axis in axes
-                                 for unit in ('rad/s', 'deg/s')))
-    rows = []
-    slopes = LinearBtc.of(model).btc_rad_s_per_c
-    for k in range(rows_each_side, -rows_each_side - 1, -1):
-        offset_c = k * step_c
-        rows.append((text(offset_c, 6), *(text(value, 4) for btc in slopes
-                                          for value in (offset_c * btc,
-                                                        math.degrees(offset_c * btc)))))
-    widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
-    return '\n'.join('  '.join(cell.rjust(width) for cell, width in zip(row, widths))
-                     for row in (header, *rows))

@@ -50,7 +50,7 @@ class RecalibrationLimits:
 
 
 @dataclass(frozen=True)
-class WindowStatistics:
+class RecalibrationWindow:
     samples: int
     mean_rate_rad_s: np.ndarray
     spread_rad_s: np.ndarray
@@ -84,7 +84,7 @@ def moving_axis(spread_rad_s, rate_noise_rad_s: float, noise_multiple: float
 
 
 def check_window(corrected_rate_rad_s, temperature_c, limits: RecalibrationLimits,
-                 moved: str = SENSOR_MOVED) -> WindowStatistics:
+                 moved: str = SENSOR_MOVED) -> RecalibrationWindow:
     """
     Return the window's statistics, or raise `CalibrationError` saying why it is refused.
 
@@ -103,10 +103,10 @@ def check_window(corrected_rate_rad_s, temperature_c, limits: RecalibrationLimit
         raise CalibrationError(msg)
     rate = rate[finite]
     temperature = temperature[:len(finite)][finite]
-    stats = WindowStatistics(samples=len(rate), mean_rate_rad_s=rate.mean(axis=0),
-                             spread_rad_s=rate_spread_rad_s(rate, limits.spread_ddof),
-                             temperature_c=float(temperature.mean()),
-                             temperature_change_c=float(np.ptp(temperature)))
+    stats = RecalibrationWindow(samples=len(rate), mean_rate_rad_s=rate.mean(axis=0),
+                                spread_rad_s=rate_spread_rad_s(rate, limits.spread_ddof),
+                                temperature_c=float(temperature.mean()),
+                                temperature_change_c=float(np.ptp(temperature)))
     worst = moving_axis(stats.spread_rad_s, limits.rate_noise_rad_s, limits.noise_multiple)
     if worst is not None:
         raise CalibrationError(moved.format(

@@ -162,25 +162,3 @@ def derive_bounds(records: list) -> tuple:
         values['max_tilt_rate_rad_s'] = min(
             _percentile(figures['tilts'], MIN_TILT_RATE_RAD_S), bound)
     return values, notes
-
-
-def bounds_lines(values: dict, axes: tuple, notes: dict) -> list:
-    """Say what was derived, for the console."""
-    def per_axis(key):
-        return ', '.join(f'{a} {v:.3g}' for a, v in zip(axes, values[key]))
-
-    lines = [
-        f'bias tracking (bias_tracking.*, on): windows of {values["window_s"]:g} s; '
-        f'noise of a sample {per_axis("rate_noise_rad_s")} rad/s (spread bound '
-        f'{values["noise_multiple"]:.3g} x); random walk {per_axis("random_walk_rad_s_rt_s")} '
-        'rad/s/sqrt(s)',
-        f'  offset without tracking (window means, RMS) {per_axis("initial_std_rad_s")} rad/s; '
-        f'a constant turn below {values["max_mean_rate_rad_s"]:.4g} rad/s '
-        f'({math.degrees(values["max_mean_rate_rad_s"]):.3g} deg/s) is rest to the tracker; '
-        f'temperature rate bound {values["max_temperature_rate_c_s"]:.3g} C/s',
-    ]
-    if 'max_tilt_rate_rad_s' in values:
-        lines.append(f'  accelerometer: spread bound {values["max_acceleration_spread_m_s2"]:.3g} '
-                     f'm/s^2, tilt rate bound {values["max_tilt_rate_rad_s"]:.3g} rad/s')
-    lines += [f'  {key}: {note}' for key, note in notes.items()]
-    return lines

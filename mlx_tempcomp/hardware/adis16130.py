@@ -155,7 +155,7 @@ def temperature_code_from_c(temperature_c, bits: int = 24):
 
 
 @dataclass(frozen=True)
-class Reading:
+class Adis16130Reading:
     """
     Rate and temperature (averaged when oversampled).
 
@@ -246,7 +246,7 @@ class Adis16130:
         """Read TEMPDATA (command 0x4A) and convert it to C."""
         return float(temperature_c_from_code(self.read_code(TEMPDATA), self.resolution_bits))
 
-    def read(self, oversample: int = 1) -> Reading:
+    def read(self, oversample: int = 1) -> Adis16130Reading:
         """Read rate and temperature ``oversample`` times and average them."""
         if oversample < 1:
             msg = f'oversample must be at least 1, got {oversample}'
@@ -260,5 +260,5 @@ class Adis16130:
             rate_sum += rate
         if saturated:
             self.counters.saturated += 1
-        return Reading(rate_dps=rate_sum / oversample,
-                       temperature_c=temperature_sum / oversample, saturated=saturated)
+        return Adis16130Reading(rate_dps=rate_sum / oversample,
+                                temperature_c=temperature_sum / oversample, saturated=saturated)

@@ -70,7 +70,7 @@ class ErrorCounters(FaultCounters):
 
 
 @dataclass(frozen=True)
-class Reading:
+class Mlx90609Reading:
     """
     Rate and temperature ADC codes (averaged when oversampled).
 
@@ -88,7 +88,7 @@ class Mlx90609:
     One MLX90609 behind a `Transport`.
 
     Every fault becomes a typed `HardwareError` (and is counted) or, for a
-    saturated code, a flag on the `Reading`; no method returns a silently
+    saturated code, a flag on the `Mlx90609Reading`; no method returns a silently
     wrong number.
     """
 
@@ -157,7 +157,7 @@ class Mlx90609:
     def _saturated(self, code: int) -> bool:
         return code <= self.saturation_low_code or code >= self.saturation_high_code
 
-    def read(self, oversample: int = 1) -> Reading:
+    def read(self, oversample: int = 1) -> Mlx90609Reading:
         """Read rate and temperature ``oversample`` times and average the codes."""
         if oversample < 1:
             msg = f'oversample must be at least 1, got {oversample}'
@@ -172,8 +172,9 @@ class Mlx90609:
             temperature_sum += temperature
         if saturated:
             self.counters.saturated += 1
-        return Reading(rate_code=rate_sum / oversample,
-                       temperature_code=temperature_sum / oversample, saturated=saturated)
+        return Mlx90609Reading(rate_code=rate_sum / oversample,
+                               temperature_code=temperature_sum / oversample,
+                               saturated=saturated)
 
     def read_eeprom(self) -> bytes:
         """Read all 128 EEPROM bytes with EER (0AAAAAAA), the byte in the answer's low byte."""

@@ -5,8 +5,8 @@ The compensation node's parameters: its specs, and the settings read from their 
 ``model`` and each model's own (`models.MODELS`, in that order), the correction
 table any model may carry (`models.CORRECTION_SPECS`), the model error table,
 the ZRO recalibration, the inputs, and the bias tracking
-(``bias_tracking.*``, from `core.tracking_parameters`) with its field learning
-(``learning.*``, from `core.learning.parameters`). `model_error_of`,
+(``bias_tracking.*``, `tracking.TRACKING_SPECS`) with its field learning
+(``learning.*``, `learning.LEARNING_SPECS`). `model_error_of`,
 `covariance_noise_of`, `limits_of` and `state_file_of` read the settings the node and the toolkit
 build from the values, raising `ParameterError` naming the parameter.
 """
@@ -14,19 +14,15 @@ build from the values, raising `ParameterError` naming the parameter.
 import math
 from typing import Optional
 
+from .learning import LEARNING_SPECS
 from .models import CORRECTION_SPECS, MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from .state_paths import state_path
+from .tracking import TRACKING_SPECS
 from ..core.errors import ConfigError
-from ..core.learning.parameters import PARAMETERS as LEARNING_PARAMETERS, PREFIX as LEARNING
 from ..core.model_error import ModelErrorTable, table_temperatures
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
-from ..core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
-
-# The messages a rest hint may come as (`ros/rest_hint.py` reads each).
-REST_HINT_TYPES = ('nav_msgs/Odometry', 'geometry_msgs/Twist', 'geometry_msgs/TwistStamped',
-                   'std_msgs/Bool')
 
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model', choices=tuple(MODELS)),
@@ -89,28 +85,7 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          'with the rate only (no temperature, or no factory tables for the eeprom model): '
          "the raw rate offset's standard deviation before the tracking learns it, and the "
          'most it grows to; its square goes into the Imu covariance', low=0.0, high=10.0),
-) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
-          for p in TRACKING_PARAMETERS) + (
-    # The node's own, not the unit's: fit and diagnose do not write it.
-    Spec(TRACKING + 'save_period_s', 60.0,
-         'the tracked offset is written to the state file at most once per this many '
-         'seconds of sensor time, when it learnt since the last write, and at a clean stop',
-         low=0.0, high=86400.0),
-    Spec(TRACKING + 'rest_hint_topic', '',
-         "the robot's word that it stands still, e.g. odom or cmd_vel ('' = none): while it "
-         'says so over a whole window, the mean-rate bound is lifted', read_only=True),
-    Spec(TRACKING + 'rest_hint_type', REST_HINT_TYPES[0],
-         'the message type of rest_hint_topic: Odometry and TwistStamped by their stamps, '
-         'Twist and Bool (true = at rest) at the latest sample tracked', read_only=True,
-         choices=REST_HINT_TYPES),
-    Spec(TRACKING + 'rest_hint_max_linear_m_s', 0.001,
-         'a twist (odometry, velocity command) is at rest when its linear speed is at most '
-         'this, m/s', low=0.0, high=100.0),
-    Spec(TRACKING + 'rest_hint_max_angular_rad_s', 0.001,
-         'and its angular speed at most this, rad/s (0.057 deg/s: far below a slow turn)',
-         low=0.0, high=100.0),
-) + tuple(Spec(LEARNING + p.name, p.default, p.description, low=p.low, high=p.high)
-          for p in LEARNING_PARAMETERS)
+) + TRACKING_SPECS + LEARNING_SPECS
 
 
 def limits_of(values: dict) -> RecalibrationLimits:

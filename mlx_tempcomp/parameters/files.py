@@ -6,7 +6,8 @@ sections of a file (``/**`` first, then the node's), type and range checked as
 rcl checks them, unknown names warned of as the node does (a misspelled name
 of the model refused: `command_line.file_names_check`); `flat_parameters` gives
 a file's keys as rcl names them; `node_overrides` every key the sections hold,
-as written.
+as written; `node_model` the model the compensation node runs of a command's
+(nested) parameters, the node's defaults where they say nothing.
 
 Writing: one function per model the toolkit fits builds its
 ``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
@@ -25,12 +26,13 @@ import yaml
 
 from .command_line import file_names_check
 from .compensation import COMPENSATION_SPECS
+from .models import build_model
 from .specs import check_choices, check_value, ParameterError, widen_integers
 from .state_file import atomic_write
 from ..core.chain import ChainModel
 from ..core.effects import EffectModel, LinearBtc
 from ..core.model_error import ModelErrorTable
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 
 _WILDCARDS = ('/**', '**')
 
@@ -45,6 +47,13 @@ def flat_parameters(tree: dict, prefix: str = '') -> dict:
         else:
             flat[name] = value
     return flat
+
+
+def node_model(parameters: dict):
+    """Build the model the compensation node runs from a command's (nested) parameters."""
+    flat = flat_parameters(parameters)
+    return build_model({spec.name: flat.get(spec.name, spec.initial_value)
+                        for spec in COMPENSATION_SPECS})
 
 
 def _read_overrides(path: str, node_name: str) -> dict:

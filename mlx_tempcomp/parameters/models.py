@@ -22,7 +22,6 @@ import numpy as np
 from .specs import axes_of, NoDefault, ParameterError, Spec, transfer_of
 from ..core.chain import (CalibrationChain, ChainModel,
                           PARAMETER_DESCRIPTIONS as CHAIN_DESCRIPTIONS)
-from ..core.compensation import table_compensation
 from ..core.conversion import Output
 from ..core.correction import CorrectedModel, CorrectionTable
 from ..core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
@@ -30,7 +29,8 @@ from ..core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIP
 from ..core.errors import ConfigError
 from ..core.interpolation import Interpolation
 from ..core.model_interface import ModelInputs
-from ..core.models import AXIS_NAMES, EepromModel
+from ..core.rate_models import AXIS_NAMES, EepromModel
+from ..core.table_compensation import table_compensation
 
 
 def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bool) -> tuple:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from ..core.conversion import SensorTransfer
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..errors import MlxTempCompError
 
 

@@ -3,7 +3,8 @@ Recorded files for the toolkit and the driver's replay: CSV, rosbag2 bags, fligh
 
 `recording` is what the toolkit works on (`Recording`); `load` loads one by
 the path's extension; `columns` and `csv_reader` read CSV files, `csv_writer` writes them; `bag`,
-`bag_reader` and `bag_writer` our raw topics in rosbag2 bags; `flightlog`
+`bag_reader` and `bag_writer` our raw topics in rosbag2 bags, `eeprom_multiarray` the
+EEPROM images as ``imu/eeprom`` lays them out (the nodes share it); `flightlog`
 PX4 ULog (`ulog`) and ArduPilot DataFlash (`dataflash`) logs. No rclpy.
 
 The flight-log readers register their suffixes with `flightlog` when they are

@@ -32,8 +32,8 @@ from typing import Union
 import numpy as np
 from rosbags.typesys import get_typestore, Stores
 
+from .eeprom_multiarray import checked_images
 from .errors import RecordFileError
-from ..core.eeprom_multiarray import checked_images
 from ..core.errors import EepromError
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'

@@ -18,7 +18,7 @@ from .bag import (absolute_topic, BagError, EEPROM, EEPROM_TYPE, EepromRecord, I
                   ImuRecord, jazzy_typestore, PathLike, RawTopics, SUPPLY, SUPPLY_VOLTAGE_TYPE,
                   SupplyVoltageRecord, TEMPERATURE, TEMPERATURE_TYPE, TemperatureRecord,
                   wanted_topics)
-from ..core.eeprom_multiarray import eeprom_images_from_multiarray
+from .eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import EepromError
 
 try:  # the sqlite3 back end of rosbags >= 0.10; its errors can surface mid-iteration

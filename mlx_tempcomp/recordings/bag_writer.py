@@ -18,7 +18,7 @@ from .bag import (absolute_topic, BAG_VERSION, BagError, checked_stamp_ns, EEPRO
                   EepromRecord, IMU_TYPE, ImuRecord, jazzy_typestore, PathLike, RawTopics,
                   STORAGES, SUPPLY_VOLTAGE_TYPE, SupplyVoltageRecord, TEMPERATURE,
                   TEMPERATURE_TYPE, TemperatureRecord, wanted_topics)
-from ..core.eeprom_multiarray import eeprom_multiarray_from_images
+from .eeprom_multiarray import eeprom_multiarray_from_images
 
 try:  # the sqlite3 back end of rosbags >= 0.10; its errors can surface mid-iteration
     from apsw import Error as SqliteError

@@ -48,15 +48,15 @@ from .runner import run
 from .service_window import await_window
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
-from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
-from ..core.models import RateOnlyModel
-from ..core.table import sensor_tables
-from ..core.tracking_parameters import tracking_settings
+from ..core.factory_table import sensor_tables
+from ..core.rate_models import RateOnlyModel
 from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
                                        state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
+from ..parameters.tracking import tracking_settings
+from ..recordings.eeprom_multiarray import eeprom_images_from_multiarray
 
 _MODEL_ERROR_PREFIX = 'model_error.'
 # Parameters the bias tracking's settings depend on.

@@ -47,10 +47,10 @@ from .qos import stream_subscription
 from .zro_recalibration import TRACKING_SECTION, ZroRecalibration
 from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..core.rest_hints import RestHints
-from ..core.tracking_parameters import PREFIX, tracking_settings
 from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
+from ..parameters.tracking import PREFIX, tracking_settings
 
 NS_PER_S = 1_000_000_000
 # The estimate: the latest kept for late joiners, as the EEPROM images are.

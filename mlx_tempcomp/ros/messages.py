@@ -8,9 +8,9 @@ import numpy as np
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
-from ..core.eeprom_multiarray import eeprom_multiarray_from_images
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..parameters.state_file import StateFileError, write_state
+from ..recordings.eeprom_multiarray import eeprom_multiarray_from_images
 
 NAN = float('nan')
 

@@ -15,9 +15,9 @@ from sensor_msgs.msg import BatteryState
 from . import messages
 from .qos import stream_publisher
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..core.compensation import NominalConversion
 from ..core.conversion import Output
-from ..core.table import sensor_tables
+from ..core.factory_table import sensor_tables
+from ..core.table_compensation import NominalConversion
 from ..hardware.errors import HardwareError
 from ..parameters.driver import effects_of
 from ..parameters.specs import ParameterError, transfer_of

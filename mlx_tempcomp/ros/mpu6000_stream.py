@@ -21,8 +21,8 @@ from . import messages
 from .service_window import await_window, SampleWindow, STALL_TIMEOUT_S
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
-from ..core.models import AXIS_NAMES
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
+from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named

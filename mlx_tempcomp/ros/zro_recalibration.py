@@ -23,7 +23,7 @@ from typing import Optional
 from .messages import saved_reply
 from .service_window import SampleWindow
 from ..core.errors import CalibrationError, TempCompError
-from ..core.models import AXIS_NAMES
+from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
 from ..parameters.compensation import limits_of
 from ..parameters.specs import ParameterError

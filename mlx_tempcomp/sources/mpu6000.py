@@ -35,7 +35,7 @@ class ImuSample:
 
 
 @dataclass(frozen=True)
-class ImuRecord:
+class ImuSamples:
     """Samples stacked: time_s (n,), gyro_rad_s (n, 3), acceleration_m_s2 (n, 3), (n,)."""
 
     time_s: np.ndarray
@@ -74,7 +74,7 @@ class MpuSource:
                          acceleration_m_s2=reading.acceleration_m_s2,
                          temperature_c=reading.temperature_c, saturated=reading.saturated)
 
-    def record(self, samples: int, period_s: float) -> ImuRecord:
+    def record(self, samples: int, period_s: float) -> ImuSamples:
         """Read ``samples`` samples ``period_s`` apart (saturated ones raise)."""
         if samples < 1 or period_s < 0.0:
             msg = f'a record needs samples >= 1 and period_s >= 0, got {samples}, {period_s}'
@@ -88,10 +88,10 @@ class MpuSource:
                 msg = f'sample {index} of the record is saturated: the part is not at rest'
                 raise HardwareError(msg)
             rows.append(sample)
-        return ImuRecord(time_s=np.array([r.time_s for r in rows]),
-                         gyro_rad_s=np.array([r.gyro_rad_s for r in rows]),
-                         acceleration_m_s2=np.array([r.acceleration_m_s2 for r in rows]),
-                         temperature_c=np.array([r.temperature_c for r in rows]))
+        return ImuSamples(time_s=np.array([r.time_s for r in rows]),
+                          gyro_rad_s=np.array([r.gyro_rad_s for r in rows]),
+                          acceleration_m_s2=np.array([r.acceleration_m_s2 for r in rows]),
+                          temperature_c=np.array([r.temperature_c for r in rows]))
 
     def write_offsets(self, gyro_lsb: Sequence[int],
                       accel_bias_lsb: Sequence[int]) -> Tuple[int, int, int]:

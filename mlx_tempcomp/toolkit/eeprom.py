@@ -14,7 +14,7 @@ from .errors import UserError
 from ..core.conversion import Output
 from ..core.eeprom import decode_eeprom, VOTED_FIELDS
 from ..core.errors import TempCompError
-from ..core.table import factory_table, TRIPLET_TEMPERATURES_C
+from ..core.factory_table import factory_table, TRIPLET_TEMPERATURES_C
 
 
 def add_parser(commands) -> None:

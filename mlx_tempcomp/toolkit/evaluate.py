@@ -45,10 +45,10 @@ from .running import check_output_file
 from .tracking import offline_twin, rest_hint_column, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError
+from ..core.factory_table import sensor_tables
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
 from ..core.model_error import normalised_error
 from ..core.model_interface import INPUTS, ModelInputs
-from ..core.table import sensor_tables
 from ..parameters.compensation import covariance_noise_of, model_error_of
 from ..parameters.files import node_values
 from ..parameters.models import build_model

@@ -49,10 +49,7 @@ from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
 from ..core.model_interface import ModelInputs
-from ..core.models import AXIS_NAMES
-from ..parameters.compensation import COMPENSATION_SPECS
-from ..parameters.files import flat_parameters
-from ..parameters.models import build_model
+from ..core.rate_models import AXIS_NAMES
 from ..recordings.dataflash import board_rotation
 from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log
 
@@ -406,13 +403,6 @@ def _corrected(model, recording) -> np.ndarray:
     inputs = ModelInputs(**{name: getattr(recording, name) for name in model.inputs})
     return model.stream().correct_block(recording.gyro_rad_s, recording.temperature_c,
                                         inputs).rate_rad_s
-
-
-def node_model(parameters: dict):
-    """Build the model the compensation node runs from a command's (nested) parameters."""
-    flat = flat_parameters(parameters)
-    return build_model({spec.name: flat.get(spec.name, spec.initial_value)
-                        for spec in COMPENSATION_SPECS})
 
 
 def held_out_start(rows: int) -> int:

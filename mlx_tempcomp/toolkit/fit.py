@@ -19,24 +19,26 @@ import numpy as np
 
 from .errors import UserError
 from .exports import (add_export_options, check_export_outputs, check_export_record,
-                      export_request, node_model, write_exports)
+                      export_request, write_exports)
 from .fit_covariance import held_out_judgement, HeldOutJudgement
 from .loading import load, read_options
 from .options import (add_parameter_file_options, add_recording_options, add_validation_options,
                       finite_float, non_negative_int, positive_float, validation_settings)
 from .running import check_output_file, write_node_parameters
+from .tables import format_btc_table, format_order_table, format_stage_table
 from .tracking import tracking_section
 from .uncertainty import block_lines
 from ..core.chain import ChainModel
-from ..core.chain_fit import ChainSettings, find_plateaus, fit_chain, format_stage_table
+from ..core.chain_fit import ChainSettings, find_plateaus, fit_chain
 from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
-from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, format_btc_table,
-                            format_order_table, relative_polynomial, select_orders, table_step_c)
-from ..core.models import AXIS_NAMES
+from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, relative_polynomial,
+                            select_orders, table_step_c)
+from ..core.rate_models import AXIS_NAMES
 from ..core.validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
                                held_out_outside_range, split)
-from ..parameters.files import chain_parameters, linear_btc_parameters, polynomial_parameters
+from ..parameters.files import (chain_parameters, linear_btc_parameters, node_model,
+                                polynomial_parameters)
 
 DEFAULT_MAX_ORDER = 8
 DEFAULT_CHAIN_ORDER = ChainSettings.nonlinearity_order

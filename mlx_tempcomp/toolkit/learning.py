@@ -16,9 +16,9 @@ shows the learnt correction and nothing else; ``evaluate --params`` and the node
 from .errors import UserError
 from .running import write_node_parameters
 from ..core.errors import TempCompError
-from ..core.learning import learning_settings, PREFIX
 from ..parameters.compensation import model_error_of
 from ..parameters.files import learned_parameters, node_overrides
+from ..parameters.learning import learning_settings, PREFIX
 from ..parameters.specs import ParameterError
 
 

@@ -26,14 +26,15 @@ from typing import Optional
 import numpy as np
 
 from .errors import UserError
-from .exports import node_model
+from .tables import bounds_lines
 from ..core.bias_tracker import BiasTracking
 from ..core.errors import TempCompError
 from ..core.learning import FieldLearner, LearningTracking
 from ..core.metrics import bin_means, bin_starts, ErrorStatistics
 from ..core.model_interface import ModelInputs
-from ..core.tracking_bounds import bounds_lines, derive_bounds, RestRecord
-from ..core.tracking_parameters import tracking_parameters, tracking_settings
+from ..core.tracking_bounds import derive_bounds, RestRecord
+from ..parameters.files import node_model
+from ..parameters.tracking import tracking_parameters, tracking_settings
 from ..recordings.columns import column_preset, parse_column_map
 from ..recordings.csv_reader import load_csv_column
 from ..recordings.flightlog import is_flight_log

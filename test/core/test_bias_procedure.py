@@ -13,12 +13,12 @@ from mlx_tempcomp.core.bias_procedure import (averaging_time_s, BiasPoint, BiasP
                                               ProcedureSettings, short_window)
 from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.fitting import format_btc_table
 from mlx_tempcomp.core.noise import allan_deviation, NoiseFigures
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.simulation.adis16130 import (ADIS16130_NOISE, Adis16130Truth,
                                                self_heating_profile)
 from mlx_tempcomp.sources.adis16130 import SimulatedSensor, SimulationConfig
+from mlx_tempcomp.toolkit.tables import format_btc_table
 import numpy as np
 import pytest
 

@@ -11,8 +11,8 @@ from mlx_tempcomp.core.bias_tracker import (BiasTracking, tracking_state, Tracki
                                             TrackingState)
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
 from mlx_tempcomp.core.standstill import StandstillSettings
-from mlx_tempcomp.core.tracking_parameters import (PARAMETERS, PREFIX, tracking_parameters,
-                                                   tracking_settings)
+from mlx_tempcomp.parameters.tracking import (PREFIX, tracking_parameters, tracking_settings,
+                                              TRACKING_SPECS)
 import numpy as np
 import pytest
 
@@ -285,7 +285,7 @@ def test_settings_are_checked_naming_the_setting():
 
 
 def node_values(**given) -> dict:
-    values = {PREFIX + p.name: p.default for p in PARAMETERS}
+    values = {spec.name: spec.default for spec in TRACKING_SPECS}
     values.update({PREFIX + k: v for k, v in given.items()})
     return values
 

@@ -1,10 +1,10 @@
-from mlx_tempcomp.core.compensation import NominalConversion, table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.errors import ConfigError
+from mlx_tempcomp.core.factory_table import factory_table, FactoryTable
 from mlx_tempcomp.core.interpolation import interpolate, Interpolation
 from mlx_tempcomp.core.metrics import ErrorStatistics
-from mlx_tempcomp.core.table import factory_table, FactoryTable
+from mlx_tempcomp.core.table_compensation import NominalConversion, table_compensation
 import numpy as np
 import pytest
 

@@ -13,8 +13,9 @@ import math
 
 from hypothesis import given, settings, strategies as st
 from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
-from mlx_tempcomp.core.learning import learning_settings, LearningTracking
+from mlx_tempcomp.core.learning import LearningTracking
 from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.parameters.learning import learning_settings
 import numpy as np
 
 FUZZ = settings(max_examples=60, deadline=None)

@@ -1,15 +1,15 @@
 import math
 
-from mlx_tempcomp.core.compensation import table_compensation
 from mlx_tempcomp.core.conversion import Output, SensorTransfer
 from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel, LinearBtc, polynomial_model
 from mlx_tempcomp.core.errors import ConfigError
+from mlx_tempcomp.core.factory_table import factory_table
 from mlx_tempcomp.core.interpolation import Interpolation
 from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,
                                                ModelStream)
-from mlx_tempcomp.core.models import EepromModel, RateOnlyModel
-from mlx_tempcomp.core.table import factory_table
+from mlx_tempcomp.core.rate_models import EepromModel, RateOnlyModel
+from mlx_tempcomp.core.table_compensation import table_compensation
 import numpy as np
 import pytest
 

@@ -8,7 +8,7 @@ import math
 
 from mlx_tempcomp.hardware import adis16130 as protocol
 from mlx_tempcomp.hardware.adis16130 import (
-    Adis16130, rate_code_from_dps, rate_dps_from_code, Reading, temperature_c_from_code,
+    Adis16130, Adis16130Reading, rate_code_from_dps, rate_dps_from_code, temperature_c_from_code,
     temperature_code_from_c)
 from mlx_tempcomp.hardware.errors import (
     HardwareError, ProtocolError, SilentBusError, TransportError)
@@ -227,7 +227,7 @@ def test_reads_are_0x48_and_0x4a_then_3_bytes_in_one_frame():
     assert wire.frames == [b'\x48\x00\x00\x00', b'\x4a\x00\x00\x00']
     assert driver.read_rate_dps() == 1.0
     assert driver.read_temperature_c() == 85.0
-    assert driver.read() == Reading(rate_dps=1.0, temperature_c=85.0, saturated=False)
+    assert driver.read() == Adis16130Reading(rate_dps=1.0, temperature_c=85.0, saturated=False)
 
 
 def test_16_bit_reads_are_the_command_then_2_bytes():
@@ -311,7 +311,7 @@ def test_power_cycle_is_detected_and_start_recovers():
     with pytest.raises(SilentBusError, match='reset to its power-on values'):
         driver.verify_configuration()
     driver.start()
-    assert driver.read() == Reading(0.0, 25.0, False)
+    assert driver.read() == Adis16130Reading(0.0, 25.0, False)
 
 
 def test_register_read_back_mismatch_names_the_register():

@@ -8,11 +8,11 @@ import re
 
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import decode_eeprom, EepromFields, encode_eeprom
-from mlx_tempcomp.core.table import factory_table, TRIPLET_TEMPERATURES_C
+from mlx_tempcomp.core.factory_table import factory_table, TRIPLET_TEMPERATURES_C
 from mlx_tempcomp.hardware.errors import (
     EocTimeoutError, HardwareError, ProtocolError, RefusalError, SilentBusError)
 from mlx_tempcomp.hardware.mlx90609 import (
-    ADCC, ADCR, ANSWER_ADEN, ANSWER_CHAN, ANSWER_EOC, Channel, Mlx90609, Reading, STATR)
+    ADCC, ADCR, ANSWER_ADEN, ANSWER_CHAN, ANSWER_EOC, Channel, Mlx90609, Mlx90609Reading, STATR)
 from mlx_tempcomp.simulation.clock import SimClock
 from mlx_tempcomp.simulation.mlx90609 import (
     factory_eeprom, Fault, simulated_device, SimulatedMlx90609)
@@ -69,10 +69,10 @@ class BadWire:
 
 def test_fault_free_reading_and_clock():
     device, driver = quiet_device()
-    assert driver.read() == Reading(rate_code=ZERO_RATE_CODE, temperature_code=CODE_25C,
-                                    saturated=False)
+    assert driver.read() == Mlx90609Reading(rate_code=ZERO_RATE_CODE, temperature_code=CODE_25C,
+                                            saturated=False)
     assert device.clock.now_s == pytest.approx(2 * CONVERSION_S, abs=1e-12)
-    assert driver.read(oversample=4) == Reading(ZERO_RATE_CODE, CODE_25C, False)
+    assert driver.read(oversample=4) == Mlx90609Reading(ZERO_RATE_CODE, CODE_25C, False)
     assert device.clock.now_s == pytest.approx(10 * CONVERSION_S, abs=1e-12)
     assert driver.counters.as_dict() == NO_FAULTS
 
@@ -120,7 +120,7 @@ def test_fault_raises_typed_error_counts_it_and_recovers(fault, operation, error
         getattr(driver, operation)()
     assert getattr(driver.counters, counter) == 2
     device.fault = Fault.NONE
-    assert driver.read() == Reading(ZERO_RATE_CODE, CODE_25C, False)
+    assert driver.read() == Mlx90609Reading(ZERO_RATE_CODE, CODE_25C, False)
     assert driver.read_eeprom() == image
     assert driver.counters.as_dict() == counters_with(**{counter: 2})
 
@@ -177,7 +177,7 @@ def test_unknown_instruction_is_refused_with_opc(instruction, flags):
     assert info.value.answer == 0xC000
     assert str(info.value) == f'instruction 0x{instruction:02X} refused: 0xC000 ({flags})'
     assert driver.counters.as_dict() == counters_with(refusals=1)
-    assert driver.read() == Reading(ZERO_RATE_CODE, CODE_25C, False)
+    assert driver.read() == Mlx90609Reading(ZERO_RATE_CODE, CODE_25C, False)
 
 
 # --- saturation ------------------------------------------------------------------------------
@@ -186,7 +186,7 @@ def test_unknown_instruction_is_refused_with_opc(instruction, flags):
 def test_rate_far_beyond_full_scale_is_flagged_saturated(rate_dps, code):
     device, driver = quiet_device(Scenario(rate_times_s=(0.0,), rate_dps=(rate_dps,)))
     reading = driver.read()
-    assert reading == Reading(rate_code=code, temperature_code=CODE_25C, saturated=True)
+    assert reading == Mlx90609Reading(rate_code=code, temperature_code=CODE_25C, saturated=True)
     assert driver.counters.as_dict() == counters_with(saturated=1)
     assert driver.read(oversample=8).saturated
     assert driver.counters.saturated == 2
@@ -195,7 +195,7 @@ def test_rate_far_beyond_full_scale_is_flagged_saturated(rate_dps, code):
 def test_rate_inside_full_scale_is_not_saturated():
     # 60 deg/s x 12.8 LSB/(deg/s) = 768 LSB above the zero-rate code.
     device, driver = quiet_device(Scenario(rate_times_s=(0.0,), rate_dps=(60.0,)))
-    assert driver.read() == Reading(ZERO_RATE_CODE + 768, CODE_25C, False)
+    assert driver.read() == Mlx90609Reading(ZERO_RATE_CODE + 768, CODE_25C, False)
     assert driver.counters.saturated == 0
 
 

@@ -2,11 +2,11 @@
 
 import array
 
-from mlx_tempcomp.core.eeprom_multiarray import eeprom_multiarray_from_images
 from mlx_tempcomp.recordings.bag import (BagError, EepromRecord, ImuRecord, RawTopics,
                                          SupplyVoltageRecord, TemperatureRecord)
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.bag_writer import RawBagWriter
+from mlx_tempcomp.recordings.eeprom_multiarray import eeprom_multiarray_from_images
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Writer

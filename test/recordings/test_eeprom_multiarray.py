@@ -2,9 +2,10 @@
 
 import array
 
-from mlx_tempcomp.core.eeprom_multiarray import (checked_images, eeprom_images_from_multiarray,
-                                                 eeprom_multiarray_from_images)
 from mlx_tempcomp.core.errors import EepromError
+from mlx_tempcomp.recordings.eeprom_multiarray import (checked_images,
+                                                       eeprom_images_from_multiarray,
+                                                       eeprom_multiarray_from_images)
 import pytest
 
 

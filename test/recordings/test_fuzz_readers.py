@@ -20,7 +20,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.conversion import Output
 from mlx_tempcomp.core.eeprom import decode_eeprom, EEPROM_SIZE
 from mlx_tempcomp.core.errors import TempCompError
-from mlx_tempcomp.core.table import factory_table
+from mlx_tempcomp.core.factory_table import factory_table
 from mlx_tempcomp.recordings.bag import (BagError, ImuRecord, RawTopics, SupplyVoltageRecord,
                                          TemperatureRecord)
 from mlx_tempcomp.recordings.bag_reader import RawBagReader

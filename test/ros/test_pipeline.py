@@ -9,11 +9,11 @@ from dataclasses import dataclass
 import math
 
 from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom_multiarray import eeprom_images_from_multiarray
-from mlx_tempcomp.core.table import sensor_tables
+from mlx_tempcomp.core.factory_table import sensor_tables
 from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import transfer_of
+from mlx_tempcomp.recordings.eeprom_multiarray import eeprom_images_from_multiarray
 from mlx_tempcomp.sources.mlx90609 import SimulatedArray, SimulationConfig
 import numpy as np
 import pytest

@@ -25,10 +25,11 @@ import signal
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped, TwistWithCovarianceStamped
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.parameters.compensation import covariance_noise_of, REST_HINT_TYPES
+from mlx_tempcomp.parameters.compensation import covariance_noise_of
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import read_state, write_state
+from mlx_tempcomp.parameters.tracking import REST_HINT_TYPES
 from mlx_tempcomp.recordings.bag import RawTopics
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.csv_writer import write_csv

@@ -3,7 +3,7 @@
 import math
 import time
 
-from mlx_tempcomp.hardware.mlx90609 import Mlx90609, Reading
+from mlx_tempcomp.hardware.mlx90609 import Mlx90609, Mlx90609Reading
 from mlx_tempcomp.simulation.clock import SimClock
 from mlx_tempcomp.simulation.mlx90609 import simulated_device
 from mlx_tempcomp.simulation.physics import (
@@ -93,7 +93,7 @@ def test_paced_clock_follows_the_real_time_factor():
     run = readings(driver, 50, period_s=0.01)
     wall_s = time.monotonic() - start
     assert clock.now_s == pytest.approx(0.5, abs=1e-6)
-    assert run[-1] == Reading(ZERO_RATE_CODE, CODE_25C, False)
+    assert run[-1] == Mlx90609Reading(ZERO_RATE_CODE, CODE_25C, False)
     assert 0.05 <= wall_s < 0.4, f'0.5 s at factor 10 took {wall_s * 1e3:.1f} ms'
 
 

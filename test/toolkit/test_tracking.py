@@ -15,9 +15,9 @@ from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.bias_tracker import BiasTracking
-from mlx_tempcomp.core.tracking_parameters import tracking_settings
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import axes_of
+from mlx_tempcomp.parameters.tracking import tracking_settings
 from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.simulation.motion import motion_schedule, ScheduleSettings
 import numpy as np

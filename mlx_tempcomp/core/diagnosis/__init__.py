@@ -71,12 +71,15 @@ test part's) into ``error_bins`` temperature bins (`validation.
 error_by_temperature`): the validated error as a function of T, which the
 node can add to its covariance.
 
-The package, by module: `settings` (`DiagnosisSettings`, what is searched),
-`results` (the result records, `Diagnosis`), `folds` (rows cut into blocks
-and bins, the folds over them), `fits` (`AxisSpec` and per effect its
-trials, design columns and terms: `FITS`), `problem` (`DiagnosisProblem`:
-the data, cached features, scoring and fold models of one diagnosis),
-`acceptance` (an effect's judgement, the record cause, the guard against
+The package, by module, each importing only those before it: `folds` (rows
+cut into blocks and bins, the folds over them), `settings`
+(`DiagnosisSettings`, what is searched), `results` (the result records, `Diagnosis`),
+`data` (`DiagnosisData`: the rows, bins, folds, cached features and search
+bounds of one diagnosis), `cubic` (the PX4-style cubic of each fold),
+`fits` (`AxisSpec` and per effect its trials, design columns and terms:
+`FITS`; an effect's trials see the data and a scoring function, not the
+scorer), `problem` (`DiagnosisProblem`: the scorer on the data, its fold
+models and runs), `acceptance` (an effect's judgement, the record cause, the guard against
 the PX4-style cubic), `held_out_part` (the test part, the re-zero, the
 error by temperature and the clamped rows), `loop` (`diagnose`).
 """
@@ -87,10 +90,10 @@ from .loop import diagnose
 from .results import (AxisDiagnosis, BinnedResidual, Candidate, Diagnosis, ErrorByTemperature,
                       HeldOutError, METHODS, ModelChoice, OutsideFittedRange, RecordFit, Step)
 from .settings import (BASE_EFFECT, DEFAULT_ERROR_BINS, DEFAULT_REZERO_S, DiagnosisSettings,
-                       Progress, RECORD_SEARCH, REZERO_MIN_SAMPLES, SEARCH_EFFECTS)
+                       ProgressCallback, RECORD_SEARCH, REZERO_MIN_SAMPLES, SEARCH_EFFECTS)
 
 __all__ = ['ALL_ROWS', 'AxisDiagnosis', 'BASE_EFFECT', 'BinnedResidual', 'Candidate',
            'DEFAULT_ERROR_BINS', 'DEFAULT_REZERO_S', 'default_rezero_s', 'diagnose', 'Diagnosis',
            'DiagnosisSettings', 'ErrorByTemperature', 'HeldOutError', 'INSIDE_ROWS', 'METHODS',
-           'ModelChoice', 'OutsideFittedRange', 'Progress', 'RECORD_SEARCH', 'RecordFit',
+           'ModelChoice', 'OutsideFittedRange', 'ProgressCallback', 'RECORD_SEARCH', 'RecordFit',
            'REZERO_MIN_SAMPLES', 'rezero_window_rows', 'SCORING', 'SEARCH_EFFECTS', 'Step']

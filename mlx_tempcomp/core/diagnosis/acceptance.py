@@ -17,10 +17,10 @@ from typing import Optional
 
 import numpy as np
 
-from .fits import (AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD,
-                   TIME_GRID_S, WIDTH_GRID_C)
+from .data import HYSTERESIS_SPAN_SHARE, TIME_CONSTANTS_PER_RECORD, TIME_GRID_S, WIDTH_GRID_C
+from .fits import AxisSpec, fitted_parameters, Score
 from .folds import Folds
-from .problem import DiagnosisProblem, HYSTERESIS_SPAN_SHARE, Score
+from .problem import DiagnosisProblem
 from .results import Candidate, HeldOutError, ModelChoice
 from .settings import DiagnosisSettings, RECORD_SEARCH
 from ..validation import cubic_instead, FORWARD, paired
@@ -144,7 +144,7 @@ def record_findings(problem: DiagnosisProblem, axis: int, spec: AxisSpec, number
     """
     findings = []
     for effect in RECORD_SEARCH:
-        trial = best_trial(problem, axis, spec, effect)  # always one trial
+        trial = problem.best_trial(axis, spec, effect)  # always one trial
         folds = problem.folds_for(trial.spec, FORWARD)
         current = problem.score_spec(axis, spec, folds)
         judgement = judge(problem, current, problem.score_spec(axis, trial.spec, folds), folds)

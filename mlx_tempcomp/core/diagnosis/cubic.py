@@ -9,21 +9,14 @@ other model is compared with fold by fold. The cubic an axis writes is
 (`cubic_bias`).
 """
 
-# The problem computes these and they take the problem: annotations only name it.
-from __future__ import annotations
-
 from dataclasses import dataclass
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .folds import weighted_rms
+from .data import DiagnosisData
+from .folds import Folds, weighted_rms
 from ..baseline import PX4_ORDER
-
-if TYPE_CHECKING:
-    from .folds import Folds
-    from .problem import DiagnosisProblem
 
 
 @dataclass(frozen=True)
@@ -40,31 +33,31 @@ class BaselineRun:
     errors: tuple
 
 
-def baseline_run(problem: DiagnosisProblem, folds: Folds) -> BaselineRun:
+def baseline_run(data: DiagnosisData, folds: Folds) -> BaselineRun:
     """Fit the cubic on each fold's training blocks, run it on its held blocks (`BaselineRun`)."""
-    axes = len(problem.axes)
-    residual = np.full((len(problem.starts), axes), math.nan)
+    axes = len(data.axes)
+    residual = np.full((len(data.starts), axes), math.nan)
     fold_rms = np.full((folds.split.folds, axes), math.nan)
     for fold, (held, counted) in enumerate(zip(folds.split.held, folds.counted)):
-        cubics = problem.fold_cubics(folds.split.training[fold])
+        cubics = data.fold_cubics(folds.split.training[fold])
         for block in np.flatnonzero(held):
-            residual[problem.bin_block == block] = _block_residual(problem, cubics, block)
-        fold_rms[fold] = [weighted_rms(residual[counted, a], problem.counts[counted])
+            residual[data.bin_block == block] = _block_residual(data, cubics, block)
+        fold_rms[fold] = [weighted_rms(residual[counted, a], data.counts[counted])
                           for a in range(axes)]
-    return BaselineRun(residual, fold_rms, tuple(problem.error(residual[:, a], folds)
+    return BaselineRun(residual, fold_rms, tuple(data.error(residual[:, a], folds)
                                                  for a in range(axes)))
 
 
-def _block_residual(problem: DiagnosisProblem, cubics: tuple, block: int) -> np.ndarray:
+def _block_residual(data: DiagnosisData, cubics: tuple, block: int) -> np.ndarray:
     """Give the bin means of a block's residual under the cubics (its record's)."""
-    rows = slice(problem.block_edges[block], problem.block_edges[block + 1])
-    cubic = cubics[problem.records.record_of(rows.start)]
-    corrected = cubic.corrected(problem.rate[rows], problem.temperature[rows])
-    if problem.reference is not None:
-        corrected = corrected - problem.reference[rows]
-    bins = problem.bin_block == block
-    return np.add.reduceat(corrected, problem.starts[bins] - rows.start, axis=0) / \
-        problem.counts[bins][:, None]
+    rows = slice(data.block_edges[block], data.block_edges[block + 1])
+    cubic = cubics[data.records.record_of(rows.start)]
+    corrected = cubic.corrected(data.rate[rows], data.temperature[rows])
+    if data.reference is not None:
+        corrected = corrected - data.reference[rows]
+    bins = data.bin_block == block
+    return np.add.reduceat(corrected, data.starts[bins] - rows.start, axis=0) / \
+        data.counts[bins][:, None]
 
 
 def cubic_bias(cubic, axis: int, centre_c: float, scale_c: float) -> tuple:

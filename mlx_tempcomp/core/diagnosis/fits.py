@@ -5,34 +5,27 @@ What the loop can add to an axis: `AxisSpec`, and per effect how it is searched 
 (a flag, a few orders, a 1-D grid search of a time constant or width, the
 CUSUM of a bias step), its bin-mean design columns, its `AxisTerms` fields
 from the fitted coefficients and its report. `best_trial` runs an effect's
-trials on a `DiagnosisProblem` and keeps the best scored.
+trials on a `DiagnosisData` with a scoring function and keeps the best
+scored; `design` gives an axis's design matrix.
 """
 
-# The problem runs this table, and the table's functions take the problem: the annotations
-# name it (and its Score) without importing it at run time.
+# `AxisSpec.with_choice` names its own class.
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import functools
 import math
-from typing import Callable, Optional, TYPE_CHECKING
+from typing import Callable, Optional
 
 import numpy as np
 
+from .data import DiagnosisData, TIME_GRID_S, WIDTH_GRID_C
 from .settings import BASE_EFFECT
 from ..effects import AxisTerms, EFFECT_NAMES, FirstOrderLag, play_state
 
-if TYPE_CHECKING:
-    from .problem import DiagnosisProblem, Score
-
-# Log grids of the 1-D searches: ratio 2^(1/4) between neighbours. The coarse pass
-# visits every COARSE-th point within the bounds, the fine pass the neighbours of the best.
-GRID_RATIO = 2.0 ** 0.25
+# The coarse pass of a 1-D search visits every COARSE-th grid point (`data.TIME_GRID_S`,
+# `data.WIDTH_GRID_C`) within the bounds, the fine pass the neighbours of the best.
 COARSE = 4
-TIME_GRID_S = tuple(float(GRID_RATIO ** k) for k in range(0, 81))        # 1 s .. 1.05e6 s
-WIDTH_GRID_C = tuple(float(0.25 * GRID_RATIO ** k) for k in range(0, 33))  # 0.25 .. 64 C
-# A time constant must fit this many times into the diagnosed part, or it is a drift.
-TIME_CONSTANTS_PER_RECORD = 4.0
 # Two gradient time constants closer than this ratio are one.
 MIN_GRADIENT_RATIO = 2.0
 SUPPLY_ORDERS = (1, 2)
@@ -86,7 +79,7 @@ class AxisSpec:
         return effect != 'thermal_gradient_2' or len(self.gradient_s) == 1
 
 
-def _step_time(problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> float:
+def _step_time(data: DiagnosisData, axis: int, spec: AxisSpec) -> float:
     """
     Return the bias step time that least squares prefers, given the axis's other terms.
 
@@ -94,20 +87,20 @@ def _step_time(problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> float:
     divided by what a step at each bin start leaves unexplained by the other
     terms, which makes the peak the exact least-squares step location.
     """
-    root = np.sqrt(problem.counts)
-    basis, _ = np.linalg.qr(problem.design(axis, spec) * root[:, None])
-    target = problem.target[:, axis] * root
+    root = np.sqrt(data.counts)
+    basis, _ = np.linalg.qr(design(data, axis, spec) * root[:, None])
+    target = data.target[:, axis] * root
     residual = target - basis @ (basis.T @ target)
     # Sums from each bin to the end: a step starting at that bin.
     cusum = np.cumsum((residual * root)[::-1])[::-1]
     projected = np.cumsum((basis * root[:, None])[::-1], axis=0)[::-1]
-    left = np.cumsum(problem.counts[::-1])[::-1] - np.sum(np.square(projected), axis=1)
-    usable = left > 1e-9 * np.sum(problem.counts)
+    left = np.cumsum(data.counts[::-1])[::-1] - np.sum(np.square(projected), axis=1)
+    usable = left > 1e-9 * np.sum(data.counts)
     usable[0] = False
     if not usable.any():
-        return float(problem.time[-1])
+        return float(data.time[-1])
     gain = np.where(usable, np.square(cusum) / np.where(usable, left, 1.0), -1.0)
-    return float(problem.time[problem.starts[int(np.argmax(gain))]])
+    return float(data.time[data.starts[int(np.argmax(gain))]])
 
 
 def _grid_search(grid: tuple, low: float, high: float, evaluate) -> None:
@@ -138,6 +131,16 @@ def _grid_search(grid: tuple, low: float, high: float, evaluate) -> None:
 
 
 @dataclass(frozen=True)
+class Score:
+    """A spec scored on the folds: RMS per fold and overall, full rank, the binned residual."""
+
+    fold_rms: np.ndarray
+    rms: float
+    rank_ok: bool
+    residual: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
 class Trial:
     """A spec tried on an axis and its score on the folds."""
 
@@ -146,27 +149,52 @@ class Trial:
 
 
 class _Search:
-    """Keeps the best `Trial` of the trials of one effect."""
+    """
+    Keeps the best `Trial` of the trials of one effect.
 
-    def __init__(self, problem: DiagnosisProblem, axis: int):
-        self.problem, self.axis, self.best = problem, axis, None
+    ``score`` scores a spec on the axis searched: a `Score`, or None when no
+    fold can judge it (`problem.DiagnosisProblem.judge`).
+    """
+
+    def __init__(self, score: Callable[[AxisSpec], Optional[Score]]):
+        self.score, self.best = score, None
 
     def __call__(self, spec: AxisSpec) -> float:
-        folds = self.problem.folds_for(spec)
-        if folds is None:   # no fold can judge a memory this long
+        score = self.score(spec)
+        if score is None:
             return math.inf
-        score = self.problem.score_spec(self.axis, spec, folds)
         if self.best is None or score.rms < self.best.score.rms:
             self.best = Trial(spec, score)
         return score.rms
 
 
-def best_trial(problem: DiagnosisProblem, axis: int, spec: AxisSpec,
-               effect: str) -> Optional[Trial]:
-    """Return the best `Trial` of one effect, None if none fits the search bounds."""
-    search = _Search(problem, axis)
-    FITS[effect].trials(search, problem, axis, spec)
+def best_trial(data: DiagnosisData, score: Callable[[AxisSpec], Optional[Score]], axis: int,
+               spec: AxisSpec, effect: str) -> Optional[Trial]:
+    """
+    Return the best `Trial` of one effect, None if none fits the search bounds.
+
+    The trials read ``data`` (its bounds, its features); ``score`` scores
+    each spec on ``axis`` (see `_Search`).
+    """
+    search = _Search(score)
+    FITS[effect].trials(search, data, axis, spec)
     return search.best
+
+
+def design(data: DiagnosisData, axis: int, spec: AxisSpec) -> np.ndarray:
+    """
+    Return the bin-mean design matrix of an axis.
+
+    Columns: the polynomial's, each effect's in ``spec.choices`` order
+    (`FITS`), the records' offsets last.
+    """
+    blocks = [data.polynomial(spec.thermal_lag_s)[:, :spec.order + 1]]
+    for effect, choice in spec.choices:
+        columns = FITS[effect].columns
+        if columns is not None:
+            blocks.append(columns(data, axis, spec, choice))
+    blocks.append(data.offset_columns())
+    return np.column_stack(blocks)
 
 
 @dataclass(frozen=True)
@@ -174,12 +202,12 @@ class EffectFit:
     """
     How the loop fits one effect on an axis.
 
-    ``trials(search, problem, axis, spec)`` scores each choice worth trying
-    with `_Search`; ``columns(problem, axis, spec, choice)`` gives the
+    ``trials(search, data, axis, spec)`` scores each choice worth trying
+    with `_Search`; ``columns(data, axis, spec, choice)`` gives the
     effect's bin-mean design columns (None: it moves the polynomial's x);
-    ``terms(problem, axis, choice, take)`` its `AxisTerms` fields, ``take(n)``
+    ``terms(data, axis, choice, take)`` its `AxisTerms` fields, ``take(n)``
     giving its next n fitted coefficients (None: another effect holds its
-    choice); ``report(terms, problem)`` its fitted parameters in SI units.
+    choice); ``report(terms, data)`` its fitted parameters in SI units.
     """
 
     trials: Callable
@@ -190,49 +218,49 @@ class EffectFit:
 
 def _flag(effect: str) -> Callable:
     """Trials of an effect without a choice: one, the effect in."""
-    def trials(search: _Search, problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> None:
+    def trials(search: _Search, data: DiagnosisData, axis: int, spec: AxisSpec) -> None:
         search(spec.with_choice(effect, True))
     return trials
 
 
 def _orders(effect: str, orders: tuple) -> Callable:
     """Trials of an effect whose choice is a polynomial order: each of ``orders``."""
-    def trials(search: _Search, problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> None:
+    def trials(search: _Search, data: DiagnosisData, axis: int, spec: AxisSpec) -> None:
         for order in orders:
             search(spec.with_choice(effect, order))
     return trials
 
 
-def _lag_trials(search: _Search, problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> None:
-    low, high = problem.bounds['thermal_lag_s']
+def _lag_trials(search: _Search, data: DiagnosisData, axis: int, spec: AxisSpec) -> None:
+    low, high = data.bounds['thermal_lag_s']
     for sign in (1.0, -1.0):
         _grid_search(TIME_GRID_S, low, high,
                      lambda tau: search(spec.with_choice('thermal_lag', sign * tau)))
 
 
-def _lag_report(terms: AxisTerms, problem: DiagnosisProblem) -> dict:
+def _lag_report(terms: AxisTerms, data: DiagnosisData) -> dict:
     lag = terms.thermal_lag_s
     return {'thermal_lag_s': lag,
             'form': ('the sensor lags: T_eff = T + lag x dT/dt' if lag > 0.0 else
                      'the element lags: T_eff = first-order lag of T'),
-            'temperature_rate_window_s': problem.settings.rate_window_s}
+            'temperature_rate_window_s': data.settings.rate_window_s}
 
 
-def _rate_columns(problem: DiagnosisProblem, axis: int, spec: AxisSpec, choice) -> np.ndarray:
-    return problem.cached('rate', lambda: problem.mean(problem.slope)[:, None])
+def _rate_columns(data: DiagnosisData, axis: int, spec: AxisSpec, choice) -> np.ndarray:
+    return data.cached('rate', lambda: data.mean(data.slope)[:, None])
 
 
-def _gradient_trials(search: _Search, problem: DiagnosisProblem, axis: int,
+def _gradient_trials(search: _Search, data: DiagnosisData, axis: int,
                      spec: AxisSpec) -> None:
-    low, high = problem.bounds['gradient_time_constant_s']
+    low, high = data.bounds['gradient_time_constant_s']
     _grid_search(TIME_GRID_S, low, high,
                  lambda tau: search(spec.with_choice('thermal_gradient', (tau,))))
 
 
-def _second_gradient(search: _Search, problem: DiagnosisProblem, axis: int,
+def _second_gradient(search: _Search, data: DiagnosisData, axis: int,
                      spec: AxisSpec) -> None:
     """Search a second gradient time constant, then the first again beside it."""
-    bounds = problem.bounds['gradient_time_constant_s']
+    bounds = data.bounds['gradient_time_constant_s']
     (first,) = spec.gradient_s
 
     def pair(kept: float, tau: float) -> float:
@@ -246,96 +274,96 @@ def _second_gradient(search: _Search, problem: DiagnosisProblem, axis: int,
         _grid_search(TIME_GRID_S, *bounds, lambda tau: pair(second, tau))
 
 
-def _gradient_columns(problem: DiagnosisProblem, axis: int,
+def _gradient_columns(data: DiagnosisData, axis: int,
                       spec: AxisSpec, taus: tuple) -> np.ndarray:
     def difference(tau: float) -> np.ndarray:
-        lagged = problem.each(FirstOrderLag(tau).batch, problem.time, problem.temperature)
-        return problem.mean(problem.temperature - lagged)
-    return np.column_stack([problem.cached(('gradient', tau), functools.partial(difference, tau))
+        lagged = data.each(FirstOrderLag(tau).batch, data.time, data.temperature)
+        return data.mean(data.temperature - lagged)
+    return np.column_stack([data.cached(('gradient', tau), functools.partial(difference, tau))
                             for tau in taus])
 
 
-def _gradient_report(terms: AxisTerms, problem: DiagnosisProblem) -> dict:
+def _gradient_report(terms: AxisTerms, data: DiagnosisData) -> dict:
     return {'time_constants_s': list(terms.gradient_time_constants_s),
             'rad_s_per_c': list(terms.gradient_rad_s_per_c)}
 
 
-def _hysteresis_trials(search: _Search, problem: DiagnosisProblem, axis: int,
+def _hysteresis_trials(search: _Search, data: DiagnosisData, axis: int,
                        spec: AxisSpec) -> None:
-    low, high = problem.bounds['hysteresis_half_width_c']
+    low, high = data.bounds['hysteresis_half_width_c']
     _grid_search(WIDTH_GRID_C, low, high,
                  lambda width: search(spec.with_choice('hysteresis', width)))
 
 
-def _play_columns(problem: DiagnosisProblem, axis: int,
+def _play_columns(data: DiagnosisData, axis: int,
                   spec: AxisSpec, width_c: float) -> np.ndarray:
-    return problem.cached(('play', width_c), lambda: problem.mean(problem.each(
-        functools.partial(play_state, half_width_c=width_c), problem.temperature))[:, None])
+    return data.cached(('play', width_c), lambda: data.mean(data.each(
+        functools.partial(play_state, half_width_c=width_c), data.temperature))[:, None])
 
 
-def _supply_columns(problem: DiagnosisProblem, axis: int,
+def _supply_columns(data: DiagnosisData, axis: int,
                     spec: AxisSpec, order: int) -> np.ndarray:
-    reference = problem.supply_reference.centre
-    return problem.cached('supply', lambda: problem.powers(
-        problem.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
+    reference = data.supply_reference.centre
+    return data.cached('supply', lambda: data.powers(
+        data.inputs.supply_voltage_v - reference, 1, max(SUPPLY_ORDERS)))[:, :order]
 
 
-def _secondary_columns(problem: DiagnosisProblem, axis: int,
+def _secondary_columns(data: DiagnosisData, axis: int,
                        spec: AxisSpec, order: int) -> np.ndarray:
-    reference, scale = problem.secondary.centre, problem.secondary.half_span
-    return problem.cached('secondary', lambda: problem.powers(
-        (problem.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
+    reference, scale = data.secondary.centre, data.secondary.half_span
+    return data.cached('secondary', lambda: data.powers(
+        (data.inputs.temperature_2_c - reference) / scale, 1, max(SECONDARY_ORDERS)))[:, :order]
 
 
-def _scale_columns(problem: DiagnosisProblem, axis: int, spec: AxisSpec, order: int) -> np.ndarray:
+def _scale_columns(data: DiagnosisData, axis: int, spec: AxisSpec, order: int) -> np.ndarray:
     lag_s = spec.thermal_lag_s
 
     def build():
-        x = problem.x(lag_s)
-        truth = problem.reference[:, axis]
-        return np.column_stack([problem.mean(truth * x ** k)
+        x = data.x(lag_s)
+        truth = data.reference[:, axis]
+        return np.column_stack([data.mean(truth * x ** k)
                                 for k in range(max(SCALE_ORDERS) + 1)])
-    return problem.cached(('scale', axis, lag_s), build)[:, :order + 1]
+    return data.cached(('scale', axis, lag_s), build)[:, :order + 1]
 
 
-def _nonlinearity_columns(problem: DiagnosisProblem, axis: int,
+def _nonlinearity_columns(data: DiagnosisData, axis: int,
                           spec: AxisSpec, order: int) -> np.ndarray:
-    return problem.cached(('nonlinearity', axis), lambda: problem.powers(
-        problem.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))[:, :order - 1]
+    return data.cached(('nonlinearity', axis), lambda: data.powers(
+        data.reference[:, axis], 2, max(NONLINEARITY_ORDERS)))[:, :order - 1]
 
 
-def _cross_columns(problem: DiagnosisProblem, axis: int, spec: AxisSpec, choice) -> np.ndarray:
-    others = [j for j in range(len(problem.axes)) if j != axis]
-    return problem.cached(('cross', axis), lambda: problem.mean(problem.reference[:, others]))
+def _cross_columns(data: DiagnosisData, axis: int, spec: AxisSpec, choice) -> np.ndarray:
+    others = [j for j in range(len(data.axes)) if j != axis]
+    return data.cached(('cross', axis), lambda: data.mean(data.reference[:, others]))
 
 
-def _cross_terms(problem: DiagnosisProblem, axis: int, choice, take) -> dict:
-    others = iter(take(len(problem.axes) - 1))
+def _cross_terms(data: DiagnosisData, axis: int, choice, take) -> dict:
+    others = iter(take(len(data.axes) - 1))
     return {'cross_axis': tuple(0.0 if j == axis else next(others)
-                                for j in range(len(problem.axes)))}
+                                for j in range(len(data.axes)))}
 
 
-def _drift_columns(problem: DiagnosisProblem, axis: int, spec: AxisSpec, choice) -> np.ndarray:
-    return problem.cached('drift', lambda: problem.mean(
-        (problem.time - problem.time_reference_s) / problem.duration_s)[:, None])
+def _drift_columns(data: DiagnosisData, axis: int, spec: AxisSpec, choice) -> np.ndarray:
+    return data.cached('drift', lambda: data.mean(
+        (data.time - data.time_reference_s) / data.duration_s)[:, None])
 
 
-def _step_trials(search: _Search, problem: DiagnosisProblem, axis: int, spec: AxisSpec) -> None:
-    search(spec.with_choice('bias_step', _step_time(problem, axis, spec)))
+def _step_trials(search: _Search, data: DiagnosisData, axis: int, spec: AxisSpec) -> None:
+    search(spec.with_choice('bias_step', _step_time(data, axis, spec)))
 
 
-def _step_columns(problem: DiagnosisProblem, axis: int,
+def _step_columns(data: DiagnosisData, axis: int,
                   spec: AxisSpec, time_s: float) -> np.ndarray:
-    return problem.cached(('step', time_s), lambda: problem.mean(
-        (problem.time >= time_s).astype(np.float64))[:, None])
+    return data.cached(('step', time_s), lambda: data.mean(
+        (data.time >= time_s).astype(np.float64))[:, None])
 
 
-def _step_report(terms: AxisTerms, problem: DiagnosisProblem) -> dict:
+def _step_report(terms: AxisTerms, data: DiagnosisData) -> dict:
     (time_s, step_rad_s), = terms.bias_steps
-    records = problem.records
+    records = data.records
     if records.count == 1:
         return {'time_s': time_s, 'step_rad_s': step_rad_s,
-                'after_start_s': time_s - problem.time_reference_s}
+                'after_start_s': time_s - data.time_reference_s}
     # Several records: the stamp on the clock of the record the step lies in.
     record, own_s = records.own_time_s(time_s)
     return {'time_s': own_s, 'step_rad_s': step_rad_s,
@@ -346,68 +374,68 @@ def _step_report(terms: AxisTerms, problem: DiagnosisProblem) -> dict:
 # Every effect but BASE_EFFECT; the design columns come in EFFECT_NAMES order.
 FITS = {
     'thermal_lag': EffectFit(_lag_trials, _lag_report,
-                             terms=lambda problem, axis, lag_s, take: {'thermal_lag_s': lag_s}),
+                             terms=lambda data, axis, lag_s, take: {'thermal_lag_s': lag_s}),
     'temperature_rate': EffectFit(
         _flag('temperature_rate'),
-        lambda terms, problem: {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
-                                'temperature_rate_window_s': problem.settings.rate_window_s},
+        lambda terms, data: {'rad_s_per_c_s': terms.temperature_rate_rad_s_per_c_s,
+                             'temperature_rate_window_s': data.settings.rate_window_s},
         _rate_columns,
-        lambda problem, axis, choice, take: {'temperature_rate_rad_s_per_c_s': take(1)[0]}),
+        lambda data, axis, choice, take: {'temperature_rate_rad_s_per_c_s': take(1)[0]}),
     'thermal_gradient': EffectFit(
         _gradient_trials, _gradient_report, _gradient_columns,
-        lambda problem, axis, taus, take: {'gradient_time_constants_s': taus,
-                                           'gradient_rad_s_per_c': take(len(taus))}),
+        lambda data, axis, taus, take: {'gradient_time_constants_s': taus,
+                                        'gradient_rad_s_per_c': take(len(taus))}),
     'thermal_gradient_2': EffectFit(_second_gradient, _gradient_report),
     'hysteresis': EffectFit(
         _hysteresis_trials,
-        lambda terms, problem: {'half_width_c': terms.hysteresis_half_width_c,
-                                'hysteresis_rad_s': terms.hysteresis_rad_s},
+        lambda terms, data: {'half_width_c': terms.hysteresis_half_width_c,
+                             'hysteresis_rad_s': terms.hysteresis_rad_s},
         _play_columns,
-        lambda problem, axis, width_c, take: {'hysteresis_half_width_c': width_c,
-                                              'hysteresis_rad_s': take(1)[0]}),
+        lambda data, axis, width_c, take: {'hysteresis_half_width_c': width_c,
+                                           'hysteresis_rad_s': take(1)[0]}),
     'supply_voltage': EffectFit(
         _orders('supply_voltage', SUPPLY_ORDERS),
-        lambda terms, problem: {'rad_s_per_v_k': list(terms.supply_voltage),
-                                'supply_reference_v': problem.supply_reference.centre},
-        _supply_columns, lambda problem, axis, order, take: {'supply_voltage': take(order)}),
+        lambda terms, data: {'rad_s_per_v_k': list(terms.supply_voltage),
+                             'supply_reference_v': data.supply_reference.centre},
+        _supply_columns, lambda data, axis, order, take: {'supply_voltage': take(order)}),
     'secondary_temperature': EffectFit(
         _orders('secondary_temperature', SECONDARY_ORDERS),
-        lambda terms, problem: {'coefficients_rad_s': list(terms.secondary)},
-        _secondary_columns, lambda problem, axis, order, take: {'secondary': take(order)}),
+        lambda terms, data: {'coefficients_rad_s': list(terms.secondary)},
+        _secondary_columns, lambda data, axis, order, take: {'secondary': take(order)}),
     'acceleration_sensitivity': EffectFit(
         _flag('acceleration_sensitivity'),
-        lambda terms, problem: {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)},
-        lambda problem, axis, spec, choice: problem.acceleration_means(),
-        lambda problem, axis, choice, take: {'acceleration_rad_s_per_m_s2': take(3)}),
+        lambda terms, data: {'rad_s_per_m_s2': list(terms.acceleration_rad_s_per_m_s2)},
+        lambda data, axis, spec, choice: data.acceleration_means(),
+        lambda data, axis, choice, take: {'acceleration_rad_s_per_m_s2': take(3)}),
     'scale_factor_temperature': EffectFit(
         _orders('scale_factor_temperature', SCALE_ORDERS),
-        lambda terms, problem: {'relative_coefficients': list(terms.scale)},
-        _scale_columns, lambda problem, axis, order, take: {'scale': take(order + 1)}),
+        lambda terms, data: {'relative_coefficients': list(terms.scale)},
+        _scale_columns, lambda data, axis, order, take: {'scale': take(order + 1)}),
     'rate_nonlinearity': EffectFit(
         _orders('rate_nonlinearity', NONLINEARITY_ORDERS),
-        lambda terms, problem: {'coefficients': list(terms.nonlinearity)},
+        lambda terms, data: {'coefficients': list(terms.nonlinearity)},
         _nonlinearity_columns,
-        lambda problem, axis, order, take: {'nonlinearity': take(order - 1)}),
+        lambda data, axis, order, take: {'nonlinearity': take(order - 1)}),
     'cross_axis': EffectFit(_flag('cross_axis'),
-                            lambda terms, problem: {'coefficients': list(terms.cross_axis)},
+                            lambda terms, data: {'coefficients': list(terms.cross_axis)},
                             _cross_columns, _cross_terms),
     'time_drift': EffectFit(
         _flag('time_drift'),
-        lambda terms, problem: {'rad_s_per_s': terms.time_drift_rad_s_per_s,
-                                'time_reference_s': problem.time_reference_s},
+        lambda terms, data: {'rad_s_per_s': terms.time_drift_rad_s_per_s,
+                             'time_reference_s': data.time_reference_s},
         _drift_columns,
-        lambda problem, axis, choice, take: {
-            'time_drift_rad_s_per_s': take(1)[0] / problem.duration_s}),
+        lambda data, axis, choice, take: {
+            'time_drift_rad_s_per_s': take(1)[0] / data.duration_s}),
     'bias_step': EffectFit(_step_trials, _step_report, _step_columns,
-                           lambda problem, axis, time_s, take: {
+                           lambda data, axis, time_s, take: {
                                'bias_steps': ((time_s, take(1)[0]),)}),
 }
 
 
-def fitted_parameters(effect: str, terms: AxisTerms, problem: DiagnosisProblem) -> dict:
+def fitted_parameters(effect: str, terms: AxisTerms, data: DiagnosisData) -> dict:
     """Return the fitted parameters of one effect of an axis, in SI units."""
     if effect == BASE_EFFECT:
         return {'order': len(terms.bias) - 1, 'bias_rad_s': list(terms.bias),
-                'reference_temperature_c': problem.centre_c,
-                'temperature_scale_c': problem.scale_c}
-    return FITS[effect].report(terms, problem)
+                'reference_temperature_c': data.centre_c,
+                'temperature_scale_c': data.scale_c}
+    return FITS[effect].report(terms, data)

@@ -13,8 +13,9 @@ from typing import Optional
 
 import numpy as np
 
+from .data import effective_temperature
 from .folds import weighted_rms
-from .problem import DiagnosisProblem, effective_temperature
+from .problem import DiagnosisProblem
 from .results import BinnedResidual, ErrorByTemperature, HeldOutError, METHODS, OutsideFittedRange
 from .settings import DEFAULT_REZERO_S, DiagnosisSettings, REZERO_MIN_SAMPLES
 from ..effects import EffectModel, temperature_rate_c_s

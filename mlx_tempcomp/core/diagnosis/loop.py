@@ -8,14 +8,15 @@ import numpy as np
 
 from .acceptance import (Attempt, choose_model, cubic_errors, judge, record_cause,
                          record_findings, to_candidate, unbounded)
-from .fits import AxisSpec, best_trial, fitted_parameters, TIME_CONSTANTS_PER_RECORD, Trial
+from .data import TIME_CONSTANTS_PER_RECORD
+from .fits import AxisSpec, fitted_parameters, Score, Trial
 from .folds import Folds
 from .held_out_part import (compare_test, diagnosed_rows, heating_bins, outside_fitted_range,
                             test_normalised_error, written_error_by_temperature)
-from .problem import DiagnosisProblem, HeldOutRun, Score
+from .problem import DiagnosisProblem, HeldOutRun
 from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
                       RecordFit, Step)
-from .settings import BASE_EFFECT, DiagnosisSettings, Progress, RECORD_SEARCH
+from .settings import BASE_EFFECT, DiagnosisSettings, ProgressCallback, RECORD_SEARCH
 from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
 from ..model_interface import INPUTS
@@ -176,7 +177,7 @@ class _Written:
 
 
 def diagnose(recording, settings: DiagnosisSettings = DiagnosisSettings(),
-             progress: Progress = None) -> Diagnosis:
+             progress: ProgressCallback = None) -> Diagnosis:
     """
     Run the loop on a recording and return the `Diagnosis`.
 
@@ -238,7 +239,7 @@ def _round(problem: DiagnosisProblem, rounds: _Rounds, searched: tuple, active: 
         for effect in searched:
             if not spec.can_add(effect):
                 continue
-            trial = best_trial(problem, axis, spec, effect)
+            trial = problem.best_trial(axis, spec, effect)
             done += 1
             problem.report(done, work, f'round {rounds.number}: candidate effects')
             if trial is not None:

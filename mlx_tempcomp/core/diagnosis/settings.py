@@ -23,7 +23,7 @@ REZERO_MIN_SAMPLES = RecalibrationLimits.min_samples
 # Temperature bins of the error-by-temperature table (equal width over the diagnosed part).
 DEFAULT_ERROR_BINS = 8
 
-Progress = Optional[Callable[[int, int, str], None]]
+ProgressCallback = Optional[Callable[[int, int, str], None]]
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,8 @@ from .stream import EffectStream
 from .table import clip, EFFECTS, polyval, quotient, RECORD_EFFECTS, SLOPE_EFFECTS
 from ..errors import ConfigError
 from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from ..models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel,
-                      rate_temperature_columns)
+from ..rate_models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel,
+                           rate_temperature_columns)
 
 MAX_GRADIENT_TERMS = 2
 

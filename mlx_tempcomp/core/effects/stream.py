@@ -14,7 +14,7 @@ import numpy as np
 
 from .history import FirstOrderLag, History, NO_HISTORY, PlayOperator, TemperatureSlope
 from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from ..models import one_row
+from ..rate_models import one_row
 
 
 class _AxisRunner:

@@ -1,8 +1,9 @@
 """
 Field learning: the temperature model renewed from the still windows the tracker learns from.
 
-The package, by module, each importing only those above it: `parameters` (the
-``learning.*`` table and `LearningSettings`), `guard` (the paired trial of a renewed curve
+The package, by module, each importing only those above it: `settings`
+(`LearningSettings`, derived from the tracker's; ``parameters.learning`` holds the
+``learning.*`` table), `guard` (the paired trial of a renewed curve
 against the one in use and the prior), `curve` (the Kalman filter of one axis's correction:
 a level and a shape at the knots), `state` (the learner's state dict and its check),
 `learner` (`FieldLearner`: windows, runs, trials, the curve in use), `stream`
@@ -12,9 +13,8 @@ a level and a shape at the knots), `state` (the learner's state dict and its che
 """
 
 from .learner import FieldLearner
-from .parameters import (knots_of, learning_parameters, learning_settings, LearningSettings,
-                         PARAMETERS, PREFIX)
+from .settings import derive_settings, LearningSettings
 from .stream import LearningTracking, LearntBlock
 
-__all__ = ['FieldLearner', 'knots_of', 'learning_parameters', 'learning_settings',
-           'LearningSettings', 'LearningTracking', 'LearntBlock', 'PARAMETERS', 'PREFIX']
+__all__ = ['derive_settings', 'FieldLearner', 'LearningSettings', 'LearningTracking',
+           'LearntBlock']

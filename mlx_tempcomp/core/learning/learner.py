@@ -31,7 +31,7 @@ import numpy as np
 
 from .curve import CurveFilter, observation, prior_covariance
 from .guard import Pairs, verdict
-from .parameters import LearningSettings, TURN_RAD
+from .settings import LearningSettings, TURN_RAD
 from .state import learner_state, restore_state
 from ..correction import CorrectionTable
 from ..errors import CalibrationError

@@ -21,7 +21,7 @@ from typing import Optional
 import numpy as np
 
 from .learner import FieldLearner
-from .parameters import LearningSettings
+from .settings import LearningSettings
 from ..bias_tracker import BiasTracking
 from ..errors import CalibrationError
 

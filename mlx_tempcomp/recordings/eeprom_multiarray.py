@@ -14,8 +14,8 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-from .eeprom import EEPROM_SIZE
-from .errors import EepromError
+from ..core.eeprom import EEPROM_SIZE
+from ..core.errors import EepromError
 
 
 def _image_bytes(image, index: int) -> bytes:

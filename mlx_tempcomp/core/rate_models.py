@@ -20,10 +20,10 @@ from typing import Optional
 
 import numpy as np
 
-from .compensation import TableCompensation
 from .conversion import Output, SensorTransfer
 from .errors import ConfigError
 from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
+from .table_compensation import TableCompensation
 
 AXIS_NAMES = ('x', 'y', 'z')
 
