@@ -172,8 +172,8 @@ def _write_parameter_file(path):
 WRITERS = {'write_state': _write_state, 'write_parameter_file': _write_parameter_file}
 
 
-@pytest.mark.parametrize('umask', [0o077, 0o000, 0o022], ids=['umask077', 'umask000',
-                                                                  'umask022'])
+@pytest.mark.parametrize('umask', [0o077, 0o000, 0o022],
+                         ids=['umask077', 'umask000', 'umask022'])
 @pytest.mark.parametrize('writer', sorted(WRITERS))
 def test_a_planted_symlink_is_replaced_not_followed_and_the_mode_is_0644(tmp_path, writer,
                                                                          umask):
