@@ -270,5 +270,4 @@ def write_parameter_file(path, content: dict, header: str = '') -> None:
     old file, or none, never half a file.
     """
     comments = ''.join(f'# {line}\n' for line in header.splitlines())
-    atomic_write(path, comments + yaml.dump(content, Dumper=_QuotingDumper, sort_keys=False),
-                 0o644)
+    atomic_write(path, comments + yaml.dump(content, Dumper=_QuotingDumper, sort_keys=False))

@@ -1,11 +1,15 @@
 """
 Calibration state on disk: written atomically, checked when read back at start.
 
-A write goes to a temporary file ``.<name>.<random>.tmp`` in the same folder,
-is flushed and fsynced, then renamed over the old file (rename is atomic on
-POSIX), and the folder is fsynced. A crash at any point leaves either the old
-or the new file, whole; a kill before the rename also leaves the temporary
-file, which `load_state` removes at the next start.
+A write (`atomic_write`, the one writer of every file the package keeps as
+state or writes as a result) goes to a temporary file ``.<name>.<random>.tmp``
+in the same folder, is given mode `FILE_MODE`, flushed and fsynced, then
+renamed over the old file (rename is atomic on POSIX), and the folder is
+fsynced. A crash at any point leaves either the old or the new file, whole; a
+kill before the rename also leaves the temporary file, which `load_state`
+removes at the next start. The rename replaces whatever has the name: a
+symbolic link planted there is replaced by the new file, never followed (the
+file it points to is left as it is).
 
 `load_state` is what every user of a state file calls at start: it removes
 those leftovers, reads the file and checks each of its `Field` s (type,
@@ -61,11 +65,18 @@ class Field:
     group: str = ''
 
 
-def atomic_write(path, text: str, mode: Optional[int] = None) -> None:
+# rw-r--r--: the owner (the node's user) alone may change a calibration; anyone may read it
+# (calibration numbers are no secret, and a diagnostics account or a technician reads them).
+# Set explicitly, whatever the umask: the docs (docs/ros.md) promise this mode.
+FILE_MODE = 0o644
+
+
+def atomic_write(path, text: str, mode: int = FILE_MODE) -> None:
     """
     Replace the file at ``path`` with ``text``, atomically; OSError on failure.
 
-    ``mode`` sets the permissions (the temporary file is created 0600). The
+    The new file has permissions ``mode`` whatever the umask, from its first
+    byte on. A symbolic link at ``path`` is replaced, not followed. The
     temporary file is removed on every exception, interruptions included.
     """
     path = os.path.abspath(path)
@@ -74,14 +85,13 @@ def atomic_write(path, text: str, mode: Optional[int] = None) -> None:
                                              suffix='.tmp', dir=folder)
     try:
         try:
+            os.fchmod(descriptor, mode)
             data = text.encode()
             while data:
                 data = data[os.write(descriptor, data):]
             os.fsync(descriptor)
         finally:
             os.close(descriptor)
-        if mode is not None:
-            os.chmod(temporary, mode)
         os.replace(temporary, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -14,10 +14,11 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.task import Future
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+import yaml
 
 from . import messages
 from .qos import STATUS_QOS
-from .service_window import await_window, STALL_TIMEOUT_S
+from .service_window import await_window, ServiceGuard, STALL_TIMEOUT_S
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
 from ..core.errors import CalibrationError, TempCompError
@@ -78,6 +79,7 @@ class AdisStream(DeviceStream):
             hardware_id = f'ADIS16130 on /dev/spidev{values["spi.bus"]}.{cs}'
         self.bits = bits
         self.procedure = None
+        self.guard = ServiceGuard()   # the driver's one calibration service: one call at a time
         self.status_publisher = ports.node.create_publisher(
             String, 'imu/bias_procedure/status', STATUS_QOS)
         ports.node.create_service(Trigger, 'imu/run_bias_procedure', self.run_bias_procedure,
@@ -110,14 +112,26 @@ class AdisStream(DeviceStream):
         A coroutine: the stream keeps flowing (and feeding it) while it waits.
         """
         response.success = False
-        if self.procedure is not None:
-            response.message = 'refused: a bias procedure is already running'
+        response.message = self.guard.begin('a bias procedure')
+        if response.message:
+            messages.log_trigger(self.logger, response, 'bias procedure')
             return response
+        try:
+            response.message = await self._run()
+        finally:
+            self.guard.end()
+        response.success = messages.trigger_succeeded(response.message)
+        self.status_publisher.publish(String(
+            data=('done: ' if response.success else 'failed: ') + response.message))
+        messages.log_trigger(self.logger, response, 'bias procedure')
+        return response
+
+    async def _run(self) -> str:
+        """Run the procedure while the stream feeds it; give the answer."""
         try:
             running = _RunningProcedure(self, self.values)
         except (ParameterError, TempCompError) as err:
-            response.message = f'refused: {err}'
-            return response
+            return f'refused: {err}'
         self.procedure = running
         running.announce()
         try:
@@ -125,12 +139,7 @@ class AdisStream(DeviceStream):
                                        PROGRESS_PERIOD_S)
         finally:
             self.procedure = None
-        response.message = f'refused: {error}' if error else running.finish()
-        response.success = messages.trigger_succeeded(response.message)
-        self.status_publisher.publish(String(
-            data=('done: ' if response.success else 'failed: ') + response.message))
-        messages.log_trigger(self.logger, response, 'bias procedure')
-        return response
+        return f'refused: {error}' if error else running.finish()
 
 
 def _noise_figures(time_s, rate_rad_s):
@@ -227,9 +236,36 @@ class _RunningProcedure:
         header = (f'ADIS16130 bias procedure (AN-1042) by {self.stream.ports.node.get_name()} '
                   f'({self.stream.hardware_id}): {summary}\n'
                   f'Use: compensation_node --ros-args --params-file {self.path}')
+        change = (f'linear_btc of {self.node_name} from '
+                  f'{file_linear_btc(self.path, self.node_name)} to '
+                  f'{linear_btc_text(parameters["linear_btc"])}')
         try:
             os.makedirs(os.path.dirname(self.path) or '.', exist_ok=True)
             write_parameter_file(self.path, parameter_file(self.node_name, parameters), header)
         except OSError as err:
-            return f'applied but not saved: {summary}; cannot write {self.path}: {err.strerror}'
-        return f'{summary}; wrote {self.path}'
+            return (f'applied but not saved: {summary}; {change}; cannot write {self.path}: '
+                    f'{err.strerror}')
+        return f'{summary}; {change}; wrote {self.path}'
+
+
+def linear_btc_text(section: dict) -> str:
+    """Say what a ``linear_btc`` section of parameters holds, one line."""
+    def numbers(values) -> str:
+        return '[' + ', '.join(f'{float(v):.6g}' for v in values) + ']'
+    return (f'PBC {numbers(section["pbc_rad_s"])} rad/s, BTC '
+            f'{numbers(section["btc_rad_s_per_c"])} rad/s/C, T3 {float(section["t3_c"]):.4f} C')
+
+
+def file_linear_btc(path: str, node_name: str) -> str:
+    """Say what ``linear_btc`` the parameter file at ``path`` holds for ``node_name`` now."""
+    try:
+        with open(path, 'rb') as stream:
+            content = yaml.safe_load(stream)
+    except FileNotFoundError:
+        return 'none (no file)'
+    except (OSError, yaml.YAMLError) as err:
+        return f'an unreadable file ({type(err).__name__})'
+    try:
+        return linear_btc_text(content[node_name]['ros__parameters']['linear_btc'])
+    except (TypeError, KeyError, ValueError):
+        return f'a file without a linear_btc section for {node_name}'

@@ -45,7 +45,7 @@ from .compensation_tracking import CompensationTracking
 from .declare import declare
 from .qos import EEPROM_QOS, stream_subscription
 from .runner import run
-from .service_window import await_window
+from .service_window import await_window, ServiceGuard
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
@@ -122,6 +122,7 @@ class CompensationNode(Node):
         # timers) keeps running in the same single thread. Reentrant, so a second request
         # is taken (and refused) while the first awaits: a mutually exclusive group would
         # hold it back and run a second recalibration afterwards.
+        self.service_guard = ServiceGuard()   # one calibration call at a time, of any service
         self.create_service(Trigger, 'imu/recalibrate_zro', self.recalibrate,
                             callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0, self.publish_diagnostics)
@@ -347,22 +348,32 @@ class CompensationNode(Node):
                 return f'refused: no input for {stale_s:g} s, the stream is stale'
             return ''
 
+        refusal = self.service_guard.begin('a ZRO recalibration')
+        if refusal:
+            response.message = refusal
+        else:
+            try:
+                response.message = await self._recalibrate(stale)
+            finally:
+                self.service_guard.end()
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.get_logger(), response, 'ZRO recalibration')
+        return response
+
+    async def _recalibrate(self, stale) -> str:
+        """Open the window, await it (or the stall ``stale`` names), learn; give the answer."""
         recalibration = self.recalibration
         refusal = (f'refused: no temperature model runs ({self.alone}); the ZRO offset is '
                    'learnt on top of one (the bias tracking follows the rate offset at rest '
                    'meanwhile)') if self.alone else recalibration.start(self.model, self.values)
         if refusal:
-            response.message = refusal
-        else:
-            window = recalibration.window
-            try:
-                response.message = await await_window(self, window.samples.future, stale,
-                                                      _POLL_S) or self._learn(window)
-            finally:
-                recalibration.end()
-        response.success = messages.trigger_succeeded(response.message)
-        messages.log_trigger(self.get_logger(), response, 'ZRO recalibration')
-        return response
+            return refusal
+        window = recalibration.window
+        try:
+            return await await_window(self, window.samples.future, stale, _POLL_S) or \
+                self._learn(window)
+        finally:
+            recalibration.end()
 
     def _learn(self, window) -> str:
         """

@@ -18,7 +18,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from std_srvs.srv import Trigger
 
 from . import messages
-from .service_window import await_window, SampleWindow, STALL_TIMEOUT_S
+from .service_window import await_window, SampleWindow, ServiceGuard, STALL_TIMEOUT_S
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
@@ -159,6 +159,7 @@ class MpuStream(DeviceStream):
         self.accel_registers = tuple(source.device.factory_accel_lsb)
         self.offsets_origin = 'none'
         self.window = None
+        self.guard = ServiceGuard()   # the driver's one calibration service: one call at a time
         self.source = source
         self.logger = ports.node.get_logger()
         self.indices = messages.axis_indices(ports.axes)
@@ -320,12 +321,13 @@ class MpuStream(DeviceStream):
         response.success = False
         values = self.values
         noise_rad_s = values['rate_noise_rad_s']
-        if self.window is not None:
-            response.message = 'refused: an offset calibration is already running'
-        elif noise_rad_s <= 0.0:
+        response.message = self.guard.begin('an offset calibration')
+        if not response.message and noise_rad_s <= 0.0:
+            self.guard.end()
             response.message = ('refused: the motion check needs a positive rate_noise_rad_s '
                                 '(the 1-sigma gyro noise of one sample)')
         if response.message:
+            messages.log_trigger(self.logger, response, 'offset calibration')
             return response
         window = SampleWindow(int(values['mpu6000.calibration.duration_s'] * 1e9))
 
@@ -339,10 +341,11 @@ class MpuStream(DeviceStream):
         self.window = window
         try:
             refusal = await await_window(self.ports.node, window.future, stalled)
+            response.message = refusal or self._finish(
+                window, noise_rad_s, values['mpu6000.calibration.noise_multiple'])
         finally:
             self.window = None
-        response.message = refusal or self._finish(window, noise_rad_s,
-                                                   values['mpu6000.calibration.noise_multiple'])
+            self.guard.end()
         response.success = messages.trigger_succeeded(response.message)
         messages.log_trigger(self.logger, response, 'offset calibration')
         return response
@@ -363,6 +366,7 @@ class MpuStream(DeviceStream):
             return f'refused: {err}'
         except HardwareError as err:
             return f'refused: writing the offset registers failed: {err}'
+        before_gyro, before_registers = list(self.gyro_lsb), list(self.accel_registers)
         self._offsets_now(gyro_lsb, accel_lsb, registers, 'calibrated')
         temperature_c = float(np.mean(temperature))
         if self.refresh is not None:
@@ -371,8 +375,9 @@ class MpuStream(DeviceStream):
             self.refresh.temperature_c = temperature_c
         state = offsets_state(self.variant, gyro_lsb, accel_lsb, registers, bias, temperature_c)
         residual = ', '.join(f'{math.degrees(v):+.4f}' for v in bias.gyro_rad_s)
-        text = (f'gyro offsets {list(gyro_lsb)} LSB, accel offset registers {list(registers)} '
-                f'(bias {list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '
-                f'from {bias.samples} samples at {temperature_c:.2f} C (gyro bias before '
+        text = (f'gyro offsets from {before_gyro} to {list(gyro_lsb)} LSB, accel offset '
+                f'registers from {before_registers} to {list(registers)} (bias '
+                f'{list(accel_lsb)} LSB at 16 g), gravity on {state["gravity_axis"]}, '
+                f'{bias.samples} samples at {temperature_c:.2f} C (gyro bias before '
                 f'{residual} deg/s)')
         return messages.saved_reply(self.offsets_path, state, text)

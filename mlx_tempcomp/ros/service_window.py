@@ -1,12 +1,16 @@
 """
-The window a service collects from a running stream, and the await that gives up on a stall.
+The window a service collects from a running stream, the await that gives up on a stall.
 
 ``imu/recalibrate_zro``, ``imu/calibrate_offsets`` and ``imu/run_bias_procedure``
 are coroutines: the stream keeps flowing (and filling their window) while
 they await its future. A timer asks the service's stall check meanwhile; a
-stall resolves the future with the check's refusal instead.
+stall resolves the future with the check's refusal instead. A node runs one
+such call at a time (`ServiceGuard`): one that arrives meanwhile is refused
+at once, saying which call runs and since when, never queued.
 """
 
+from datetime import datetime, timezone
+import time
 from typing import Callable
 
 import numpy as np
@@ -16,6 +20,33 @@ from rclpy.task import Future
 POLL_S = 0.1
 # A device's service window that gets no sample for this long (wall time) gives up.
 STALL_TIMEOUT_S = 5.0
+
+
+class ServiceGuard:
+    """
+    The one call of a node's services that change its calibration, while it runs.
+
+    `begin` takes the node for a call (``what``: "a ZRO recalibration") and
+    gives '', or the refusal naming the call running and since when; `end`
+    frees it. Every such service of a node shares its guard.
+    """
+
+    def __init__(self):
+        self.running = ''
+        self.since = ''
+        self.started = 0.0
+
+    def begin(self, what: str) -> str:
+        if self.running:
+            return (f'refused: {self.running} is running since {self.since} '
+                    f'({time.monotonic() - self.started:.1f} s); call again when it is done')
+        self.running = what
+        self.since = datetime.now(timezone.utc).isoformat(timespec='seconds')
+        self.started = time.monotonic()
+        return ''
+
+    def end(self) -> None:
+        self.running = ''
 
 
 class SampleWindow:

@@ -166,9 +166,11 @@ class ZroRecalibration:
         return offset_model
 
     def start(self, model, values: dict) -> str:
-        """Open a window of ``recalibration.duration_s`` on ``model``; give '' or the refusal."""
-        if self.window is not None:
-            return 'refused: a recalibration is already running'
+        """
+        Open a window of ``recalibration.duration_s`` on ``model``; give '' or the refusal.
+
+        One at a time: the node's `ServiceGuard` refuses a second call before this.
+        """
         if model is None:
             return 'refused: no model yet (waiting for the EEPROM tables)'
         try:
@@ -214,10 +216,12 @@ class ZroRecalibration:
                  'zro_offset_rad_s': [float(v) for v in offset_rad_s],
                  'temperature_c': stats.temperature_c, 'samples': stats.samples,
                  'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
-        summary = ', '.join(f'{axis} {value:.6g}' for axis, value in zip(self.axes,
-                                                                         offset_rad_s))
-        text = (f'ZRO offset {summary} rad/s at {stats.temperature_c:.2f} C from '
-                f'{stats.samples} samples over {window.duration_s:g} s')
+        # What changed, from what to what: both as rates at the window's temperature.
+        before_rad_s = model.offset_rad_s(stats.temperature_c)
+        summary = ', '.join(f'{axis} from {old:.6g} to {new:.6g}' for axis, old, new in
+                            zip(self.axes, before_rad_s, offset_rad_s))
+        text = (f'ZRO offset {summary} rad/s at {stats.temperature_c:.2f} C ('
+                f'{stats.samples} samples over {window.duration_s:g} s)')
         return LearnedOffset(new_model, state, text)
 
     def save(self, learned: LearnedOffset) -> str:

@@ -40,8 +40,8 @@ def write_node_parameters(path: str, node_name: str, outputs, parameters: dict,
 
 
 def write_result(path, text: str) -> None:
-    """Replace the file at ``path`` with ``text`` atomically (mode 0644); OSError on failure."""
-    atomic_write(path, text, 0o644)
+    """Replace the file at ``path`` with ``text`` atomically (`FILE_MODE`); OSError on failure."""
+    atomic_write(path, text)
 
 
 def write_json(path, document) -> None:

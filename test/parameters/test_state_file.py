@@ -1,8 +1,11 @@
 import logging
 import os
+import stat
 
-from mlx_tempcomp.parameters.state_file import (atomic_write, check_state, Field, load_state,
-                                                read_state, StateFileError, write_state)
+from mlx_tempcomp.parameters.files import parameter_file, write_parameter_file
+from mlx_tempcomp.parameters.state_file import (atomic_write, check_state, Field, FILE_MODE,
+                                                load_state, read_state, StateFileError,
+                                                write_state)
 import pytest
 
 FIELDS = (Field('model', 'text', choices=('polynomial', 'eeprom')),
@@ -152,3 +155,51 @@ def test_load_state_leaves_an_unreadable_file_in_place(tmp_path, logger, caplog)
     assert path.is_dir() and os.listdir(tmp_path) == ['zro.yaml']
     assert caplog.messages == [f'cannot read state file {path}: Is a directory; starting '
                                'without saved thing']
+
+
+def _write_state(path):
+    write_state(str(path), {'model': 'eeprom', 'zro_offset': [1.5]})
+
+
+def _write_parameter_file(path):
+    write_parameter_file(path, parameter_file('compensation_node', {'model': 'linear_btc'}),
+                         header='bias procedure')
+
+
+# Every file the package keeps as state goes through one of these: the ZRO and tracking state
+# and the MPU offsets (write_state), the ADIS16130 procedure's and the toolkit's parameter
+# files (write_parameter_file); both end in atomic_write.
+WRITERS = {'write_state': _write_state, 'write_parameter_file': _write_parameter_file}
+
+
+@pytest.mark.parametrize('umask', [0o077, 0o000, 0o022],
+                         ids=['umask077', 'umask000', 'umask022'])
+@pytest.mark.parametrize('writer', sorted(WRITERS))
+def test_a_planted_symlink_is_replaced_not_followed_and_the_mode_is_0644(tmp_path, writer,
+                                                                         umask):
+    victim = tmp_path / 'victim.txt'
+    victim.write_text('precious\n')
+    os.chmod(victim, 0o600)
+    target = tmp_path / 'state' / 'zro.yaml'
+    target.parent.mkdir()
+    os.symlink(victim, target)
+    old = os.umask(umask)
+    try:
+        WRITERS[writer](target)
+    finally:
+        os.umask(old)
+    assert victim.read_text() == 'precious\n'
+    assert stat.S_IMODE(victim.stat().st_mode) == 0o600
+    assert not target.is_symlink()
+    assert stat.S_ISREG(target.lstat().st_mode)
+    assert stat.S_IMODE(target.lstat().st_mode) == FILE_MODE == 0o644
+    assert 'precious' not in target.read_text()
+    assert sorted(os.listdir(target.parent)) == ['zro.yaml']
+    # A second write over the regular file keeps the mode, whatever the umask.
+    os.chmod(target, 0o666)
+    old = os.umask(umask)
+    try:
+        WRITERS[writer](target)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o644

@@ -114,6 +114,7 @@ def test_colcon_build_installs_ros2_run_executable(tmp_path, monkeypatch):
         path = prefix / 'lib' / PACKAGE / node
         assert path.is_file() and os.access(path, os.X_OK), f'{path} missing or not executable'
     assert (prefix / 'share' / PACKAGE / 'config' / 'mlx_tempcomp.yaml').is_file()
+    assert (prefix / 'share' / PACKAGE / 'config' / 'mlx_tempcomp.policy.xml').is_file()
     assert (prefix / 'share' / PACKAGE / 'launch' / 'mlx_tempcomp.launch.py').is_file()
     refused = subprocess.run(
         [str(prefix / 'lib' / PACKAGE / 'driver_node'), '--ros-args', '-p', 'source:=usb'],

@@ -8,6 +8,7 @@ offsets follow a bias model fitted by the toolkit as the temperature ramps.
 """
 
 import math
+import re
 
 from device_runs import gyro_mean_after_change_dps, mpu_truth, SEED, TIMEOUT_S
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -15,6 +16,7 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
 from mlx_tempcomp.parameters.driver import DEVICES
 from mlx_tempcomp.parameters.state_file import write_state
+from mlx_tempcomp.ros.adis16130_stream import file_linear_btc
 from mlx_tempcomp.ros.driver_node import STREAMS
 from mlx_tempcomp.ros.mpu6000_stream import offsets_state
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
@@ -172,6 +174,11 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
     assert response.success, response.message
     print(response.message)
     assert 'gravity on +z' in response.message and str(path) in response.message
+    # What changed, from what to what: the registers were at their power-on values.
+    state = yaml.safe_load(path.read_text())
+    assert f'gyro offsets from [0, 0, 0] to {state["gyro_offset_lsb"]} LSB, accel offset ' \
+        f'registers from ' in response.message, response.message
+    assert f'offset calibration: {response.message}' in driver.output()
     state = yaml.safe_load(path.read_text())
     # The note's conversion: register = -round(bias / 0.031 deg/s).
     expected_lsb = [-round(b / 0.031) for b in truth.gyro_bias_dps]
@@ -208,6 +215,24 @@ def test_mpu6000_offsets_calibrate_persist_and_return_at_start(launcher, probe, 
         assert gyro_mean_dps(launcher, probe) == pytest.approx(truth.gyro_bias_dps, abs=0.02)
         driver.stop()
     assert len(list(path.parent.glob('offsets.yaml.bad-*'))) == 2
+
+
+def test_an_offset_calibration_call_while_one_runs_is_refused(launcher, probe, tmp_path):
+    path = tmp_path / 'offsets.yaml'
+    params = simulated_driver_params(device='mpu6000', axes=MPU_AXES, **{
+        'mpu6000.calibration.duration_s': 600.0, 'mpu6000.offsets_file': str(path)})
+    driver = launcher.driver(params)
+    probe.subscribe(Imu, 'imu/data_raw')
+    probe.wait_streaming(['imu/data_raw'], TIMEOUT_S, launcher)
+    # 600 s of sensor time (120 s of wall time at 5 x): the first runs, whatever the speed.
+    first = probe.call_async(Trigger, 'imu/calibrate_offsets', Trigger.Request(), TIMEOUT_S)
+    second = probe.call(Trigger, 'imu/calibrate_offsets', Trigger.Request(), TIMEOUT_S)
+    assert not first.done()
+    assert not second.success
+    assert re.fullmatch(r'refused: an offset calibration is running since \S+ \(\d+\.\d s\); '
+                        r'call again when it is done', second.message), second.message
+    assert f'offset calibration: {second.message}' in driver.output()
+    assert not path.exists()
 
 
 @pytest.mark.parametrize('params, named', [
@@ -248,6 +273,8 @@ def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
     print(response.message)
     for name in ('T1', 'B1', 'T2', 'B2', 'BTC', 'PBC', 'T3'):
         assert f'{name} ' in response.message
+    # What changed, from what to what: no file before.
+    assert 'linear_btc of compensation_node from none (no file) to PBC [' in response.message
     probe.drain()
     texts = [m.data for m in status]
     for phase in ('point_1', 'self_heat', 'point_2', 'settle', 'rest_record', 'pbc'):
@@ -259,6 +286,20 @@ def test_adis16130_bias_procedure_writes_linear_btc(launcher, probe, tmp_path):
     # Table 6: a positive bias slope gives a negative BTC.
     assert btc_dps_per_c == pytest.approx(-slope_dps_per_c, rel=0.3)
     assert section['rate_noise_rad_s'] > 0.0
+
+
+def test_the_bias_procedure_says_what_the_file_held_before(tmp_path):
+    path = tmp_path / 'btc.yaml'
+    assert file_linear_btc(str(path), 'compensation_node') == 'none (no file)'
+    path.write_text(yaml.safe_dump({'compensation_node': {'ros__parameters': {
+        'model': 'linear_btc', 'linear_btc': {'pbc_rad_s': [0.0125], 'btc_rad_s_per_c':
+                                              [-0.0002], 't3_c': 31.5}}}}))
+    assert file_linear_btc(str(path), 'compensation_node') == \
+        'PBC [0.0125] rad/s, BTC [-0.0002] rad/s/C, T3 31.5000 C'
+    assert file_linear_btc(str(path), 'other_node') == \
+        'a file without a linear_btc section for other_node'
+    path.write_text('compensation_node: [unclosed\n')
+    assert file_linear_btc(str(path), 'compensation_node') == 'an unreadable file (ParserError)'
 
 
 def drift_dps(temperature_c, gyro_rad_s, span_c: float) -> np.ndarray:

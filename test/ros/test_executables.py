@@ -161,9 +161,14 @@ def test_nodes_stop_during_a_recalibration_and_a_bias_procedure(launcher, probe,
                                      TIMEOUT_S)
     probe.spin_until(lambda: any(m.data.startswith('phase point_1') for m in status),
                      TIMEOUT_S, 'the bias procedure at its first point', launcher)
-    # A second request is refused while the first one's window runs.
+    # A second request of each is refused while the first one's window runs (600 s of
+    # sensor time: running, whatever the machine's speed), saying which and since when.
     second = probe.call(Trigger, 'imu/recalibrate_zro', Trigger.Request(), TIMEOUT_S)
-    assert second.message == 'refused: a recalibration is already running'
+    assert second.message.startswith('refused: a ZRO recalibration is running since '), \
+        second.message
+    again = probe.call(Trigger, 'imu/run_bias_procedure', Trigger.Request(), TIMEOUT_S)
+    assert again.message.startswith('refused: a bias procedure is running since '), \
+        again.message
     for process in (compensation, driver):
         assert_stopped_cleanly(process, signum)
     assert not procedure.done() and not recalibration.done()

@@ -12,15 +12,18 @@ import os
 import random
 import re
 import signal
+import stat
 import subprocess
 import sys
 import time
 
 from mlx_tempcomp.parameters.state_file import Field, load_state, read_state
+from mlx_tempcomp.ros import messages
 import numpy as np
 import pytest
 from ros_harness import (COMPENSATION_DIAGNOSTIC, parse_list, simulated_driver_params,
                          status_values, UNTRACKED)
+from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 
 pytestmark = pytest.mark.ros
@@ -30,8 +33,8 @@ TIMEOUT_S = 60.0
 WINDOW_S = 2.0                    # recalibration.duration_s: 200 samples at 100 Hz
 SEED = 9
 SUPPLY_SHIFT = {'simulation.supply_v': 5.2, 'simulation.zro_supply_dps_per_v': 5.0}
-OFFSET_PATTERN = re.compile(r'ZRO offset z (\S+) rad/s at (\S+) C from (\d+) samples over '
-                            r'(\S+) s; saved to (\S+)$')
+OFFSET_PATTERN = re.compile(r'ZRO offset z from 0 to (\S+) rad/s at (\S+) C \((\d+) samples '
+                            r'over (\S+) s\); saved to (\S+)$')
 
 
 def start(launcher, probe, driver: dict, state_file):
@@ -141,22 +144,83 @@ def test_recalibration_refused_while_temperature_ramps(launcher, probe, tmp_path
     assert not state_file.exists()
 
 
-def test_second_recalibration_while_one_runs_is_refused(launcher, probe, tmp_path):
-    state_file = tmp_path / 'zro.yaml'
-    start(launcher, probe, {}, state_file)
-    # Back to back: the node takes the first, opens its window (0.4 s of wall time) and
-    # awaits it; the second arrives meanwhile.
+class StepDriver:
+    """The test as the driver: it publishes each sample, so it owns the sensor time."""
+
+    PERIOD_NS = 10_000_000   # 100 Hz
+
+    def __init__(self, probe, launcher):
+        self.probe = probe
+        self.imu, self.temperature = probe.raw_publishers(TIMEOUT_S, launcher)
+        self.stamp_ns = 1_700_000_000 * 1_000_000_000
+
+    def publish(self, seconds: float, rate_rad_s: float) -> None:
+        """Send ``seconds`` of sensor time at rest: the temperature, then the sample."""
+        for _ in range(round(seconds * 1e9 / self.PERIOD_NS)):
+            stamp = messages.ns_to_stamp(self.stamp_ns)
+            self.temperature.publish(messages.temperature_message(stamp, 'imu_link', 25.0))
+            self.imu.publish(messages.imu_message(stamp, 'imu_link', (2,), [rate_rad_s],
+                                                  [0.0] * 9))
+            self.stamp_ns += self.PERIOD_NS
+            self.probe.spin_once(0.001)
+
+    def until_done(self, future, rate_rad_s: float, launcher) -> None:
+        """Send sensor time, half a second a step, until ``future`` is answered."""
+        def done():
+            if not future.done():
+                self.publish(0.5, rate_rad_s)
+            return future.done()
+        self.probe.spin_until(done, TIMEOUT_S, 'the recalibration to answer', launcher)
+
+
+def test_a_call_while_a_recalibration_runs_is_refused_and_each_says_from_what_to_what(
+        launcher, probe, tmp_path):
+    # The window waits for 2 s of sensor time the test sends, and no wall-time stall ends it
+    # (stale_timeout_s 600): the first call is running, provably, until the test sends it.
+    victim = tmp_path / 'victim.yaml'
+    victim.write_text('precious: true\n')
+    state_file = tmp_path / 'state' / 'zro.yaml'
+    state_file.parent.mkdir()
+    os.symlink(victim, state_file)   # planted: the save must replace it, not write through it
+    launcher.compensation({
+        'model': 'polynomial', 'polynomial.bias.z': [0.0], 'stale_timeout_s': 600.0,
+        'recalibration.duration_s': WINDOW_S, 'recalibration.state_file': str(state_file),
+        **UNTRACKED})
+    compensated = probe.subscribe(Imu, 'imu/data')
+    driver = StepDriver(probe, launcher)
+    probe.spin_until(lambda: (driver.publish(0.1, 0.001), compensated)[1], TIMEOUT_S,
+                     'compensated samples', launcher)
+
     first = probe.call_async(Trigger, SERVICE, Trigger.Request())
-    second = probe.call_async(Trigger, SERVICE, Trigger.Request())
-    probe.spin_until(lambda: first.done() and second.done(), TIMEOUT_S, 'both responses',
-                     launcher)
-    assert second.result().success is False
-    assert second.result().message == 'refused: a recalibration is already running'
-    assert first.result().success, first.result().message
-    assert 'ZRO offset z' in first.result().message
-    # The refusal did not end the first window early (a whole one is 200 samples; best
-    # effort loses some under load, as it did once in CI: 159; a 1 s window holds 101).
-    assert read_state(str(state_file))['samples'] >= 110
+    driver.publish(0.5, 0.001)   # a quarter of the window
+    second = probe.call(Trigger, SERVICE, Trigger.Request(), TIMEOUT_S)
+    assert not first.done()
+    assert second.success is False
+    assert re.fullmatch(r'refused: a ZRO recalibration is running since '
+                        r'\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00 \(\d+\.\d s\); call again when '
+                        r'it is done', second.message), second.message
+    driver.until_done(first, 0.001, launcher)
+    answer = first.result()
+    assert answer.success, answer.message
+    # The constant rate is the whole offset: from none to 0.001 rad/s.
+    assert re.fullmatch(r'ZRO offset z from 0 to 0\.001 rad/s at 25\.00 C \(\d+ samples over 2 '
+                        rf's\); saved to {re.escape(str(state_file))}', answer.message), \
+        answer.message
+    log = launcher.processes[0].output()
+    assert f'ZRO recalibration: {answer.message}' in log
+    assert f'ZRO recalibration: {second.message}' in log
+    # The planted link was replaced by the state file; the file it pointed to is untouched.
+    assert victim.read_text() == 'precious: true\n'
+    assert not state_file.is_symlink()
+    assert stat.S_IMODE(state_file.stat().st_mode) == 0o644
+    assert read_state(str(state_file))['zro_offset_rad_s'] == [pytest.approx(0.001)]
+
+    # Again at 0.003 rad/s: the answer says what it replaced.
+    third = probe.call_async(Trigger, SERVICE, Trigger.Request())
+    driver.until_done(third, 0.003, launcher)
+    assert third.result().success, third.result().message
+    assert third.result().message.startswith(
+        'ZRO offset z from 0.001 to 0.003 rad/s at 25.00 C'), third.result().message
 
 
 # The YAML is rendered once, so the loop is all atomic writes (temporary file, fsync,
