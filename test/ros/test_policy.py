@@ -25,7 +25,7 @@ import pytest
 from rclpy.node import NodeNameNonExistentError
 from ros_harness import write_params
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 POLICY = ROOT / 'config' / 'mlx_tempcomp.policy.xml'
 SHIPPED = ROOT / 'config' / 'mlx_tempcomp.yaml'
 TIMEOUT_S = 120.0
