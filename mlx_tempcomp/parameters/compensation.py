@@ -18,12 +18,14 @@ from typing import Optional
 from .models import CORRECTION_SPECS, MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from ..core.errors import ConfigError
+from ..core.learning.parameters import PARAMETERS as LEARNING_PARAMETERS, PREFIX as LEARNING
 from ..core.model_error import ModelErrorTable, table_temperatures
 from ..core.models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
-from ..core.learning.parameters import PARAMETERS as LEARNING_PARAMETERS, PREFIX as LEARNING
 from ..core.tracking_parameters import PARAMETERS as TRACKING_PARAMETERS, PREFIX as TRACKING
 
+# The node's own learning parameter (fit and diagnose do not write it).
+LEARNED_MODEL_FILE = LEARNING + 'learned_model_file'
 # The messages a rest hint may come as (`ros/rest_hint.py` reads each).
 REST_HINT_TYPES = ('nav_msgs/Odometry', 'geometry_msgs/Twist', 'geometry_msgs/TwistStamped',
                    'std_msgs/Bool')
@@ -87,8 +89,13 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec(TRACKING + 'rest_hint_max_angular_rad_s', 0.001,
          'and its angular speed at most this, rad/s (0.057 deg/s: far below a slow turn)',
          low=0.0, high=100.0),
-) + tuple(Spec(LEARNING + p.name, p.default, p.description, low=p.low, high=p.high)
-          for p in LEARNING_PARAMETERS)
+) + tuple(Spec(LEARNING + p.name, p.default, p.description, read_only=True, low=p.low,
+               high=p.high) for p in LEARNING_PARAMETERS) + (
+    # The node's own: where imu/save_learned_model writes the model in use.
+    Spec(LEARNED_MODEL_FILE, '',
+         "imu/save_learned_model writes the model in use here, a parameter file ('' = "
+         '<node name>_learned.yaml beside the state file)', read_only=True),
+)
 
 
 def limits_of(values: dict) -> RecalibrationLimits:
@@ -159,3 +166,28 @@ def state_file_of(values: dict, node_name: str) -> str:
     if not path:
         path = os.path.join('~', '.ros', 'mlx_tempcomp', f'{node_name}_zro.yaml')
     return os.path.expanduser(path)
+
+
+def learned_model_file_of(values: dict, state_file: str, node_name: str) -> str:
+    """Give where imu/save_learned_model writes: the parameter, else beside the state file."""
+    path = values[LEARNED_MODEL_FILE]
+    if not path:
+        path = os.path.join(os.path.dirname(os.path.abspath(state_file)),
+                            f'{node_name}_learned.yaml')
+    return os.path.expanduser(path)
+
+
+def unit_values(values: dict) -> dict:
+    """
+    Give the node's values that describe the unit's model, as ``fit`` writes them (flat).
+
+    ``model``, ``axes``, the running model's own parameters, ``correction.*``,
+    ``model_error.*``, ``rate_noise_rad_s``, the unit's ``bias_tracking.*`` and
+    ``learning.*`` (not the node's own: state files, topics, periods); unset ones left out.
+    """
+    prefixes = (MODELS[values['model']].prefix, 'correction.', 'model_error.')
+    unit = {'model', 'axes', 'rate_noise_rad_s'} | \
+        {TRACKING + p.name for p in TRACKING_PARAMETERS if p.unit} | \
+        {LEARNING + p.name for p in LEARNING_PARAMETERS}
+    return {key: value for key, value in values.items()
+            if (key in unit or key.startswith(prefixes)) and value != []}

@@ -16,7 +16,10 @@ or without tracking the square of the model's error at the sample's temperature
 when ``model_error.*`` gives a table. The supply voltage is held (the latest at or
 before each sample's stamp, ``supply_voltage.pairing: hold``) or paired by
 stamp like the temperature (``stamp``). The ``imu/recalibrate_zro`` service
-(std_srvs/Trigger) learns the ZRO residual at rest, seeds the tracker and persists both.
+(std_srvs/Trigger) learns the ZRO residual at rest (of the model in use: with the learnt
+correction taken off), seeds the tracker and persists both. With ``learning.enabled`` the
+tracker runs with the field learner (`CompensationLearning`), and
+``imu/save_learned_model`` (std_srvs/Trigger) writes the model in use as a parameter file.
 """
 
 from dataclasses import replace
@@ -26,12 +29,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
 
 from . import messages
 from .compensation_inputs import AUXILIARY, CompensationInputs
+from .compensation_learning import CompensationLearning
 from .compensation_outputs import CompensationOutputs
 from .compensation_status import compensation_status, missing_inputs
 from .compensation_tracking import CompensationTracking
@@ -45,8 +50,8 @@ from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
 from ..core.table import sensor_tables
 from ..core.tracking_parameters import tracking_settings
-from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
-                                       state_file_of)
+from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
+                                       learned_model_file_of, model_error_of, state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
 
@@ -92,8 +97,13 @@ class CompensationNode(Node):
         self.outputs = CompensationOutputs(self, self.values, self.indices,
                                            self.inputs.temperature_streams)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        learning = CompensationLearning(
+            self.values, self.axes, self.recalibration.learning_section, self.recalibration.path,
+            learned_model_file_of(self.values, self.recalibration.path, self.get_name()),
+            self.get_logger())
         self.tracking = CompensationTracking(self, self.values, self.axes, self.indices,
-                                             self.recalibration, self._full_scale_rad_s())
+                                             self.recalibration, self._full_scale_rad_s(),
+                                             learning)
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
@@ -108,6 +118,9 @@ class CompensationNode(Node):
         # is taken (and refused) while the first awaits: a mutually exclusive group would
         # hold it back and run a second recalibration afterwards.
         self.create_service(Trigger, 'imu/recalibrate_zro', self.recalibrate,
+                            callback_group=ReentrantCallbackGroup())
+        # Likewise: a call while a write runs is refused, not queued.
+        self.create_service(Trigger, 'imu/save_learned_model', self.save_learned_model,
                             callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
@@ -137,10 +150,15 @@ class CompensationNode(Node):
             tracking += f' (rest hint: {hint}, {self.values["bias_tracking.rest_hint_type"]})'
         if self.values['bias_tracking.zero_at_start']:
             tracking += ' (zero at start: the first still run is taken as at rest)'
+        learning = self.tracking.learning
+        tracking += f', field learning {"on" if learning.enabled else "off"}'
+        if learning.enabled:
+            tracking += f' (imu/save_learned_model writes {learning.learned_model_file})'
         return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
                 f'{tracking}; waits for {", ".join(inputs)}; publishes {", ".join(outputs)}'
                 f'{covariance}; state file {self.recalibration.path}: '
-                f'{self.recalibration.describe()}{self.tracking.describe()}')
+                f'{self.recalibration.describe()}{self.tracking.describe()}'
+                f'{self.tracking.learning.describe()}')
 
     def _warn_waiting(self) -> None:
         """WARN, throttled, for an input still missing a few seconds after the start."""
@@ -247,12 +265,13 @@ class CompensationNode(Node):
         if block is None:
             return
         rates, clamped = block.correct(stream)
-        # The tracker follows the model's output; the recalibration's window takes it too.
-        tracked, stds = self.tracking.track(block, rates)
+        # The tracker follows the model's output (less the learnt correction); the
+        # recalibration's window takes the model in use's.
+        tracked, stds, in_use = self.tracking.track(block, rates)
         tracker = self.tracking.tracker
         self.outputs.publish(block, tracked, clamped, stds,
                              still=tracker is not None and tracker.still)
-        self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, rates)
+        self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, in_use)
 
     # Recalibration.
     async def recalibrate(self, request, response):
@@ -270,7 +289,7 @@ class CompensationNode(Node):
             return ''
 
         recalibration = self.recalibration
-        refusal = recalibration.start(self.model, self.values)
+        refusal = recalibration.start(self.model, self.values, self._correction())
         if refusal:
             response.message = refusal
         else:
@@ -292,7 +311,7 @@ class CompensationNode(Node):
         variance); its state goes into the same write as the ZRO offset.
         """
         try:
-            learned = self.recalibration.learn(window, self.model)
+            learned = self.recalibration.learn(window, self.model, self._correction())
         except CalibrationError as err:
             return f'refused: {err}'
         self._use(learned.model)
@@ -301,6 +320,40 @@ class CompensationNode(Node):
         if messages.trigger_succeeded(answer):
             self.tracking.wrote_with_zro(section)
         return answer
+
+    def _correction(self):
+        """Give the learnt correction taken off now (None: learning not running)."""
+        return None if self.tracking.stream is None else self.tracking.learning.applied()
+
+    # The learnt model.
+    async def save_learned_model(self, request, response):
+        """
+        Write the model in use as a parameter file (`CompensationLearning.learned_model`).
+
+        A coroutine: the write runs in a thread while the stream goes on; a call meanwhile
+        is refused (`LearnedModelSaver`).
+        """
+        learning = self.tracking.learning
+        saver = learning.saver
+        try:
+            learned = learning.learned_model(
+                self.get_name(), [] if self.model is None else self.model.zro_offset,
+                self.tracking.stream is not None)
+            refusal = saver.start(learned)
+        except CalibrationError as err:
+            refusal = str(err)
+        if refusal:
+            response.message = refusal
+        else:
+            try:
+                response.message = await await_window(self, Future(), saver.answer, _POLL_S)
+            finally:
+                saver.end()
+            if messages.trigger_succeeded(response.message):
+                learning.saves += 1
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.get_logger(), response, 'save learned model')
+        return response
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:
@@ -339,7 +392,7 @@ class CompensationNode(Node):
             eeprom_error=self.eeprom_error,
             input_age_s=None if self.last_input is None else time.monotonic() - self.last_input,
             inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration,
-            tracking=self.tracking.status_values())
+            tracking={**self.tracking.status_values(), **self.tracking.learning_values()})
         self.outputs.clamped_recent = False
         self.inputs.clear_recent()
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',
