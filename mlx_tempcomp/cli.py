@@ -16,7 +16,8 @@ from .errors import MlxTempCompError
 from .fleet import command as fleet
 from .toolkit import (adis_bias, allan, convert, diagnose, eeprom, evaluate, extras, fit,
                       inject_motion, inspection, simulate)
-from .toolkit.common import EXIT_USER_ERROR, run_command
+from .toolkit.errors import EXIT_USER_ERROR
+from .toolkit.running import run_command
 
 # Each adds its subcommand with add_parser(commands), in this order in --help.
 _COMMAND_MODULES = (inspection, eeprom, fit, allan, adis_bias, convert, diagnose, evaluate,

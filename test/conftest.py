@@ -1,8 +1,10 @@
 """Session-wide test set-up: private DDS traffic and hardware-only tests."""
 
+import atexit
 import fcntl
 import glob
 import os
+import shutil
 import tempfile
 
 from hypothesis import HealthCheck, settings
@@ -18,8 +20,7 @@ def _claim_domain_id() -> int:
     """
     for offset in range(101):
         domain_id = (os.getpid() + offset) % 101 + 1
-        lock = open(os.path.join(tempfile.gettempdir(),
-                                 f'mlx_tempcomp_test_domain_{domain_id}.lock'), 'w')
+        lock = open(os.path.join(_LOCK_DIR, f'mlx_tempcomp_test_domain_{domain_id}.lock'), 'w')
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -31,12 +32,30 @@ def _claim_domain_id() -> int:
 
 
 _DOMAIN_LOCKS = []
+# Machine-wide, whatever TMPDIR says: docs_check.py gives the commands it runs a TMPDIR of
+# their own, and their tests must still see the domains other sessions hold (sharing one,
+# a node of another session fed this one's: its EEPROM, its samples).
+_LOCK_DIR = '/tmp' if os.path.isdir('/tmp') else tempfile.gettempdir()
 # Set at import time, before any test initializes rclpy. Every subprocess a test starts
 # inherits os.environ, so nodes it launches join the same private, localhost-only domain
 # and never see (or disturb) a robot or another test session on the network.
 os.environ['ROS_DOMAIN_ID'] = str(_claim_domain_id())
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
+
+
+def _scratch_ros_home() -> str:
+    """Give a ROS_HOME of this session's own, removed when it ends."""
+    folder = tempfile.mkdtemp(prefix='mlx_tempcomp_ros_home_')
+    atexit.register(shutil.rmtree, folder, True)
+    return folder
+
+
+# The nodes keep their state files under ROS_HOME by default (parameters/state_paths.py):
+# a session of its own, so no state an earlier run left there (or in ~/.ros) changes what
+# a test sees, and none is left behind. docs_check.py imports this module too, so each doc
+# it checks runs in a ROS_HOME of its own.
+os.environ['ROS_HOME'] = _scratch_ros_home()
 
 # Property-based tests (test_fuzz_*.py): the same examples on every run by default, so the
 # suite gives one answer; HYPOTHESIS_PROFILE=explore draws new ones each run. Either way a

@@ -45,7 +45,8 @@ block (run from the repository root: the virtual environment on PATH,
 ``$REPO`` the repository, ``$SHARED`` the shared data, then ``cd`` into a
 new temporary folder); its blocks run there in order, sharing files but not
 shell variables, and the nodes they start in a localhost-only ROS domain that
-no test session holds (claimed as test/conftest.py claims one). When the
+no test session holds (claimed as test/conftest.py claims one), with a ROS_HOME
+of the doc's own (where the nodes keep their state files by default). When the
 set-up's ``$SHARED`` does not exist (a worktree), the shared folder is looked
 up as the tests do (test/measured_data.py), and without it the blocks that
 name ``$SHARED`` are skipped, saying so.
@@ -345,7 +346,10 @@ def set_up(temp_root: Path) -> Session:
     state = Path(tempfile.mkdtemp(prefix='set-up-', dir=temp_root))
     script = '\n'.join(steps[0].lines) + \
         f'\npwd > {state}/pwd\nenv -0 > {state}/env\n'
-    env = dict(os.environ, TMPDIR=str(temp_root))
+    # A ROS_HOME of the doc's own: the nodes' default state files go there, so a state file
+    # an earlier run left (in ~/.ros or another doc's) never changes what a doc prints.
+    env = dict(os.environ, TMPDIR=str(temp_root),
+               ROS_HOME=tempfile.mkdtemp(prefix='ros-home-', dir=temp_root))
     done = subprocess.run(['bash', '-e', '-c', script], cwd=ROOT, env=env,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if done.returncode != 0:

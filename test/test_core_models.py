@@ -8,7 +8,7 @@ from mlx_tempcomp.core.errors import ConfigError
 from mlx_tempcomp.core.interpolation import Interpolation
 from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,
                                                ModelStream)
-from mlx_tempcomp.core.models import EepromModel
+from mlx_tempcomp.core.models import EepromModel, RateOnlyModel
 from mlx_tempcomp.core.table import factory_table
 import numpy as np
 import pytest
@@ -182,3 +182,25 @@ def test_every_model_the_node_runs_has_the_model_interface():
         assert model.inputs == frozenset()
         np.testing.assert_array_equal(model.stream().correct_block([[0.1]], [30.0], given)
                                       .rate_rad_s, model.correct([[0.1]], [30.0]).rate_rad_s)
+
+
+def test_the_rate_only_takes_the_offset_off_whatever_the_temperature():
+    """No temperature model (the node without a temperature): the raw rate less the offset."""
+    model = RateOnlyModel(2)
+    assert isinstance(model, CompensationModel) and isinstance(model.stream(), ModelStream)
+    assert model.inputs == frozenset() and model.zro_offset == (0.0, 0.0)
+    raw = np.array([[0.1, -0.2], [0.3, 0.4]])
+    nan = np.full((2, 1), math.nan)
+    corrected = model.correct(raw, nan)
+    np.testing.assert_array_equal(corrected.rate_rad_s, raw)
+    assert not corrected.temperature_clamped.any()
+    offset = model.learn_zro_offset(raw, nan, raw)
+    np.testing.assert_allclose(offset, [0.2, 0.1])
+    shifted = model.with_zro_offset(offset)
+    assert shifted.fingerprint() == model.fingerprint() != RateOnlyModel(1).fingerprint()
+    block = shifted.stream().correct_block(raw, nan).rate_rad_s
+    np.testing.assert_array_equal(block, raw - offset)
+    for row, expected in zip(raw.tolist(), block.tolist()):
+        assert shifted.stream().correct_one(row, [math.nan]) == (expected, False)
+    with pytest.raises(ConfigError):
+        model.with_zro_offset([math.inf, 0.0])

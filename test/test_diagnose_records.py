@@ -25,7 +25,7 @@ from mlx_tempcomp.parameters.files import flat_parameters
 from mlx_tempcomp.recordings.recording import Recording
 from mlx_tempcomp.simulation.chamber import chamber_profile
 from mlx_tempcomp.simulation.physics import Effects, Scenario
-from mlx_tempcomp.toolkit.common import run_handler
+from mlx_tempcomp.toolkit.running import run_handler
 import numpy as np
 import pytest
 from test_diagnose import (device_run, NOISE_DPS, parameters_of, QUIET, run_cli,

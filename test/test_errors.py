@@ -28,7 +28,7 @@ def test_every_error_class_of_the_package_is_below_the_root():
     for name in ('core.errors.TempCompError', 'hardware.errors.HardwareError',
                  'recordings.errors.RecordFileError', 'recordings.bag.BagError',
                  'recordings.recording.RecordingError', 'parameters.state_file.StateFileError',
-                 'toolkit.common.UserError'):
+                 'toolkit.errors.UserError'):
         assert f'mlx_tempcomp.{name}' in errors
 
 

@@ -39,8 +39,9 @@ def test_start_up_summaries_and_a_warn_for_each_input_that_never_comes(launcher,
     expected = {
         eeprom: 'the eeprom model waits for the factory tables on imu/eeprom, which only an '
                 'MLX90609 driver (device: mlx90609) or a bag holding them sends; with an '
-                'ADIS16130 or MPU-6000 choose another model (polynomial, linear_btc, effects '
-                'or chain)',
+                'ADIS16130, an MPU-6000 or another driver choose another model (polynomial, '
+                'linear_btc, effects or chain, from mlx-tempcomp fit); until they come, after '
+                'eeprom.wait_s, the node runs the rate only',
         supply: 'the effects model has supply_voltage terms and waits for a voltage on '
                 'imu/supply_voltage (sensor_msgs/BatteryState)',
         alone: 'no raw samples yet: start a driver_node',
@@ -55,7 +56,10 @@ def test_start_up_summaries_and_a_warn_for_each_input_that_never_comes(launcher,
             '/adis/imu/bias_procedure/status; services /adis/imu/run_bias_procedure'
             in adis.output()), adis.output()
     assert (f"model eeprom on axes ['z'], bias tracking on; waits for /adis/imu/eeprom, "
-            '/adis/imu/data_raw, /adis/imu/temperature_raw; publishes /adis/imu/data, '
+            '/adis/imu/data_raw, /adis/imu/temperature_raw; temperature paired by hold '
+            'within 2 s, the rate only without one 5 s after the first sample; the factory '
+            'tables waited for 5 s, then the rate only until they come (only an MLX90609 '
+            'driver sends them); publishes /adis/imu/data, '
             '/adis/imu/temperature, /diagnostics, /adis/imu/gyro_bias, '
             '/adis/imu/gyro_bias/status (covariance: rate noise + tracked offset variance); '
             f'state file {tmp_path / "adis_compensation_node"}: nothing saved yet'

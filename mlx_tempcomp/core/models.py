@@ -222,3 +222,36 @@ class EepromModel(_Streamed):
         _, tempout = self._to_output_units(np.zeros((1, self.axes)), [temperature_c])
         sf = [self.compensation.sf(a, tempout[0, a]) for a in range(self.axes)]
         return np.deg2rad(np.asarray(self.compensation.zro_shift) / np.asarray(sf, dtype=float))
+
+
+@dataclass(frozen=True)
+class RateOnlyModel(OffsetModel):
+    """
+    No temperature model: the raw rate less the ZRO offset, whatever the temperature.
+
+    What the node runs while it has no temperature, or no factory tables for the
+    eeprom model: the bias tracking then follows the raw rate's offset alone.
+    """
+
+    axes: int = 1
+    zro_offset_rad_s: tuple = ()
+
+    name = 'rate_only'
+
+    def __post_init__(self) -> None:
+        offset = self.zro_offset_rad_s or (0.0,) * self.axes
+        object.__setattr__(self, 'zro_offset_rad_s',
+                           finite_tuple('zro_offset_rad_s', offset, self.axes))
+
+    def fingerprint(self) -> str:
+        return model_fingerprint(self.name, {'axes': self.axes})
+
+    def correct(self, rate_rad_s, temperature_c, inputs: ModelInputs = NO_INPUTS) -> CorrectedRate:
+        """Take the offset off the rate; the temperature (NaN when there is none) is not used."""
+        rate = np.asarray(rate_rad_s, dtype=np.float64).reshape(-1, self.axes)
+        return CorrectedRate(rate - np.asarray(self.zro_offset_rad_s),
+                             np.zeros(rate.shape, dtype=bool))
+
+    def correct_row(self, rates_rad_s: list, temperatures_c: list) -> tuple:
+        """Correct one row in plain floats, bit for bit `correct`'s."""
+        return [r - o for r, o in zip(rates_rad_s, self.zro_offset_rad_s)], False

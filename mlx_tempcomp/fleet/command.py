@@ -22,9 +22,11 @@ from .unit import (command_argv, COMMANDS, parse_command, SEVERAL_RECORDS, UnitE
                    UnitJob)
 from ..recordings.columns import column_preset, parse_column_map
 from ..recordings.recording import RecordingError
-from ..toolkit.common import check_output_folder, non_negative_int, UserError
+from ..toolkit.errors import UserError
 from ..toolkit.extras import readers, require
+from ..toolkit.options import non_negative_int
 from ..toolkit.progress import add_progress_option
+from ..toolkit.running import check_output_folder
 
 # What a shell reports for a command stopped by Ctrl-C (128 + SIGINT).
 EXIT_INTERRUPTED = 130

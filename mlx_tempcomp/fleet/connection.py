@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import ssl
 
 from .unit import one_line
-from ..toolkit.common import UserError
+from ..toolkit.errors import UserError
 
 CONNECT_TIMEOUT = 'distributed.comm.timeouts.connect'
 REQUIRE_ENCRYPTION = 'distributed.comm.require-encryption'

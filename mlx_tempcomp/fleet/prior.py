@@ -42,7 +42,7 @@ from ..parameters.files import effect_parameters, node_values, parameter_file, w
 from ..parameters.models import build_model
 from ..parameters.specs import ParameterError
 from ..recordings.recording import AXES
-from ..toolkit.common import write_json
+from ..toolkit.running import write_json
 
 FLEET_PARAMS = 'fleet_params.yaml'
 SHRUNK_PARAMS = 'shrunk_params.yaml'

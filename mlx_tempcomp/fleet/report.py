@@ -47,7 +47,7 @@ import yaml
 
 from .unit import UNIT_FILE
 from ..parameters.files import flat_parameters
-from ..toolkit.common import write_json, write_result
+from ..toolkit.running import write_json, write_result
 
 # The least |robust z| flagged (Iglewicz and Hoaglin; a count's threshold), and the false flags
 # a fleet drawn from one normal population gets in expectation over its report's measured values.

@@ -26,9 +26,9 @@ import uuid
 
 from .connection import check_local, scheduler_client, TlsOptions
 from .unit import LOG_FILE, one_line, run_unit, UNIT_FILE, UnitJob
-from ..toolkit.common import write_json
 from ..toolkit.outputs import staged_outputs
 from ..toolkit.progress import Progress
+from ..toolkit.running import write_json
 
 UNITS_FOLDER = 'units'
 SCHEDULER_VARIABLE = 'DASK_SCHEDULER_ADDRESS'

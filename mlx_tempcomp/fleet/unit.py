@@ -30,7 +30,8 @@ from .manifest import is_url, OPTIONAL_COLUMNS, RecordSpec, UnitSpec
 from ..core.pooling import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
-from ..toolkit.common import load, read_options, ReadOptions, run_handler
+from ..toolkit.loading import load, read_options, ReadOptions
+from ..toolkit.running import run_handler
 
 COMMANDS = ('diagnose', 'fit')
 # The commands that fit one model over several records of a unit.

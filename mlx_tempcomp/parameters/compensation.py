@@ -17,6 +17,7 @@ from typing import Optional
 
 from .models import CORRECTION_SPECS, MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
+from .state_paths import state_path
 from ..core.errors import ConfigError
 from ..core.learning.parameters import PARAMETERS as LEARNING_PARAMETERS, PREFIX as LEARNING
 from ..core.model_error import ModelErrorTable, table_temperatures
@@ -56,7 +57,8 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('recalibration.max_temperature_change_c', 0.5,
          'temperature change within the window above this is refused', low=1e-3, high=100.0),
     Spec('recalibration.state_file', '',
-         "ZRO state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_zro.yaml)", read_only=True),
+         "ZRO and bias tracking state YAML ('' = $ROS_HOME/mlx_tempcomp/<namespace>/<node "
+         'name>_zro.yaml, ROS_HOME defaulting to ~/.ros)', read_only=True),
     Spec('stale_timeout_s', 1.0, 'no input for this long is reported as stale', low=0.01,
          high=3600.0),
     Spec('max_block', 500, 'input messages taken per wake-up at most and compensated as one '
@@ -69,6 +71,27 @@ COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('supply_voltage.max_age_s', 5.0,
          'hold: a voltage further than this from the sample stamp is not used; the sample '
          'is skipped and counted', low=0.0, high=3600.0),
+    Spec('temperature.pairing', 'hold',
+         'how imu/temperature_raw (and a second temperature) pairs with the Imu samples: '
+         'hold = the latest reading stamped at or before each sample, at once (a driver that '
+         'rates and stamps its temperature its own way; one that stamps both alike is paired '
+         'exactly); interpolate = linear between the readings before and after, which waits '
+         'for the one after; stamp = the reading with the same stamp only; none = the driver '
+         'sends no temperature: the rate only, less the tracked offset',
+         read_only=True, choices=('hold', 'interpolate', 'stamp', 'none')),
+    Spec('temperature.max_age_s', 2.0,
+         'hold, interpolate: a reading further than this from the sample stamp is not used; '
+         'the sample is skipped and counted (a sample waits at most this long, in sensor '
+         'time, for a reading)', read_only=True, low=0.0, high=3600.0),
+    Spec('temperature.wait_s', 5.0,
+         'Imu samples with no temperature at all this long after the first one (sensor '
+         'time; ten times as long while a publisher of the temperature topic is matched) go '
+         'on with the rate only, less the tracked offset, until a temperature comes',
+         read_only=True, low=0.0, high=3600.0),
+    Spec('rate_only.offset_std_rad_s', math.radians(1.0),
+         'with the rate only (no temperature, or no factory tables for the eeprom model): '
+         "the raw rate offset's standard deviation before the tracking learns it, and the "
+         'most it grows to; its square goes into the Imu covariance', low=0.0, high=10.0),
 ) + tuple(Spec(TRACKING + p.name, p.default, p.description, low=p.low, high=p.high)
           for p in TRACKING_PARAMETERS) + (
     # The node's own, not the unit's: fit and diagnose do not write it.
@@ -161,11 +184,9 @@ def covariance_noise_of(values: dict) -> tuple:
     return tuple(float(v) for v in given)
 
 
-def state_file_of(values: dict, node_name: str) -> str:
-    path = values['recalibration.state_file']
-    if not path:
-        path = os.path.join('~', '.ros', 'mlx_tempcomp', f'{node_name}_zro.yaml')
-    return os.path.expanduser(path)
+def state_file_of(values: dict, fully_qualified_name: str, log) -> str:
+    """Give the node's state file: the parameter, else its default (`state_paths.state_path`)."""
+    return state_path(values['recalibration.state_file'], fully_qualified_name, '_zro.yaml', log)
 
 
 def learned_model_file_of(values: dict, state_file: str, node_name: str) -> str:

@@ -142,7 +142,8 @@ DRIVER_SPECS = COMMON_SPECS + (
     Spec('adis16130.bias_procedure.min_temperature_change_c', 0.5,
          'smallest T2 - T1 a BTC is computed from', low=0.001, high=100.0),
     Spec('adis16130.bias_procedure.output_file', '',
-         "linear_btc parameter file ('' = ~/.ros/mlx_tempcomp/<node name>_linear_btc.yaml)"),
+         "linear_btc parameter file ('' = $ROS_HOME/mlx_tempcomp/<namespace>/<node "
+         'name>_linear_btc.yaml, ROS_HOME defaulting to ~/.ros)'),
     Spec('adis16130.bias_procedure.node_name', 'compensation_node',
          'node section of the parameter file'),
     Spec('mpu6000.variant', 'mpu6000', 'part: MPU-6000, MPU-6050 (I2C only, the registers of '
@@ -159,7 +160,8 @@ DRIVER_SPECS = COMMON_SPECS + (
          '100 Hz: 0.005 g); sets the linear acceleration covariance (0 = unknown)',
          low=0.0, high=100.0),
     Spec('mpu6000.offsets_file', '',
-         "offset register state YAML ('' = ~/.ros/mlx_tempcomp/<node name>_offsets.yaml)",
+         "offset register state YAML ('' = $ROS_HOME/mlx_tempcomp/<namespace>/<node "
+         'name>_offsets.yaml, ROS_HOME defaulting to ~/.ros)',
          read_only=True),
     Spec('mpu6000.calibration.duration_s', 1.0,
          'averaging window of imu/calibrate_offsets (sensor time; the note: 200 samples)',

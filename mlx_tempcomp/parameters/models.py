@@ -49,6 +49,11 @@ def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bo
 EEPROM_SPECS = (
     Spec('eeprom.interpolation', 'quadratic', 'interpolation of the factory table',
          choices=tuple(m.value for m in Interpolation)),
+    Spec('eeprom.wait_s', 5.0,
+         'the eeprom model waits this long (sensor time from the first Imu sample) for the '
+         'factory tables on imu/eeprom, which only an MLX90609 driver sends; then the rate '
+         'only, less the tracked offset, until they come', read_only=True, low=0.0,
+         high=3600.0),
 )
 POLYNOMIAL_SPECS = (
     Spec('polynomial.reference_temperature_c', 25.0, 'Tref of x = (T - Tref) / scale',

@@ -9,7 +9,7 @@ as µs a thermal sweep of 80 C in 4 s. `implausible_columns` looks at whole
 columns against what any gyro record holds (the bounds below, each with its
 reason) and gives one line per column that does not, naming the column and the
 likely fix (``map time=timestamp:1e-6``). The toolkit prints them as warnings,
-or refuses the record with ``--strict`` (`toolkit.common.load`).
+or refuses the record with ``--strict`` (`toolkit.loading.load`).
 """
 
 import math

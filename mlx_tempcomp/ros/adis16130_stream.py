@@ -25,6 +25,7 @@ from ..core.noise import allan_deviation
 from ..parameters.driver import effects_of
 from ..parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
 from ..parameters.specs import ParameterError
+from ..parameters.state_paths import default_state_path
 from ..simulation.adis16130 import Adis16130Truth, Fault
 from ..sources import adis16130
 
@@ -160,9 +161,8 @@ class _RunningProcedure:
             min_temperature_change_c=values[prefix + 'min_temperature_change_c'],
             rate_noise_rad_s=values['rate_noise_rad_s'] or None)
         self.procedure = BiasProcedure(settings, _noise_figures if allan_s > 0.0 else None)
-        path = values[prefix + 'output_file'] or os.path.join(
-            '~', '.ros', 'mlx_tempcomp', f'{stream.ports.node.get_name()}_linear_btc.yaml')
-        self.path = os.path.expanduser(path)
+        self.path = os.path.expanduser(values[prefix + 'output_file']) or default_state_path(
+            stream.ports.node.get_fully_qualified_name(), '_linear_btc.yaml')
         self.node_name = values[prefix + 'node_name']
         self.phase = self.procedure.phase
         self.future = Future()

@@ -5,11 +5,16 @@ Subscribes to ``imu/data_raw``, ``imu/temperature_raw`` (with several MLX90609
 chips and the eeprom model, ``imu/temperature_raw/<axis>``), ``imu/eeprom`` and,
 while the model needs them, ``imu/temperature_2_raw`` (a second temperature)
 and ``imu/supply_voltage`` (sensor_msgs/BatteryState, its voltage); pairs
-samples by stamp, runs them through the stream of the model named by ``model``
-(which keeps the state of stateful effects) and publishes ``imu/data`` and
-``imu/temperature``. With ``bias_tracking.enabled`` the rate published is the
-model's less the offset tracked at standstill (`CompensationTracking`), whose
-estimate goes out on ``imu/gyro_bias`` and ``imu/gyro_bias/status``; with
+samples with the temperature by ``temperature.pairing`` (`CompensationInputs`),
+runs them through the stream of the model named by ``model`` (which keeps the
+state of stateful effects) and publishes ``imu/data`` and ``imu/temperature``.
+Without a temperature (none within ``temperature.wait_s``, or
+``temperature.pairing: none``), or without the eeprom model's factory tables
+after ``eeprom.wait_s``, it runs the rate only (`RateOnlyModel`): the raw rate
+less the tracked offset, its covariance holding ``rate_only.offset_std_rad_s``.
+With ``bias_tracking.enabled`` the rate published is the model's less the offset
+tracked at standstill (`CompensationTracking`), whose estimate goes out on
+``imu/gyro_bias`` and ``imu/gyro_bias/status``; with
 ``bias_tracking.rest_hint_topic`` it also subscribes to the robot's rest hint. The angular
 velocity covariance is ``rate_noise_rad_s``^2, plus the tracked offset's variance,
 or without tracking the square of the model's error at the sample's temperature
@@ -22,7 +27,9 @@ tracker runs with the field learner (`CompensationLearning`), and
 ``imu/save_learned_model`` (std_srvs/Trigger) writes the model in use as a parameter file.
 """
 
+import bisect
 from dataclasses import replace
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -48,6 +55,7 @@ from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
 from ..core.eeprom_multiarray import eeprom_images_from_multiarray
 from ..core.errors import CalibrationError, TempCompError
+from ..core.models import RateOnlyModel
 from ..core.table import sensor_tables
 from ..core.tracking_parameters import tracking_settings
 from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
@@ -84,16 +92,23 @@ class CompensationNode(Node):
         self.eeprom_error = ''
         # The model first: a node that cannot start leaves its state file as it is.
         model = build_model(self.values)
-        self.recalibration = ZroRecalibration(state_file_of(self.values, self.get_name()),
-                                              self.axes, self.get_logger())
+        self.recalibration = ZroRecalibration(
+            state_file_of(self.values, self.get_fully_qualified_name(), self.get_logger().warn),
+            self.axes, self.get_logger())
         self.recalibration.load(self._full_scale_rad_s())
         model = self._with_saved_offset(model)
         self.model = None
         self.stream = None
         self.last_input = None
+        values = self.values
         self.inputs = CompensationInputs(
-            self.axes, self.indices, len(self.axes) > 1 and self.values['model'] == 'eeprom',
-            self.values['supply_voltage.pairing'] == 'hold')
+            self.axes, self.indices, len(self.axes) > 1 and values['model'] == 'eeprom',
+            values['supply_voltage.pairing'] == 'hold', values['temperature.pairing'],
+            values['temperature.max_age_s'], values['temperature.wait_s'])
+        # The rate only, while no temperature model can run (`alone` says why).
+        self.rate_only = RateOnlyModel(len(self.axes))
+        self.rate_only_stream = self.rate_only.stream()
+        self.alone = ''
         self.outputs = CompensationOutputs(self, self.values, self.indices,
                                            self.inputs.temperature_streams)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -155,17 +170,33 @@ class CompensationNode(Node):
         if learning.enabled:
             tracking += f' (imu/save_learned_model writes {learning.learned_model_file})'
         return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
-                f'{tracking}; waits for {", ".join(inputs)}; publishes {", ".join(outputs)}'
-                f'{covariance}; state file {self.recalibration.path}: '
+                f'{tracking}; waits for {", ".join(inputs)}; {self._temperature_summary()}; '
+                f'publishes {", ".join(outputs)}{covariance}; state file '
+                f'{self.recalibration.path}: '
                 f'{self.recalibration.describe()}{self.tracking.describe()}'
                 f'{self.tracking.learning.describe()}')
+
+    def _temperature_summary(self) -> str:
+        """Say how the temperature pairs, and when the node runs the rate only."""
+        values = self.values
+        pairing = values['temperature.pairing']
+        if pairing == 'none':
+            return ('no temperature (temperature.pairing none): the rate only, less the '
+                    'tracked offset, no temperature model')
+        within = f' within {values["temperature.max_age_s"]:g} s' \
+            if pairing in ('hold', 'interpolate') else ''
+        text = (f'temperature paired by {pairing}{within}, the rate only without one '
+                f'{values["temperature.wait_s"]:g} s after the first sample')
+        if values['model'] == 'eeprom':
+            text += (f'; the factory tables waited for {values["eeprom.wait_s"]:g} s, then '
+                     'the rate only until they come (only an MLX90609 driver sends them)')
+        return text
 
     def _warn_waiting(self) -> None:
         """WARN, throttled, for an input still missing a few seconds after the start."""
         if time.monotonic() - self.started < WAIT_WARN_S:
             return
-        missing = missing_inputs(self.values['model'], self.last_input is not None,
-                                 self.sensor is not None, self.inputs)
+        missing = missing_inputs(self.values['model'], self.sensor is not None, self.inputs)
         if missing:
             self.get_logger().warn(f'waiting {time.monotonic() - self.started:.0f} s: '
                                    + '; '.join(missing), throttle_duration_sec=WAIT_WARN_PERIOD_S)
@@ -178,7 +209,8 @@ class CompensationNode(Node):
             f'{self.get_name()} stopping: {outputs.samples_out} samples compensated in '
             f'{outputs.blocks} blocks, {inputs.samples_waiting} waited for a model or voltage, '
             f'{inputs.unpaired_dropped} unpaired dropped, '
-            f'{inputs.no_supply_samples} without a supply voltage, '
+            f'{inputs.no_temperature_samples} without a temperature within '
+            f'temperature.max_age_s, {inputs.no_supply_samples} without a supply voltage, '
             f'{inputs.no_acceleration_samples} without acceleration'
             f'{self.tracking.summary()}')
         return super().destroy_node()
@@ -210,7 +242,8 @@ class CompensationNode(Node):
                 (lambda msg, s=stream: self.on_input(s, msg))
             inputs.subscriptions[stream] = stream_subscription(
                 self, auxiliary.message_type, auxiliary.topic, callback)
-        self.tracking.follow(model)
+        if not self.alone:   # else the tracker follows the rate only until the model runs
+            self.tracking.follow(model)
 
     # Stream.
     def on_eeprom(self, msg: UInt8MultiArray) -> None:
@@ -255,23 +288,68 @@ class CompensationNode(Node):
             self.process(complete)
 
     def process(self, samples: list) -> None:
-        """Compensate paired samples [(stamp_ns, {stream: message})] as one block; publish."""
+        """Compensate samples [(stamp_ns, {stream: message})], a block per run; publish."""
         self.last_input = time.monotonic()
-        stream = self.stream
-        if stream is None:
-            self.inputs.samples_waiting += len(samples)
-            return
-        block = self.inputs.block(samples, self.values['supply_voltage.max_age_s'])
+        for has_temperature, part in self.inputs.runs(samples):
+            self._process(part, has_temperature)
+
+    def _process(self, samples: list, has_temperature: bool) -> None:
+        """Compensate samples all with or all without a temperature as one block."""
+        if has_temperature and self.stream is None:
+            # The eeprom model without its tables: the samples wait eeprom.wait_s of stamps.
+            wait_ns = self.inputs.first_imu_ns + int(self.values['eeprom.wait_s'] * 1e9)
+            waiting = bisect.bisect_left([stamp for stamp, _ in samples], wait_ns)
+            self.inputs.samples_waiting += waiting
+            samples = samples[waiting:]
+            if not samples:
+                return
+        stream = self._running(has_temperature)
+        alone = stream is self.rate_only_stream
+        block = self.inputs.block(samples, self.values['supply_voltage.max_age_s'], not alone)
         if block is None:
             return
         rates, clamped = block.correct(stream)
         # The tracker follows the model's output (less the learnt correction); the
-        # recalibration's window takes the model in use's.
-        tracked, stds, in_use = self.tracking.track(block, rates)
+        # recalibration's window takes the model in use's. Without a temperature, its
+        # temperature check has nothing to judge: a constant.
+        tracked, stds, in_use = self.tracking.track(block if has_temperature else replace(
+            block, temperature_c=[[0.0]] * len(rates)), rates)
+        if alone and stds is None:
+            stds = [[self.values['rate_only.offset_std_rad_s']] * len(self.axes)] * len(rates)
         tracker = self.tracking.tracker
         self.outputs.publish(block, tracked, clamped, stds,
                              still=tracker is not None and tracker.still)
         self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, in_use)
+
+    def _running(self, has_temperature: bool):
+        """Give the stream to run: the model's, else the rate only's (`alone` says why)."""
+        if has_temperature and self.stream is not None:
+            if self.alone:
+                self.alone = ''
+                self.tracking.follow(self.model)
+                self.get_logger().info(f'the {self.values["model"]} model runs from now on '
+                                       '(a temperature and the model are there)')
+            return self.stream
+        if has_temperature:
+            reason = (f'no factory tables on imu/eeprom {self.values["eeprom.wait_s"]:g} s '
+                      'after the first sample: the eeprom model needs an MLX90609 driver; with '
+                      'another, give a fitted model (mlx-tempcomp fit) or polynomial')
+        elif self.values['temperature.pairing'] == 'none':
+            reason = 'no temperature (temperature.pairing none)'
+        else:
+            reason = (f'no temperature on {", ".join(self.inputs.temperature_topics.values())} '
+                      f'{self.values["temperature.wait_s"]:g} s after the first sample')
+        if self.alone != reason:
+            self.alone = reason
+            std = self.values['rate_only.offset_std_rad_s']
+            self.tracking.follow(self.rate_only, [std] * len(self.axes))
+            until = '' if self.values['temperature.pairing'] == 'none' else \
+                ', until they come' if has_temperature else ', until one comes'
+            self.get_logger().warn(
+                f'{reason}: the rate only, less the tracked offset, no temperature model'
+                f'{until}; Imu covariance: rate noise + offset std {math.degrees(std):.3g} '
+                'deg/s at most (rate_only.offset_std_rad_s)')
+        return self.rate_only_stream
 
     # Recalibration.
     async def recalibrate(self, request, response):
@@ -289,7 +367,10 @@ class CompensationNode(Node):
             return ''
 
         recalibration = self.recalibration
-        refusal = recalibration.start(self.model, self.values, self._correction())
+        refusal = (f'refused: no temperature model runs ({self.alone}); the ZRO offset is '
+                   'learnt on top of one (the bias tracking follows the rate offset at rest '
+                   'meanwhile)') if self.alone else \
+            recalibration.start(self.model, self.values, self._correction())
         if refusal:
             response.message = refusal
         else:
@@ -389,8 +470,7 @@ class CompensationNode(Node):
         self._warn_waiting()
         level, text, values = compensation_status(
             values=self.values, model=self.model, sensor=self.sensor,
-            eeprom_error=self.eeprom_error,
-            input_age_s=None if self.last_input is None else time.monotonic() - self.last_input,
+            eeprom_error=self.eeprom_error, alone=self.alone, now=time.monotonic(),
             inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration,
             tracking={**self.tracking.status_values(), **self.tracking.learning_values()})
         self.outputs.clamped_recent = False

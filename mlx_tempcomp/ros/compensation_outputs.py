@@ -65,7 +65,9 @@ class CompensationOutputs:
             # The input messages go out again, rate rewritten (the rest passes through
             # unchanged): building new ones would cost more than the model.
             imu = parts['imu']
-            if len(streams) == 1:
+            if not block.has_temperature:
+                pass   # the driver sends none: no temperature goes out with the sample
+            elif len(streams) == 1:
                 self.temperature_publisher.publish(parts[streams[0]])
             else:
                 self.temperature_publisher.publish(messages.temperature_message(

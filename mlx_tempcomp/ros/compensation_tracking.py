@@ -36,6 +36,7 @@ are kept across the trackers a parameter change or a recalibration builds; the s
 zeroing (``bias_tracking.zero_at_start``) is done once per start.
 """
 
+from dataclasses import replace
 from datetime import datetime, timezone
 import math
 import reprlib
@@ -132,6 +133,7 @@ class CompensationTracking:
         self.stream: Optional[LearningTracking] = None   # the tracker with the learner
         self.model = None
         self.key = None
+        self.initial_std_rad_s = None   # the followed model's own, else the settings'
         self.held_state = None          # the state while tracking is off, to resume from
         self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
         self.written = None             # the tracker's and learner's progress at the last write
@@ -231,21 +233,24 @@ class CompensationTracking:
 
     # The model and the parameters.
 
-    def follow(self, model) -> None:
+    def follow(self, model, initial_std_rad_s=None) -> None:
         """
         Track relative to ``model`` from the next sample on.
 
         The same coefficients keep the tracker (a new ZRO offset comes with a `seed`);
         others start it from the saved state if that was learnt on this very model and
-        ZRO offset, else from nothing.
+        ZRO offset, else from nothing. ``initial_std_rad_s`` (per axis) replaces the
+        settings' for this model: the rate only's offset is not a model's residual.
         """
         if model is None:
             return
+        self.initial_std_rad_s = initial_std_rad_s
         self.model = model
         key = _model_key(model)
         if self.key is not None and key[:2] == self.key[:2]:
             self.key = key
-            self.learning.learner_for(model, self.settings)
+            if initial_std_rad_s is None:
+                self.learning.learner_for(model, self.settings)
             return
         self.key = key
         saved = self.saved
@@ -268,15 +273,23 @@ class CompensationTracking:
         self.written = None if self.tracker is None else self._progress()
 
     def _build(self, state) -> None:
-        self.tracker = None if self.settings is None or self.key is None else \
-            BiasTracking(self.settings, self.axes, state=state, hints=self.hints)
+        settings = self.settings
+        if settings is not None and self.initial_std_rad_s is not None:
+            settings = replace(settings, initial_std_rad_s=tuple(self.initial_std_rad_s))
+        self.tracker = None if settings is None or self.key is None else \
+            BiasTracking(settings, self.axes, state=state, hints=self.hints)
         if self.tracker is not None and self.zeroed_at_start:
             self.tracker.zeroing = False
         self._stream()
 
     def _stream(self) -> None:
-        """Put the tracker in the learner's stream while learning is on (the learner kept)."""
-        learner = None if self.tracker is None else \
+        """
+        Put the tracker in the learner's stream while learning is on (the learner kept).
+
+        Not with the rate only (``initial_std_rad_s``): no temperature to learn a curve in;
+        the learner waits, kept, for the temperature model.
+        """
+        learner = None if self.tracker is None or self.initial_std_rad_s is not None else \
             self.learning.learner_for(self.model, self.settings)
         self.stream = None if learner is None else LearningTracking(self.tracker, learner)
 
@@ -510,7 +523,8 @@ class CompensationTracking:
         if self.stream is None:
             return {'learning': 'off' if not self.learning.enabled else
                     'off (bias tracking off)' if self.settings is None else
-                    'waiting for a model'}
+                    'waiting for a model' if self.initial_std_rad_s is None else
+                    'waiting for a temperature model (the rate only runs)'}
         return self.learning.status_values()
 
     def status_values(self) -> dict:

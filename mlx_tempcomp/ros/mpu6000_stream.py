@@ -31,6 +31,7 @@ from ..parameters.files import node_values
 from ..parameters.models import build_model, correction_of
 from ..parameters.specs import axes_of, ParameterError
 from ..parameters.state_file import Field, load_state
+from ..parameters.state_paths import state_path
 from ..simulation.mlx90609 import Fault
 from ..simulation.mpu6000 import MpuTruth
 from ..sources import mpu6000
@@ -155,8 +156,9 @@ class MpuStream(DeviceStream):
         self.variant = variant
         self.acceleration_covariance = messages.acceleration_covariance(
             values['mpu6000.accel_noise_m_s2'])
-        self.offsets_path = os.path.expanduser(values['mpu6000.offsets_file'] or os.path.join(
-            '~', '.ros', 'mlx_tempcomp', f'{ports.node.get_name()}_offsets.yaml'))
+        self.offsets_path = state_path(values['mpu6000.offsets_file'],
+                                       ports.node.get_fully_qualified_name(), '_offsets.yaml',
+                                       ports.node.get_logger().warn)
         self.gyro_lsb = (0, 0, 0)
         self.accel_bias_lsb = (0, 0, 0)
         self.accel_registers = tuple(source.device.factory_accel_lsb)

@@ -16,10 +16,11 @@ import math
 import sys
 import time
 
-from .common import (add_parameter_file_options, check_output_file, finite_float,
-                     non_negative_float, non_negative_int, positive_float, rate_text, UserError,
-                     write_node_parameters)
+from .errors import UserError
+from .options import (add_parameter_file_options, finite_float, non_negative_float,
+                      non_negative_int, positive_float)
 from .progress import add_progress_option, Progress
+from .running import check_output_file, write_node_parameters
 from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
                                    MIN_TEMPERATURE_CHANGE_C, NOTE_AVERAGE_S, NOTE_PBC_S,
                                    NOTE_SELF_HEAT_S, NOTE_SETTLE_S, Phase, ProcedureSettings,
@@ -54,6 +55,11 @@ _PHASE_TEXT = {
                        'deviation',
     Phase.PBC: 'averaging RATE for {:g} s -> PBC = -mean, T3 = mean TEMP',
 }
+
+
+def rate_text(rate_rad_s: float) -> str:
+    """Give a rate as every subcommand prints one: rad/s, with deg/s beside."""
+    return f'{rate_rad_s:+.4e} rad/s ({math.degrees(rate_rad_s):+.4g} deg/s)'
 
 
 def _needs(args: argparse.Namespace) -> list:

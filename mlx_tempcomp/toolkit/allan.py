@@ -17,8 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (add_recording_options, check_output_file, check_output_folder, load,
-                     read_options, UserError, write_json, write_result)
+from .errors import UserError
+from .loading import load, read_options
+from .options import add_recording_options
+from .running import check_output_file, check_output_folder, write_json, write_result
 from ..core.errors import TempCompError
 from ..core.noise import (allan_deviation, FLICKER_FLOOR_FACTOR, MIN_CLUSTERS, NOISE_DENSITY_TAU_S,
                           noise_lines, RANDOM_WALK_TAU_S)

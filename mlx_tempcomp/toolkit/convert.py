@@ -16,9 +16,11 @@ import math
 
 import numpy as np
 
-from .common import (add_recording_options, check_output_folder, load, read_options,
-                     UserError)
+from .errors import UserError
+from .loading import load, read_options
+from .options import add_recording_options
 from .progress import add_progress_option, Progress
+from .running import check_output_folder
 from ..recordings.bag import (BagError, EepromRecord, ImuRecord, RawTopics, STORAGES,
                               SupplyVoltageRecord, TemperatureRecord)
 from ..recordings.bag_writer import RawBagWriter

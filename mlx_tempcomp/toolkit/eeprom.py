@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 
-from .common import UserError
+from .errors import UserError
 from ..core.conversion import Output
 from ..core.eeprom import decode_eeprom, VOTED_FIELDS
 from ..core.errors import TempCompError

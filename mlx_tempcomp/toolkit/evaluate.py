@@ -37,9 +37,11 @@ import sys
 
 import numpy as np
 
-from .common import (add_recording_options, check_output_file, float_type, load,
-                     positive_float, read_options, UserError)
+from .errors import UserError
 from .learning import learning_lines, learning_of, write_learned
+from .loading import load, read_options
+from .options import add_recording_options, float_type, positive_float
+from .running import check_output_file
 from .tracking import offline_twin, rest_hint_column, twin_lines
 from ..core.conversion import Output
 from ..core.errors import TempCompError

@@ -43,7 +43,8 @@ from typing import Optional
 
 import numpy as np
 
-from .common import check_output_file, UserError, write_result
+from .errors import UserError
+from .running import check_output_file, write_result
 from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial

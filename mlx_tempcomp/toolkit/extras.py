@@ -16,7 +16,7 @@ extra that installs it: exit code 2, never a traceback after a long run.
 import importlib
 from pathlib import Path
 
-from .common import UserError
+from .errors import UserError
 from ..recordings.flightlog import is_flight_log
 
 # Optional package -> (what it is for, the extra of setup.py that installs it).

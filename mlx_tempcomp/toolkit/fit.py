@@ -17,13 +17,14 @@ from typing import Optional
 
 import numpy as np
 
-from .common import (add_parameter_file_options, add_recording_options,
-                     add_validation_options, check_output_file, finite_float, load,
-                     non_negative_int, positive_float, read_options, UserError,
-                     validation_settings, write_node_parameters)
+from .errors import UserError
 from .exports import (add_export_options, check_export_outputs, check_export_record,
                       export_request, node_model, write_exports)
 from .fit_covariance import held_out_judgement, HeldOutJudgement
+from .loading import load, read_options
+from .options import (add_parameter_file_options, add_recording_options, add_validation_options,
+                      finite_float, non_negative_int, positive_float, validation_settings)
+from .running import check_output_file, write_node_parameters
 from .tracking import tracking_section
 from .uncertainty import block_lines
 from ..core.chain import ChainModel

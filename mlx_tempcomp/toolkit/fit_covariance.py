@@ -28,7 +28,7 @@ from typing import Optional
 
 import numpy as np
 
-from .common import UserError
+from .errors import UserError
 from .tracking import model_residual
 from .uncertainty import gain_words
 from ..core.baseline import fit_cubic

@@ -20,8 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (add_recording_options, check_output_file, load, non_negative_int,
-                     read_options, UserError, write_json)
+from .errors import UserError
+from .loading import load, read_options
+from .options import add_recording_options, non_negative_int
+from .running import check_output_file, write_json
 from ..core.errors import TempCompError
 from ..recordings.csv_writer import write_csv
 from ..simulation.motion import inject_motion, motion_schedule, REST, ScheduleSettings

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import add_recording_options, load, read_options, ReadOptions, UserError
+from .errors import UserError
+from .loading import load, read_options, ReadOptions
+from .options import add_recording_options
 from ..core.diagnosis import DiagnosisSettings
 from ..core.motion import moving_samples
 from ..core.noise import MAX_INTERVAL_SPREAD, MIN_SAMPLES

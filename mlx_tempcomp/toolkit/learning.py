@@ -13,7 +13,8 @@ with ``correction.*`` the prior's table plus the learnt one. A diff against the 
 shows the learnt correction and nothing else; ``evaluate --params`` and the node run it.
 """
 
-from .common import UserError, write_node_parameters
+from .errors import UserError
+from .running import write_node_parameters
 from ..core.errors import TempCompError
 from ..core.learning import learning_settings, PREFIX
 from ..parameters.compensation import model_error_of

@@ -22,10 +22,11 @@ from typing import Optional
 
 import numpy as np
 
-from .common import (check_output_file, check_output_folder, non_negative_float,
-                     non_negative_int, positive_float, UserError, write_json, write_result)
 from .convert import write_raw_bag
+from .errors import UserError
+from .options import non_negative_float, non_negative_int, positive_float
 from .progress import add_progress_option, Progress
+from .running import check_output_file, check_output_folder, write_json, write_result
 from ..core.compensation import NominalConversion
 from ..core.conversion import Output, SensorTransfer
 from ..core.errors import EepromError, TempCompError

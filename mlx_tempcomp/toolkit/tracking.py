@@ -25,7 +25,7 @@ from typing import Optional
 
 import numpy as np
 
-from .common import UserError
+from .errors import UserError
 from .exports import node_model
 from ..core.bias_tracker import BiasTracking
 from ..core.errors import TempCompError

@@ -9,13 +9,14 @@ from .report import build_report, WRITTEN_OFFSET
 from .runs import (Bars, check_records, diagnoses, error_text, held_out_rezero_s, TEST_EACH,
                    TEST_RECORD)
 from .text import held_out_lines, markdown, summary, written_lines
-from ..common import (add_recording_options, add_validation_options, check_output_folder,
-                      fraction, load_records, node_name, non_negative_float, non_negative_int,
-                      positive_float, read_options, UserError, validation_settings, write_json,
-                      write_result)
+from ..errors import UserError
 from ..exports import (add_export_options, check_export_outputs, check_export_record,
                        export_request, write_exports)
+from ..loading import load_records, read_options
+from ..options import (add_recording_options, add_validation_options, fraction, node_name,
+                       non_negative_float, non_negative_int, positive_float, validation_settings)
 from ..progress import add_progress_option
+from ..running import check_output_folder, write_json, write_result
 from ..tracking import tracking_section
 from ..uncertainty import params_model_error
 from ...core.diagnosis import (DEFAULT_REZERO_S, DiagnosisSettings, RECORD_SEARCH, SCORING,

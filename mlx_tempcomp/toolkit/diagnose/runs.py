@@ -10,7 +10,7 @@ defaults to what a node needs on it (`held_out_rezero_s`).
 
 import dataclasses
 
-from ..common import UserError
+from ..errors import UserError
 from ..progress import Progress
 from ...core.diagnosis import (DEFAULT_REZERO_S, default_rezero_s, diagnose as run_diagnosis,
                                DiagnosisSettings, rezero_window_rows)
