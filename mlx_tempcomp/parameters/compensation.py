@@ -11,18 +11,23 @@ the ZRO recalibration, the inputs, and the bias tracking
 build from the values, raising `ParameterError` naming the parameter.
 """
 
+from dataclasses import replace
 import math
+import os
 from typing import Optional
 
-from .learning import LEARNING_SPECS
+from .learning import LEARNING_SPECS, PREFIX as LEARNING
 from .models import CORRECTION_SPECS, MODELS
 from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from .state_paths import state_path
-from .tracking import TRACKING_SPECS
+from .tracking import TRACKING_SPECS, UNIT_SPECS
 from ..core.errors import ConfigError
 from ..core.model_error import ModelErrorTable, table_temperatures
 from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import RecalibrationLimits
+
+# The node's own learning parameter (fit and diagnose do not write it).
+LEARNED_MODEL_FILE = LEARNING + 'learned_model_file'
 
 COMPENSATION_SPECS = COMMON_SPECS + (
     Spec('model', 'eeprom', 'compensation model', choices=tuple(MODELS)),
@@ -85,7 +90,14 @@ COMPENSATION_SPECS = COMMON_SPECS + (
          'with the rate only (no temperature, or no factory tables for the eeprom model): '
          "the raw rate offset's standard deviation before the tracking learns it, and the "
          'most it grows to; its square goes into the Imu covariance', low=0.0, high=10.0),
-) + TRACKING_SPECS + LEARNING_SPECS
+) + TRACKING_SPECS + tuple(
+    # Read at start: switched at run time, the tracked offset would need re-expressing.
+    replace(spec, read_only=True) for spec in LEARNING_SPECS) + (
+    # The node's own: where imu/save_learned_model writes the model in use.
+    Spec(LEARNED_MODEL_FILE, '',
+         "imu/save_learned_model writes the model in use here, a parameter file ('' = "
+         '<node name>_learned.yaml beside the state file)', read_only=True),
+)
 
 
 def limits_of(values: dict) -> RecalibrationLimits:
@@ -154,3 +166,27 @@ def covariance_noise_of(values: dict) -> tuple:
 def state_file_of(values: dict, fully_qualified_name: str, log) -> str:
     """Give the node's state file: the parameter, else its default (`state_paths.state_path`)."""
     return state_path(values['recalibration.state_file'], fully_qualified_name, '_zro.yaml', log)
+
+
+def learned_model_file_of(values: dict, state_file: str, node_name: str) -> str:
+    """Give where imu/save_learned_model writes: the parameter, else beside the state file."""
+    path = values[LEARNED_MODEL_FILE]
+    if not path:
+        path = os.path.join(os.path.dirname(os.path.abspath(state_file)),
+                            f'{node_name}_learned.yaml')
+    return os.path.expanduser(path)
+
+
+def unit_values(values: dict) -> dict:
+    """
+    Give the node's values that describe the unit's model, as ``fit`` writes them (flat).
+
+    ``model``, ``axes``, the running model's own parameters, ``correction.*``,
+    ``model_error.*``, ``rate_noise_rad_s``, the unit's ``bias_tracking.*`` and
+    ``learning.*`` (not the node's own: state files, topics, periods); unset ones left out.
+    """
+    prefixes = (MODELS[values['model']].prefix, 'correction.', 'model_error.')
+    unit = {'model', 'axes', 'rate_noise_rad_s'} | \
+        {spec.name for spec in UNIT_SPECS + LEARNING_SPECS}
+    return {key: value for key, value in values.items()
+            if (key in unit or key.startswith(prefixes)) and value != []}

@@ -36,6 +36,11 @@ import yaml
 from ..errors import MlxTempCompError
 
 
+# libyaml's emitter where PyYAML has it: the same text, a third of the time (the field
+# learner's section holds some 3000 numbers, written while the stream waits).
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
+
+
 class StateFileError(MlxTempCompError):
     """The state file cannot be read or written, or holds what its user cannot use."""
 
@@ -108,7 +113,7 @@ def write_state(path: str, state: dict) -> None:
     """Replace the YAML file at ``path`` with ``state``, atomically; StateFileError."""
     try:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        atomic_write(path, yaml.safe_dump(state, sort_keys=False))
+        atomic_write(path, yaml.dump(state, Dumper=_DUMPER, sort_keys=False))
     except OSError as err:
         msg = f'cannot write state file {path}: {err.strerror}'
         raise StateFileError(msg) from None

@@ -21,7 +21,10 @@ or without tracking the square of the model's error at the sample's temperature
 when ``model_error.*`` gives a table. The supply voltage is held (the latest at or
 before each sample's stamp, ``supply_voltage.pairing: hold``) or paired by
 stamp like the temperature (``stamp``). The ``imu/recalibrate_zro`` service
-(std_srvs/Trigger) learns the ZRO residual at rest, seeds the tracker and persists both.
+(std_srvs/Trigger) learns the ZRO residual at rest (of the model in use: with the learnt
+correction taken off), seeds the tracker and persists both. With ``learning.enabled`` the
+tracker runs with the field learner (`CompensationLearning`), and
+``imu/save_learned_model`` (std_srvs/Trigger) writes the model in use as a parameter file.
 """
 
 import bisect
@@ -33,12 +36,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
 
 from . import messages
 from .compensation_inputs import AUXILIARY, CompensationInputs
+from .compensation_learning import CompensationLearning
 from .compensation_outputs import CompensationOutputs
 from .compensation_status import compensation_status, missing_inputs
 from .compensation_tracking import CompensationTracking
@@ -51,8 +56,8 @@ from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
 from ..core.factory_table import sensor_tables
 from ..core.rate_models import RateOnlyModel
-from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of, model_error_of,
-                                       state_file_of)
+from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
+                                       learned_model_file_of, model_error_of, state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
 from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
 from ..parameters.tracking import tracking_settings
@@ -107,8 +112,13 @@ class CompensationNode(Node):
         self.outputs = CompensationOutputs(self, self.values, self.indices,
                                            self.inputs.temperature_streams)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        learning = CompensationLearning(
+            self.values, self.axes, self.recalibration.learning_section, self.recalibration.path,
+            learned_model_file_of(self.values, self.recalibration.path, self.get_name()),
+            self.get_logger())
         self.tracking = CompensationTracking(self, self.values, self.axes, self.indices,
-                                             self.recalibration, self._full_scale_rad_s())
+                                             self.recalibration, self._full_scale_rad_s(),
+                                             learning)
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
@@ -124,6 +134,9 @@ class CompensationNode(Node):
         # hold it back and run a second recalibration afterwards.
         self.service_guard = ServiceGuard()   # one calibration call at a time, of any service
         self.create_service(Trigger, 'imu/recalibrate_zro', self.recalibrate,
+                            callback_group=ReentrantCallbackGroup())
+        # Likewise: a call while a write runs is refused, not queued.
+        self.create_service(Trigger, 'imu/save_learned_model', self.save_learned_model,
                             callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.validate_parameters)
@@ -153,11 +166,16 @@ class CompensationNode(Node):
             tracking += f' (rest hint: {hint}, {self.values["bias_tracking.rest_hint_type"]})'
         if self.values['bias_tracking.zero_at_start']:
             tracking += ' (zero at start: the first still run is taken as at rest)'
+        learning = self.tracking.learning
+        tracking += f', field learning {"on" if learning.enabled else "off"}'
+        if learning.enabled:
+            tracking += f' (imu/save_learned_model writes {learning.learned_model_file})'
         return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
                 f'{tracking}; waits for {", ".join(inputs)}; {self._temperature_summary()}; '
                 f'publishes {", ".join(outputs)}{covariance}; state file '
                 f'{self.recalibration.path}: '
-                f'{self.recalibration.describe()}{self.tracking.describe()}')
+                f'{self.recalibration.describe()}{self.tracking.describe()}'
+                f'{self.tracking.learning.describe()}')
 
     def _temperature_summary(self) -> str:
         """Say how the temperature pairs, and when the node runs the rate only."""
@@ -292,16 +310,17 @@ class CompensationNode(Node):
         if block is None:
             return
         rates, clamped = block.correct(stream)
-        # The tracker follows the model's output; the recalibration's window takes it too.
-        # Without a temperature, its temperature check has nothing to judge: a constant.
-        tracked, stds = self.tracking.track(block if has_temperature else replace(
+        # The tracker follows the model's output (less the learnt correction); the
+        # recalibration's window takes the model in use's. Without a temperature, its
+        # temperature check has nothing to judge: a constant.
+        tracked, stds, in_use = self.tracking.track(block if has_temperature else replace(
             block, temperature_c=[[0.0]] * len(rates)), rates)
         if alone and stds is None:
             stds = [[self.values['rate_only.offset_std_rad_s']] * len(self.axes)] * len(rates)
         tracker = self.tracking.tracker
         self.outputs.publish(block, tracked, clamped, stds,
                              still=tracker is not None and tracker.still)
-        self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, rates)
+        self.recalibration.add(block.stamps_ns, block.raw_rad_s, block.temperature_c, in_use)
 
     def _running(self, has_temperature: bool):
         """Give the stream to run: the model's, else the rate only's (`alone` says why)."""
@@ -365,7 +384,8 @@ class CompensationNode(Node):
         recalibration = self.recalibration
         refusal = (f'refused: no temperature model runs ({self.alone}); the ZRO offset is '
                    'learnt on top of one (the bias tracking follows the rate offset at rest '
-                   'meanwhile)') if self.alone else recalibration.start(self.model, self.values)
+                   'meanwhile)') if self.alone else \
+            recalibration.start(self.model, self.values, self._correction())
         if refusal:
             return refusal
         window = recalibration.window
@@ -383,7 +403,7 @@ class CompensationNode(Node):
         variance); its state goes into the same write as the ZRO offset.
         """
         try:
-            learned = self.recalibration.learn(window, self.model)
+            learned = self.recalibration.learn(window, self.model, self._correction())
         except CalibrationError as err:
             return f'refused: {err}'
         self._use(learned.model)
@@ -391,6 +411,51 @@ class CompensationNode(Node):
         answer = self.recalibration.save(replace(learned, state={**learned.state, **section}))
         if messages.trigger_succeeded(answer):
             self.tracking.wrote_with_zro(section)
+        return answer
+
+    def _correction(self):
+        """Give the learnt correction taken off now (None: learning not running)."""
+        return None if self.tracking.stream is None else self.tracking.learning.applied()
+
+    # The learnt model.
+    async def save_learned_model(self, request, response):
+        """
+        Write the model in use as a parameter file (`CompensationLearning.learned_model`).
+
+        A coroutine: the write runs in a thread while the stream goes on; a call of any
+        calibration service meanwhile is refused (the node's `ServiceGuard`).
+        """
+        refusal = self.service_guard.begin('a save of the learned model')
+        if refusal:
+            response.message = refusal
+        else:
+            try:
+                response.message = await self._save_learned_model()
+            finally:
+                self.service_guard.end()
+        response.success = messages.trigger_succeeded(response.message)
+        messages.log_trigger(self.get_logger(), response, 'save learned model')
+        return response
+
+    async def _save_learned_model(self) -> str:
+        """Start the write in its thread, await it; give the answer."""
+        learning = self.tracking.learning
+        saver = learning.saver
+        try:
+            learned = learning.learned_model(
+                self.get_name(), [] if self.model is None else self.model.zro_offset,
+                self.tracking.stream is not None)
+            refusal = saver.start(learned)
+        except CalibrationError as err:
+            refusal = str(err)
+        if refusal:
+            return refusal
+        try:
+            answer = await await_window(self, Future(), saver.answer, _POLL_S)
+        finally:
+            saver.end()
+        if messages.trigger_succeeded(answer):
+            learning.saves += 1
         return answer
 
     # Parameters.
@@ -429,7 +494,7 @@ class CompensationNode(Node):
             values=self.values, model=self.model, sensor=self.sensor,
             eeprom_error=self.eeprom_error, alone=self.alone, now=time.monotonic(),
             inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration,
-            tracking=self.tracking.status_values())
+            tracking={**self.tracking.status_values(), **self.tracking.learning_values()})
         self.outputs.clamped_recent = False
         self.inputs.clear_recent()
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',

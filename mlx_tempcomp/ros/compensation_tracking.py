@@ -16,11 +16,17 @@ After each closed window the estimate goes out on ``imu/gyro_bias``
 as the level, estimate, standard deviation, held, still, in exact decimal text), both
 reliable and transient local, so a late subscriber gets the latest.
 
+With ``learning.enabled`` the tracker runs inside the field learner's stream
+(`core.learning.LearningTracking`, the learner kept by `CompensationLearning`), as
+``evaluate --track-bias --learn`` runs it: the learnt correction is taken off the model's
+output before the tracker takes its offset off.
+
 The state goes into the ZRO state file's ``bias_tracking`` section, with the model,
-fingerprint, axes and ZRO offset it is relative to: written atomically beside the ZRO
-state (`ZroRecalibration.write`) when the tracker learnt something since the last
-write, at most once every ``bias_tracking.save_period_s`` of sensor time, and at a clean
-stop; read back at start (`tracking_state`) and applied when the model matches.
+fingerprint, axes and ZRO offset it is relative to, and the learner's into its
+``learning`` section: written atomically beside the ZRO state
+(`ZroRecalibration.write`) when the tracker or the learner learnt something since the
+last write, at most once every ``bias_tracking.save_period_s`` of sensor time, and at a
+clean stop; read back at start (`tracking_state`) and applied when the model matches.
 
 With ``bias_tracking.rest_hint_topic`` the node subscribes to the robot's word that it
 stands still (`ros/rest_hint.py`: Odometry, Twist, TwistStamped or Bool) and hands each
@@ -43,10 +49,12 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import messages, rest_hint
 from .compensation_inputs import waiting_messages
+from .compensation_learning import CompensationLearning
 from .qos import stream_subscription
-from .zro_recalibration import TRACKING_SECTION, ZroRecalibration
+from .zro_recalibration import LEARNING_SECTION, TRACKING_SECTION, ZroRecalibration
 from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
+from ..core.learning import LearningTracking
 from ..core.rate_models import AXIS_NAMES
 from ..core.rest_hints import RestHints
 from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
@@ -106,11 +114,13 @@ class CompensationTracking:
     The node's bias tracker (None while ``bias_tracking.enabled`` is false or before a model).
 
     ``recalibration`` holds the state file (its path, the ZRO state written beside the
-    section, the section read at start); ``full_scale_rad_s`` bounds a saved offset.
+    section, the section read at start); ``full_scale_rad_s`` bounds a saved offset;
+    ``learning`` the field learner the stream runs with while it is on.
     """
 
     def __init__(self, node, values: dict, axes: tuple, indices: tuple,
-                 recalibration: ZroRecalibration, full_scale_rad_s: float):
+                 recalibration: ZroRecalibration, full_scale_rad_s: float,
+                 learning: CompensationLearning):
         self.node = node
         self.axes = axes
         self.indices = indices
@@ -119,11 +129,14 @@ class CompensationTracking:
         self.settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
         self.save_period_s = values['bias_tracking.save_period_s']
         self.tracker: Optional[BiasTracking] = None
+        self.learning = learning
+        self.stream: Optional[LearningTracking] = None   # the tracker with the learner
+        self.model = None
         self.key = None
         self.initial_std_rad_s = None   # the followed model's own, else the settings'
         self.held_state = None          # the state while tracking is off, to resume from
         self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
-        self.written_updates = None     # the tracker's updates at the last write
+        self.written = None             # the tracker's and learner's progress at the last write
         self.written_s = None           # and its sensor time
         self.writes = 0
         self.write_error = ''
@@ -174,34 +187,38 @@ class CompensationTracking:
         return f'; a bias tracking offset {offsets} rad/s of {saved["saved"]}'
 
     def section(self) -> dict:
-        """Give the state file's section for the tracker now ({} without one)."""
+        """Give the state file's sections for the tracker and learner now ({} without)."""
         if self.tracker is None:
             return {}
         name, fingerprint, zro_offset = self.key
+        learning = self.learning.section()
         return {TRACKING_SECTION: {
             'model': name, 'fingerprint': fingerprint, 'axes': list(self.axes),
             'zro_offset': zro_offset, **self.tracker.state(),
-            'saved': datetime.now(timezone.utc).isoformat(timespec='seconds')}}
+            'saved': datetime.now(timezone.utc).isoformat(timespec='seconds')},
+            **({LEARNING_SECTION: learning} if learning else {})}
+
+    def _progress(self) -> tuple:
+        return (self.tracker.updates,) + (self.learning.progress() if self.stream else ())
 
     def _wrote(self, section: dict) -> None:
         """Note a section written: nothing pending, the file's section is this one."""
-        tracker = self.tracker
-        self.written_updates, self.written_s = tracker.updates, self.latest_s
+        self.written, self.written_s = self._progress(), self.latest_s
         self.writes += 1
         self.write_error = ''
         entry = section[TRACKING_SECTION]
         self.saved = {**entry, 'state': tracking_state(entry, len(self.axes))}
 
     def _pending(self) -> bool:
-        return self.tracker is not None and self.tracker.updates != self.written_updates
+        return self.tracker is not None and self._progress() != self.written
 
     def save(self, why: str = '') -> None:
-        """Write the section now if the tracker learnt since the last write; log a failure."""
+        """Write the sections now if the tracker learnt since the last write; log a failure."""
         if not self._pending():
             return
         section = self.section()
         try:
-            self.recalibration.write(section[TRACKING_SECTION])
+            self.recalibration.write(section)
         except StateFileError as err:
             self.write_error = str(err)
             self.logger.warn(f'bias tracking state not saved{why}: {err}',
@@ -228,9 +245,12 @@ class CompensationTracking:
         if model is None:
             return
         self.initial_std_rad_s = initial_std_rad_s
+        self.model = model
         key = _model_key(model)
         if self.key is not None and key[:2] == self.key[:2]:
             self.key = key
+            if initial_std_rad_s is None:
+                self.learning.learner_for(model, self.settings)
             return
         self.key = key
         saved = self.saved
@@ -250,7 +270,7 @@ class CompensationTracking:
         self.held_state = state
         self._build(state)
         # Nothing to write until it learns (a restored state is what the file holds).
-        self.written_updates = None if self.tracker is None else self.tracker.updates
+        self.written = None if self.tracker is None else self._progress()
 
     def _build(self, state) -> None:
         settings = self.settings
@@ -260,6 +280,18 @@ class CompensationTracking:
             BiasTracking(settings, self.axes, state=state, hints=self.hints)
         if self.tracker is not None and self.zeroed_at_start:
             self.tracker.zeroing = False
+        self._stream()
+
+    def _stream(self) -> None:
+        """
+        Put the tracker in the learner's stream while learning is on (the learner kept).
+
+        Not with the rate only (``initial_std_rad_s``): no temperature to learn a curve in;
+        the learner waits, kept, for the temperature model.
+        """
+        learner = None if self.tracker is None or self.initial_std_rad_s is not None else \
+            self.learning.learner_for(self.model, self.settings)
+        self.stream = None if learner is None else LearningTracking(self.tracker, learner)
 
     def _hint_limits(self, values: dict) -> None:
         self.hint_limits = (values[PREFIX + 'rest_hint_max_linear_m_s'],
@@ -288,7 +320,11 @@ class CompensationTracking:
         self.save_period_s = values['bias_tracking.save_period_s']
         self._hint_limits(values)
         settings = tracking_settings(values, self.axes, values['rate_noise_rad_s'])
+        self.learning.configure(values)
         if settings == self.settings:
+            # The learner's prior error may have changed (model_error.*).
+            if self.tracker is not None:
+                self._stream()
             return
         if self.tracker is not None:
             self.save(' (tracking reconfigured)')
@@ -296,9 +332,9 @@ class CompensationTracking:
         self.settings = settings
         if settings is not None and self.bias_publisher is None:
             self._create_publishers()
-        updates = self.written_updates
+        written = self.written
         self._build(self.held_state)
-        self.written_updates = updates
+        self.written = written
 
     def seed(self, samples: int) -> dict:
         """
@@ -315,8 +351,9 @@ class CompensationTracking:
         self.zeroed_at_start = True
         self.tracker.seed([0.0] * len(self.axes), [n * n / samples for n in noise],
                           self.latest_s)
+        self._stream()
         self.held_state = None
-        self.written_updates = None
+        self.written = None
         self._publish(None, '')
         return self.section()
 
@@ -329,13 +366,14 @@ class CompensationTracking:
 
     def track(self, block, rates: list) -> tuple:
         """
-        Track a corrected block; give (rates to publish, variance of each row or None).
+        Track a corrected block; give (rates to publish, std of each row or None, in use).
 
-        ``rates``: the model's output of each row of ``block`` (`InputBlock`).
+        ``rates``: the model's output of each row of ``block`` (`InputBlock`); in use: the
+        rate of the model in use, the learnt correction taken off (``rates`` without).
         """
         tracker = self.tracker
         if tracker is None:
-            return rates, None
+            return rates, None, rates
         stamps_ns = block.stamps_ns
         temperatures = block.temperature_c
         if len(temperatures[0]) == 1:
@@ -345,14 +383,20 @@ class CompensationTracking:
         acceleration = block.columns.get('acceleration_m_s2')
         if acceleration is None:
             acceleration = [_acceleration(parts['imu']) for parts in block.messages]
+        in_use = rates
         if len(rates) == 1:
             stamp_s = stamp_second(stamps_ns[0])
-            rate, std, _ = tracker.process_one(stamp_s, rates[0], temperature_c[0],
-                                               acceleration[0])
+            if self.stream is None:
+                rate, std, _ = tracker.process_one(stamp_s, rates[0], temperature_c[0],
+                                                   acceleration[0])
+            else:
+                rate, std, _, correction = self.stream.process_one(
+                    stamp_s, rates[0], temperature_c[0], acceleration[0])
+                in_use = [[r - c for r, c in zip(rates[0], correction)]]
             tracked, stds = [rate], [std]
         else:
-            stamp_s, tracked, stds = self._track_block(stamps_ns, rates, temperature_c,
-                                                       acceleration)
+            stamp_s, tracked, stds, in_use = self._track_block(stamps_ns, rates, temperature_c,
+                                                               acceleration)
         self.latest_s = stamp_s
         if not tracker.zeroing:
             self.zeroed_at_start = True
@@ -361,28 +405,36 @@ class CompensationTracking:
             imu = block.messages[-1]['imu']
             self._publish(imu.header.stamp, imu.header.frame_id)
             self._save_if_due()
-        return tracked, stds
+        return tracked, stds, in_use
 
     def _track_block(self, stamps_ns: list, rates: list, temperature_c: list,
                      acceleration: list) -> tuple:
-        """Track a block in runs of rows with and without acceleration: (last s, rates, stds)."""
+        """
+        Track a block in runs of rows with and without acceleration.
+
+        Give (last s, rates, stds, rates of the model in use).
+        """
         time_s = stamp_seconds(np.array(stamps_ns, dtype=np.int64))
         rate = np.array(rates)
         temperature = np.array(temperature_c)
         tracked, stds = [], []
+        runner = self.tracker if self.stream is None else self.stream
+        corrections = []
         start = 0
         while start < len(rates):
             has = acceleration[start] is not None
             end = start + 1
             while end < len(rates) and (acceleration[end] is not None) == has:
                 end += 1
-            out = self.tracker.process(time_s[start:end], rate[start:end],
-                                       temperature[start:end],
-                                       np.array(acceleration[start:end]) if has else None)
+            out = runner.process(time_s[start:end], rate[start:end], temperature[start:end],
+                                 np.array(acceleration[start:end]) if has else None)
             tracked += out.rate_rad_s.tolist()
             stds += out.std_rad_s.tolist()
+            if self.stream is not None:
+                corrections.append(out.correction_rad_s)
             start = end
-        return float(time_s[-1]), tracked, stds
+        in_use = rates if not corrections else (rate - np.concatenate(corrections)).tolist()
+        return float(time_s[-1]), tracked, stds, in_use
 
     # Outputs.
 
@@ -463,7 +515,17 @@ class CompensationTracking:
             return ''
         return (f'; bias tracking: {tracker.window_count} windows, {tracker.updates} '
                 f'learnt, offset {[float(f"{v:.6g}") for v in tracker.status().offset_rad_s]} '
-                f'rad/s, state written {self.writes} times')
+                f'rad/s, state written {self.writes} times'
+                f'{self.learning.summary() if self.stream else ""}')
+
+    def learning_values(self) -> dict:
+        """Give the diagnostics' field learning values (`CompensationLearning`)."""
+        if self.stream is None:
+            return {'learning': 'off' if not self.learning.enabled else
+                    'off (bias tracking off)' if self.settings is None else
+                    'waiting for a model' if self.initial_std_rad_s is None else
+                    'waiting for a temperature model (the rate only runs)'}
+        return self.learning.status_values()
 
     def status_values(self) -> dict:
         """Give the diagnostics' tracking values: on or off, still, the estimate, its age."""

@@ -28,7 +28,7 @@ from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
 from ..parameters.driver import bus_of
 from ..parameters.files import node_values
-from ..parameters.models import build_model
+from ..parameters.models import build_model, correction_of
 from ..parameters.specs import axes_of, ParameterError
 from ..parameters.state_file import Field, load_state
 from ..parameters.state_paths import state_path
@@ -83,6 +83,11 @@ def _offset_refresh(values: dict):
         if model_values['model'] != 'polynomial':
             msg = (f'model {model_values["model"]!r}: the offset registers take a polynomial '
                    'bias (mlx-tempcomp fit --model polynomial or relative)')
+            raise ParameterError(msg)
+        if correction_of(model_values) is not None:
+            msg = ('correction.* (a learnt correction table): the offset registers take the '
+                   "polynomial's bias alone; run the learnt model in compensation_node (its "
+                   'model less the table), or give the file the node started from')
             raise ParameterError(msg)
         if axes_of(model_values) != AXIS_NAMES:
             msg = (f'axes {model_values["axes"]}: the model must cover gyro x, y and z in that '

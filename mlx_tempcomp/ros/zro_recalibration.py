@@ -10,9 +10,14 @@ it atomically (`save`). The node keeps the service: it awaits the window and
 answers.
 
 The file holds the ZRO state, the bias tracking's section (``bias_tracking``,
-`TRACKING_SECTION`, checked by its user), or both: a file written before the
-section existed loads as it did, and a tracked offset is kept before any
-recalibration. Every write holds both parts (`save`, `write`).
+`TRACKING_SECTION`, checked by its user) with the field learner's beside it
+(``learning``, `LEARNING_SECTION`), or both: a file written before the
+sections existed loads as it did, and a tracked offset is kept before any
+recalibration. Every write holds every part (`save`, `write`).
+
+With a learnt correction in use (`core.learning`), the window holds the rate
+of the model in use, the correction taken off, and the offset learnt is the
+one that zeroes that: the model with the correction (`core.correction`).
 """
 
 from dataclasses import dataclass
@@ -22,6 +27,7 @@ from typing import Optional
 
 from .messages import saved_reply
 from .service_window import SampleWindow
+from ..core.correction import CorrectedModel
 from ..core.errors import CalibrationError, TempCompError
 from ..core.rate_models import AXIS_NAMES
 from ..core.recalibration import check_window, RecalibrationLimits
@@ -31,8 +37,9 @@ from ..parameters.state_file import Field, load_state, reject_state, StateFileEr
 
 # How the log names the state.
 ZRO_STATE = 'saved ZRO offset'
-# The key of the bias tracking's section in the state file.
+# The keys of the bias tracking's and the field learner's sections in the state file.
 TRACKING_SECTION = 'bias_tracking'
+LEARNING_SECTION = 'learning'
 # Without sensor.full_scale_dps or the EEPROM's RANGE, a saved offset is held to the widest
 # range of the parts the driver reads (MPU-6000: +-2000 deg/s): no larger offset is real.
 WIDEST_FULL_SCALE_DPS = 2000.0
@@ -58,9 +65,10 @@ def zro_state_fields(full_scale_rad_s: float) -> tuple:
 
 
 def state_fields(full_scale_rad_s: float) -> tuple:
-    """Give what the state file may hold: the ZRO state, the bias tracking's section, or both."""
+    """Give what the state file may hold: the ZRO state, the sections, or both."""
     return zro_state_fields(full_scale_rad_s) + (
-        Field(TRACKING_SECTION, 'section', group=TRACKING_SECTION),)
+        Field(TRACKING_SECTION, 'section', group=TRACKING_SECTION),
+        Field(LEARNING_SECTION, 'section', group=LEARNING_SECTION))
 
 
 def saved_offset_model(model, state: dict, full_scale_rad_s: float):
@@ -92,6 +100,7 @@ class ZroWindow:
     samples: SampleWindow    # rows (raw rate, temperatures, corrected rate)
     model: object            # the model running when it opened
     fingerprint: str
+    correction: object       # the learnt `CorrectionTable` taken off then (None: none)
     limits: RecalibrationLimits
     duration_s: float
 
@@ -111,8 +120,8 @@ class ZroRecalibration:
 
     ``saved`` is the ZRO state the file holds (None without a usable one);
     ``last`` the last recalibration, the saved one at start ({} without);
-    ``tracking_section`` the bias tracking's section read at start (None without),
-    unchecked: its user checks it.
+    ``tracking_section`` and ``learning_section`` the sections read at start (None
+    without), unchecked: their users check them.
     """
 
     def __init__(self, path: str, axes: tuple, logger):
@@ -122,12 +131,14 @@ class ZroRecalibration:
         self.saved: Optional[dict] = None
         self.last = {}
         self.tracking_section: Optional[dict] = None
+        self.learning_section = None
         self.window: Optional[ZroWindow] = None
 
     def load(self, full_scale_rad_s: float) -> None:
         """Read the state file, checked field by field (`load_state` logs what it finds)."""
         state = load_state(self.path, state_fields(full_scale_rad_s), self.logger, ZRO_STATE)
         self.tracking_section = None if state is None else state.pop(TRACKING_SECTION, None)
+        self.learning_section = None if state is None else state.pop(LEARNING_SECTION, None)
         self.saved = state or None
         self.last = self.saved or {}
 
@@ -159,16 +170,18 @@ class ZroRecalibration:
             # The file is gone, and with it the tracking relative to that offset.
             self.saved = None
             self.tracking_section = None
+            self.learning_section = None
             self.last = {}
             return model
         self.logger.info(f'applied {ZRO_STATE} {state["zro_offset"]} {state["offset_unit"]} '
                          f'from {self.path}')
         return offset_model
 
-    def start(self, model, values: dict) -> str:
+    def start(self, model, values: dict, correction=None) -> str:
         """
         Open a window of ``recalibration.duration_s`` on ``model``; give '' or the refusal.
 
+        ``correction``: the learnt `CorrectionTable` taken off after ``model`` (None: none).
         One at a time: the node's `ServiceGuard` refuses a second call before this.
         """
         if model is None:
@@ -179,7 +192,7 @@ class ZroRecalibration:
             return f'refused: {err}'
         duration_s = values['recalibration.duration_s']
         self.window = ZroWindow(SampleWindow(int(duration_s * 1e9)), model, model.fingerprint(),
-                                limits, duration_s)
+                                correction, limits, duration_s)
         return ''
 
     def add(self, stamps_ns: list, raw_rad_s: list, temperature_c: list, rate_rad_s: list) -> None:
@@ -194,20 +207,27 @@ class ZroRecalibration:
         """Close the window, whether it filled or not."""
         self.window = None
 
-    def learn(self, window: ZroWindow, running) -> LearnedOffset:
+    def learn(self, window: ZroWindow, running, correction=None) -> LearnedOffset:
         """
         Learn the offset of a full ``window``; ``running`` is the model running now.
 
-        CalibrationError when the model changed during the window or the
-        window was not at rest (`check_window`).
+        ``correction`` is the learnt table taken off now: the window's rows are the
+        model's less it, and the offset zeroes the model with it (`CorrectedModel`).
+        CalibrationError when the model or the correction changed during the window or
+        the window was not at rest (`check_window`).
         """
         raw, temperature, corrected = window.samples.columns()
         model = window.model
         if running is not model or model.fingerprint() != window.fingerprint:
             msg = 'the model changed during the window'
             raise CalibrationError(msg)
+        if correction != window.correction:
+            msg = 'the learnt correction was renewed during the window'
+            raise CalibrationError(msg)
         stats = check_window(corrected, temperature.mean(axis=1), window.limits)
-        offset = model.learn_zro_offset(raw, temperature, corrected)
+        in_use = model if correction is None or correction.is_zero else \
+            CorrectedModel(model, correction)
+        offset = in_use.learn_zro_offset(raw, temperature, corrected)
         new_model = model.with_zro_offset(offset)
         offset_rad_s = new_model.offset_rad_s(stats.temperature_c)
         state = {'model': model.name, 'fingerprint': model.fingerprint(),
@@ -228,14 +248,15 @@ class ZroRecalibration:
         """
         Persist a learned offset atomically; give the answer: what and where, or why not.
 
-        ``learned.state`` may hold the bias tracking's section beside the ZRO state:
-        both go in the one write.
+        ``learned.state`` may hold the bias tracking's and the learner's sections beside
+        the ZRO state: all go in the one write.
         """
-        zro = {key: value for key, value in learned.state.items() if key != TRACKING_SECTION}
+        zro = {key: value for key, value in learned.state.items()
+               if key not in (TRACKING_SECTION, LEARNING_SECTION)}
         self.last = zro
         self.saved = zro
         return saved_reply(self.path, learned.state, learned.text)
 
-    def write(self, section: dict) -> None:
-        """Write the bias tracking's ``section`` beside the ZRO state held; StateFileError."""
-        write_state(self.path, {**(self.saved or {}), TRACKING_SECTION: section})
+    def write(self, sections: dict) -> None:
+        """Write ``sections`` (tracking, learning) beside the ZRO state held; StateFileError."""
+        write_state(self.path, {**(self.saved or {}), **sections})

@@ -52,7 +52,8 @@ pytestmark = pytest.mark.ros
 
 TIMEOUT_S = 60.0
 RAW_TOPICS = ('--imu-topic', '/imu/data_raw', '--temperature-topic', '/imu/temperature_raw')
-TRACKED = {'bias_tracking.enabled': True}
+# Tracking alone, as evaluate --track-bias runs it (field learning: ros/test_learning.py).
+TRACKED = {'bias_tracking.enabled': True, 'learning.enabled': False}
 # Every estimate the node sends, kept for late joiners as the node keeps it.
 BIAS_RECORD_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                              reliability=ReliabilityPolicy.RELIABLE,

@@ -9,7 +9,6 @@ and takes off exactly the correction the learner applied at the end of the recor
 """
 
 import json
-import math
 
 from cli_checks import assert_user_error, node_values
 from mlx_tempcomp.cli import main
@@ -17,6 +16,7 @@ from mlx_tempcomp.core.correction import CorrectedModel
 from mlx_tempcomp.parameters.models import build_model
 import numpy as np
 import pytest
+from rest_records import bowl_record
 import yaml
 
 
@@ -27,22 +27,6 @@ def run(*args) -> None:
 def read(path) -> dict:
     table = np.genfromtxt(path, delimiter=',', names=True)
     return {name: table[name] for name in table.dtype.names}
-
-
-def bowl_record(path, hours: float = 5.0, rate_hz: float = 2.0) -> str:
-    """Write a record at rest: a bowl in T cycling 0 to 50 C every two hours, noise, gravity."""
-    rng = np.random.default_rng(11)
-    time_s = np.arange(0.0, hours * 3600.0, 1.0 / rate_hz)
-    temperature = 25.0 - 25.0 * np.cos(2.0 * math.pi * time_s / 7200.0)
-    bowl = 1.5e-3 * ((temperature - 25.0) / 25.0) ** 2
-    gyro = bowl[:, None] * (1.0, -0.5, 0.8) + 2e-4 * rng.standard_normal((time_s.size, 3))
-    acceleration = np.array([0.05, -0.02, -9.8]) + 0.003 * rng.standard_normal((time_s.size, 3))
-    columns = {'time': time_s, 'temperature': temperature,
-               **{f'gyro_{a}': gyro[:, i] for i, a in enumerate('xyz')},
-               **{f'acc_{a}': acceleration[:, i] for i, a in enumerate('xyz')}}
-    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',',
-               header=','.join(columns), comments='', fmt='%.17g')
-    return str(path)
 
 
 @pytest.fixture(scope='module')

@@ -46,6 +46,9 @@ class LearningTracking:
         self.tracker = tracker
         self.learner = learner
         learner.seen_runs, learner.seen_withdrawn = tracker.runs, tracker.withdrawn
+        # The last row of the curve taken off (curve, temperature, row): a sensor's
+        # temperature holds over many samples, and a row is a pure function of both.
+        self._row = (None, None, None)
 
     @classmethod
     def start(cls, tracker: BiasTracking, settings: LearningSettings,
@@ -112,7 +115,11 @@ class LearningTracking:
                     acceleration_m_s2=None, rest_hint=None) -> tuple:
         """Correct, track and learn one sample: (rates, stds, still, corrections), lists."""
         self._closing(time_s)
-        correction = self.learner.applied.row(temperature_c)
+        table, temperature, correction = self._row
+        if table is not self.learner.applied or temperature != temperature_c:
+            table = self.learner.applied
+            correction = table.row(temperature_c)
+            self._row = (table, temperature_c, correction)
         out = [r - c for r, c in zip(rate_rad_s, correction)]
         rate, std, still = self.tracker.process_one(time_s, out, temperature_c,
                                                     acceleration_m_s2, rest_hint)
