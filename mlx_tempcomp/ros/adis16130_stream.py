@@ -18,7 +18,8 @@ import yaml
 
 from . import messages
 from .qos import STATUS_QOS
-from .service_window import await_window, ServiceGuard, STALL_TIMEOUT_S
+from .service_window import (await_window, guarded, Outcome, Refused, ServiceGuard,
+                             STALL_TIMEOUT_S)
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
 from ..core.errors import CalibrationError, TempCompError
@@ -111,27 +112,25 @@ class AdisStream(DeviceStream):
 
         A coroutine: the stream keeps flowing (and feeding it) while it waits.
         """
-        response.success = False
-        response.message = self.guard.begin('a bias procedure')
-        if response.message:
-            messages.log_trigger(self.logger, response, 'bias procedure')
-            return response
-        try:
-            response.message = await self._run()
-        finally:
-            self.guard.end()
-        response.success = messages.trigger_succeeded(response.message)
-        self.status_publisher.publish(String(
-            data=('done: ' if response.success else 'failed: ') + response.message))
-        messages.log_trigger(self.logger, response, 'bias procedure')
-        return response
+        outcome = await guarded(self.guard, 'a bias procedure', self._run_and_report)
+        return messages.answer_trigger(self.logger, response, outcome, 'bias procedure')
 
-    async def _run(self) -> str:
-        """Run the procedure while the stream feeds it; give the answer."""
+    async def _run_and_report(self) -> Outcome:
+        """Run the procedure; publish how it ended on its status topic; give the outcome."""
+        try:
+            outcome = await self._run()
+        except Refused as refusal:
+            outcome = refusal.outcome()
+        self.status_publisher.publish(String(
+            data=('done: ' if outcome.success else 'failed: ') + outcome.message))
+        return outcome
+
+    async def _run(self) -> Outcome:
+        """Run the procedure while the stream feeds it (`Refused` when it fails); finish it."""
         try:
             running = _RunningProcedure(self, self.values)
         except (ParameterError, TempCompError) as err:
-            return f'refused: {err}'
+            raise Refused(str(err)) from None
         self.procedure = running
         running.announce()
         try:
@@ -139,7 +138,9 @@ class AdisStream(DeviceStream):
                                        PROGRESS_PERIOD_S)
         finally:
             self.procedure = None
-        return f'refused: {error}' if error else running.finish()
+        if error:
+            raise Refused(error)
+        return running.finish()
 
 
 def _noise_figures(time_s, rate_rad_s):
@@ -207,21 +208,20 @@ class _RunningProcedure:
         phase = self.procedure.phase
         self.publish(f'phase {phase.value}: {self.procedure.phase_duration_s(phase):g} s')
 
-    def report(self) -> str:
-        """Publish the progress, or say why the procedure gives up: the stream stalled."""
+    def report(self) -> None:
+        """Publish the progress, or raise `Refused`: the stream stalled, the procedure gives up."""
         stalled_s = time.monotonic() - self.stream.last_sample
         if stalled_s > STALL_TIMEOUT_S:
-            return (f'no sample for {stalled_s:.1f} s: the stream stalled '
-                    f'({self.stream.last_error or "no error"})')
+            raise Refused(f'no sample for {stalled_s:.1f} s: the stream stalled '
+                          f'({self.stream.last_error or "no error"})')
         phase = self.procedure.phase
         self.publish(f'phase {phase.value}: {100.0 * self.procedure.progress:.0f} % of '
                      f'{self.procedure.phase_duration_s(phase):g} s')
-        return ''
 
     def publish(self, text: str) -> None:
         self.stream.status_publisher.publish(String(data=text))
 
-    def finish(self) -> str:
+    def finish(self) -> Outcome:
         result = self.procedure.result
         axes = self.stream.axes
         parameters = linear_btc_parameters(result.model, axes)
@@ -243,9 +243,9 @@ class _RunningProcedure:
             os.makedirs(os.path.dirname(self.path) or '.', exist_ok=True)
             write_parameter_file(self.path, parameter_file(self.node_name, parameters), header)
         except OSError as err:
-            return (f'applied but not saved: {summary}; {change}; cannot write {self.path}: '
-                    f'{err.strerror}')
-        return f'{summary}; {change}; wrote {self.path}'
+            return Outcome(False, f'applied but not saved: {summary}; {change}; cannot '
+                                  f'write {self.path}: {err.strerror}')
+        return Outcome(True, f'{summary}; {change}; wrote {self.path}')
 
 
 def linear_btc_text(section: dict) -> str:

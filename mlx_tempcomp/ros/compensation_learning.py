@@ -33,6 +33,7 @@ import os
 import threading
 from typing import Optional
 
+from .service_window import Outcome, Refused
 from ..core.correction import CorrectedModel, CorrectionTable
 from ..core.errors import CalibrationError, TempCompError
 from ..core.learning import FieldLearner
@@ -237,7 +238,7 @@ class CompensationLearning:
 
     def learned_model(self, node_name: str, zro_offset, running: bool) -> LearnedModel:
         """
-        Give what ``imu/save_learned_model`` writes now; CalibrationError when nothing to.
+        Give what ``imu/save_learned_model`` writes now; `Refused` when nothing to.
 
         ``zro_offset`` is the prior model's ZRO offset in use (kept in the state file);
         ``running``: the stream runs with the learner (tracking on, a model).
@@ -246,7 +247,7 @@ class CompensationLearning:
         if learner is None or not running:
             reason = 'learning is off' if not self.enabled else \
                 'no learner yet (bias tracking off, or waiting for a model)'
-            raise CalibrationError(f'refused: {reason}')
+            raise Refused(reason)
         prior = self.prior
         parameters = learned_parameters(unit_values(self.values), prior_table(prior),
                                         learner.accepted, self.axes)
@@ -282,9 +283,9 @@ class CompensationLearning:
                             '\n'.join(lines), change)
 
 
-def write_learned_model(learned: LearnedModel) -> str:
+def write_learned_model(learned: LearnedModel) -> Outcome:
     """
-    Write ``learned`` atomically; give the answer: what and where, or why not.
+    Write ``learned`` atomically; give the outcome: what and where, or why not.
 
     Mode 0644, as ``fit`` writes a parameter file (`write_parameter_file`): a model is no
     secret, and a user reviews and commits it.
@@ -298,26 +299,25 @@ def write_learned_model(learned: LearnedModel) -> str:
         header = f'{learned.header}\nUse: compensation_node --ros-args --params-file {path}'
         write_parameter_file(path, learned.document, header)
     except (OSError, TempCompError) as err:
-        return f'refused: cannot write {path}: {getattr(err, "strerror", None) or err}'
-    return f'wrote the model in use to {path}: {learned.summary}'
+        return Outcome(False, f'refused: cannot write {path}: '
+                              f'{getattr(err, "strerror", None) or err}')
+    return Outcome(True, f'wrote the model in use to {path}: {learned.summary}')
 
 
 class LearnedModelSaver:
     """
     One write of the model in use at a time, in a thread of its own.
 
-    `start` gives a refusal while a write runs; else it starts one and the caller awaits
-    `answer` (None until the thread is done).
+    `start` starts one and the caller awaits `answer` (None until the thread is done);
+    the node's `ServiceGuard` lets one call at a time start one.
     """
 
     def __init__(self):
         self.thread: Optional[threading.Thread] = None
-        self.result: Optional[str] = None
+        self.result: Optional[Outcome] = None
 
-    def start(self, learned: LearnedModel) -> str:
-        """Start writing ``learned``; give '' or the refusal."""
-        if self.thread is not None:
-            return 'refused: a save of the learned model is already running; try again after it'
+    def start(self, learned: LearnedModel) -> None:
+        """Start writing ``learned``."""
         self.result = None
 
         def write() -> None:
@@ -325,9 +325,8 @@ class LearnedModelSaver:
 
         self.thread = threading.Thread(target=write, name='save_learned_model', daemon=True)
         self.thread.start()
-        return ''
 
-    def answer(self) -> Optional[str]:
+    def answer(self) -> Optional[Outcome]:
         """Give the write's answer once its thread is done, else None."""
         thread = self.thread
         if thread is None or thread.is_alive():

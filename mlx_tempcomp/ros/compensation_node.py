@@ -50,7 +50,7 @@ from .compensation_tracking import CompensationTracking
 from .declare import declare
 from .qos import EEPROM_QOS, stream_subscription
 from .runner import run
-from .service_window import await_window, ServiceGuard
+from .service_window import await_window, guarded, Outcome, Refused, ServiceGuard
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
@@ -362,40 +362,31 @@ class CompensationNode(Node):
         started = time.monotonic()
         stale_s = self.values['stale_timeout_s']
 
-        def stale() -> str:
+        def stale() -> None:
             if time.monotonic() - max(self.last_input or started, started) > stale_s:
-                return f'refused: no input for {stale_s:g} s, the stream is stale'
-            return ''
+                raise Refused(f'no input for {stale_s:g} s, the stream is stale')
 
-        refusal = self.service_guard.begin('a ZRO recalibration')
-        if refusal:
-            response.message = refusal
-        else:
-            try:
-                response.message = await self._recalibrate(stale)
-            finally:
-                self.service_guard.end()
-        response.success = messages.trigger_succeeded(response.message)
-        messages.log_trigger(self.get_logger(), response, 'ZRO recalibration')
-        return response
+        outcome = await guarded(self.service_guard, 'a ZRO recalibration',
+                                lambda: self._recalibrate(stale))
+        return messages.answer_trigger(self.get_logger(), response, outcome,
+                                       'ZRO recalibration')
 
-    async def _recalibrate(self, stale) -> str:
-        """Open the window, await it (or the stall ``stale`` names), learn; give the answer."""
+    async def _recalibrate(self, stale) -> Outcome:
+        """Open the window, await it (or the stall ``stale`` raises), learn; give the outcome."""
         recalibration = self.recalibration
-        refusal = (f'refused: no temperature model runs ({self.alone}); the ZRO offset is '
-                   'learnt on top of one (the bias tracking follows the rate offset at rest '
-                   'meanwhile)') if self.alone else \
-            recalibration.start(self.model, self.values, self._correction())
-        if refusal:
-            return refusal
+        if self.alone:
+            raise Refused(f'no temperature model runs ({self.alone}); the ZRO offset is '
+                          'learnt on top of one (the bias tracking follows the rate offset at '
+                          'rest meanwhile)')
+        recalibration.start(self.model, self.values, self._correction())
         window = recalibration.window
         try:
-            return await await_window(self, window.samples.future, stale, _POLL_S) or \
-                self._learn(window)
+            await await_window(self, window.samples.future, stale, _POLL_S)
+            return self._learn(window)
         finally:
             recalibration.end()
 
-    def _learn(self, window) -> str:
+    def _learn(self, window) -> Outcome:
         """
         Learn the full window's offset, run the model with it, persist it; give the answer.
 
@@ -405,13 +396,13 @@ class CompensationNode(Node):
         try:
             learned = self.recalibration.learn(window, self.model, self._correction())
         except CalibrationError as err:
-            return f'refused: {err}'
+            raise Refused(str(err)) from None
         self._use(learned.model)
         section = self.tracking.seed(learned.state['samples'])
-        answer = self.recalibration.save(replace(learned, state={**learned.state, **section}))
-        if messages.trigger_succeeded(answer):
+        outcome = self.recalibration.save(replace(learned, state={**learned.state, **section}))
+        if outcome.success:
             self.tracking.wrote_with_zro(section)
-        return answer
+        return outcome
 
     def _correction(self):
         """Give the learnt correction taken off now (None: learning not running)."""
@@ -425,38 +416,25 @@ class CompensationNode(Node):
         A coroutine: the write runs in a thread while the stream goes on; a call of any
         calibration service meanwhile is refused (the node's `ServiceGuard`).
         """
-        refusal = self.service_guard.begin('a save of the learned model')
-        if refusal:
-            response.message = refusal
-        else:
-            try:
-                response.message = await self._save_learned_model()
-            finally:
-                self.service_guard.end()
-        response.success = messages.trigger_succeeded(response.message)
-        messages.log_trigger(self.get_logger(), response, 'save learned model')
-        return response
+        outcome = await guarded(self.service_guard, 'a save of the learned model',
+                                self._save_learned_model)
+        return messages.answer_trigger(self.get_logger(), response, outcome,
+                                       'save learned model')
 
-    async def _save_learned_model(self) -> str:
-        """Start the write in its thread, await it; give the answer."""
+    async def _save_learned_model(self) -> Outcome:
+        """Start the write in its thread, await it; give the outcome."""
         learning = self.tracking.learning
         saver = learning.saver
+        saver.start(learning.learned_model(
+            self.get_name(), [] if self.model is None else self.model.zro_offset,
+            self.tracking.stream is not None))
         try:
-            learned = learning.learned_model(
-                self.get_name(), [] if self.model is None else self.model.zro_offset,
-                self.tracking.stream is not None)
-            refusal = saver.start(learned)
-        except CalibrationError as err:
-            refusal = str(err)
-        if refusal:
-            return refusal
-        try:
-            answer = await await_window(self, Future(), saver.answer, _POLL_S)
+            outcome = await await_window(self, Future(), saver.answer, _POLL_S)
         finally:
             saver.end()
-        if messages.trigger_succeeded(answer):
+        if outcome.success:
             learning.saves += 1
-        return answer
+        return outcome
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:

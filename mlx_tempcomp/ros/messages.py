@@ -8,6 +8,7 @@ import numpy as np
 from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
+from .service_window import Outcome
 from ..core.rate_models import AXIS_NAMES
 from ..parameters.state_file import StateFileError, write_state
 from ..recordings.eeprom_multiarray import eeprom_multiarray_from_images
@@ -133,24 +134,21 @@ def _format(value) -> str:
     return str(value)
 
 
-def saved_reply(path: str, state: dict, text: str) -> str:
-    """Save ``state`` at ``path``; give the answer: ``text`` and where it went, or why not."""
+def saved_reply(path: str, state: dict, text: str) -> Outcome:
+    """Save ``state`` at ``path``; give the outcome: ``text`` and where it went, or why not."""
     try:
         write_state(path, state)
     except StateFileError as err:
-        return f'applied but not saved: {text}; {err}'
-    return f'{text}; saved to {path}'
+        return Outcome(False, f'applied but not saved: {text}; {err}')
+    return Outcome(True, f'{text}; saved to {path}')
 
 
-def trigger_succeeded(message: str) -> bool:
-    """Tell whether a calibration service's answer text reports success."""
-    return not message.startswith(('refused', 'applied but'))
-
-
-def log_trigger(logger, response, what: str) -> None:
-    """Log a calibration service's answer: info on success, warn otherwise."""
+def answer_trigger(logger, response, outcome: Outcome, what: str):
+    """Put a calibration call's outcome in its Trigger response and the log; give it."""
+    response.success, response.message = outcome.success, outcome.message
     # rclpy refuses two severities from one call site: one line per severity.
-    if response.success:
-        logger.info(f'{what}: {response.message}')
+    if outcome.success:
+        logger.info(f'{what}: {outcome.message}')
     else:
-        logger.warn(f'{what}: {response.message}')
+        logger.warn(f'{what}: {outcome.message}')
+    return response

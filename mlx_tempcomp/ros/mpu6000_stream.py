@@ -18,7 +18,8 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from std_srvs.srv import Trigger
 
 from . import messages
-from .service_window import await_window, SampleWindow, ServiceGuard, STALL_TIMEOUT_S
+from .service_window import (await_window, guarded, Outcome, Refused, SampleWindow, ServiceGuard,
+                             STALL_TIMEOUT_S)
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
 from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
@@ -323,39 +324,32 @@ class MpuStream(DeviceStream):
         window sees the offsets already in place, so its mean is the residual
         bias and the new registers are the old ones plus its correction.
         """
-        response.success = False
+        outcome = await guarded(self.guard, 'an offset calibration', self._calibrate)
+        return messages.answer_trigger(self.logger, response, outcome, 'offset calibration')
+
+    async def _calibrate(self) -> Outcome:
+        """Fill the window from the stream (or raise `Refused` on a stall); finish it."""
         values = self.values
         noise_rad_s = values['rate_noise_rad_s']
-        response.message = self.guard.begin('an offset calibration')
-        if not response.message and noise_rad_s <= 0.0:
-            self.guard.end()
-            response.message = ('refused: the motion check needs a positive rate_noise_rad_s '
-                                '(the 1-sigma gyro noise of one sample)')
-        if response.message:
-            messages.log_trigger(self.logger, response, 'offset calibration')
-            return response
+        if noise_rad_s <= 0.0:
+            raise Refused('the motion check needs a positive rate_noise_rad_s (the 1-sigma '
+                          'gyro noise of one sample)')
         window = SampleWindow(int(values['mpu6000.calibration.duration_s'] * 1e9))
 
-        def stalled() -> str:
+        def stalled() -> None:
             stalled_s = time.monotonic() - self.last_sample
             if stalled_s > STALL_TIMEOUT_S:
-                return (f'refused: no sample for {stalled_s:.1f} s, the stream stalled '
-                        f'({self.last_error or "no error"})')
-            return ''
+                raise Refused(f'no sample for {stalled_s:.1f} s, the stream stalled '
+                              f'({self.last_error or "no error"})')
 
         self.window = window
         try:
-            refusal = await await_window(self.ports.node, window.future, stalled)
-            response.message = refusal or self._finish(
-                window, noise_rad_s, values['mpu6000.calibration.noise_multiple'])
+            await await_window(self.ports.node, window.future, stalled)
         finally:
             self.window = None
-            self.guard.end()
-        response.success = messages.trigger_succeeded(response.message)
-        messages.log_trigger(self.logger, response, 'offset calibration')
-        return response
+        return self._finish(window, noise_rad_s, values['mpu6000.calibration.noise_multiple'])
 
-    def _finish(self, window: SampleWindow, noise_rad_s: float, multiple: float) -> str:
+    def _finish(self, window: SampleWindow, noise_rad_s: float, multiple: float) -> Outcome:
         gyro, acceleration, temperature = window.columns()
         # Only the spread: the mean is the bias to cancel, the temperature free to move.
         limits = RecalibrationLimits(rate_noise_rad_s=noise_rad_s, noise_multiple=multiple,
@@ -368,9 +362,9 @@ class MpuStream(DeviceStream):
             gyro_lsb, accel_lsb = recalibrated_offsets(self.gyro_lsb, self.accel_bias_lsb, bias)
             registers = self.source.write_offsets(gyro_lsb, accel_lsb)
         except CalibrationError as err:
-            return f'refused: {err}'
+            raise Refused(str(err)) from None
         except HardwareError as err:
-            return f'refused: writing the offset registers failed: {err}'
+            raise Refused(f'writing the offset registers failed: {err}') from None
         before_gyro, before_registers = list(self.gyro_lsb), list(self.accel_registers)
         self._offsets_now(gyro_lsb, accel_lsb, registers, 'calibrated')
         temperature_c = float(np.mean(temperature))

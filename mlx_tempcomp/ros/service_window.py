@@ -4,14 +4,20 @@ The window a service collects from a running stream, the await that gives up on 
 ``imu/recalibrate_zro``, ``imu/calibrate_offsets`` and ``imu/run_bias_procedure``
 are coroutines: the stream keeps flowing (and filling their window) while
 they await its future. A timer asks the service's stall check meanwhile; a
-stall resolves the future with the check's refusal instead. A node runs one
+stall fails the future with the check's refusal instead. A node runs one
 such call at a time (`ServiceGuard`): one that arrives meanwhile is refused
 at once, saying which call runs and since when, never queued.
+
+A call's answer is a value, `Outcome` (whether it changed the calibration, and
+what it says), never text to parse: a refusal anywhere below the service is
+`Refused`, which `guarded` turns into the failed outcome ``refused: <reason>``;
+a change applied but not saved is an outcome that failed.
 """
 
+from dataclasses import dataclass
 from datetime import datetime, timezone
 import time
-from typing import Callable
+from typing import Awaitable, Callable, Optional
 
 import numpy as np
 from rclpy.task import Future
@@ -22,13 +28,28 @@ POLL_S = 0.1
 STALL_TIMEOUT_S = 5.0
 
 
+class Refused(Exception):
+    """A calibration call refused, with its reason: nothing was changed."""
+
+    def outcome(self) -> 'Outcome':
+        return Outcome(False, f'refused: {self}')
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a calibration call did: ``success`` when it changed and kept it; ``message``."""
+
+    success: bool
+    message: str
+
+
 class ServiceGuard:
     """
     The one call of a node's services that change its calibration, while it runs.
 
-    `begin` takes the node for a call (``what``: "a ZRO recalibration") and
-    gives '', or the refusal naming the call running and since when; `end`
-    frees it. Every such service of a node shares its guard.
+    `begin` takes the node for a call (``what``: "a ZRO recalibration"), or
+    raises `Refused` naming the call running and since when; `end` frees it.
+    Every such service of a node shares its guard (`guarded`).
     """
 
     def __init__(self):
@@ -36,14 +57,14 @@ class ServiceGuard:
         self.since = ''
         self.started = 0.0
 
-    def begin(self, what: str) -> str:
+    def begin(self, what: str) -> None:
         if self.running:
-            return (f'refused: {self.running} is running since {self.since} '
-                    f'({time.monotonic() - self.started:.1f} s); call again when it is done')
+            raise Refused(f'{self.running} is running since {self.since} '
+                          f'({time.monotonic() - self.started:.1f} s); call again when it is '
+                          'done')
         self.running = what
         self.since = datetime.now(timezone.utc).isoformat(timespec='seconds')
         self.started = time.monotonic()
-        return ''
 
     def end(self) -> None:
         self.running = ''
@@ -72,20 +93,40 @@ class SampleWindow:
         return tuple(np.array(column) for column in zip(*self.rows))
 
 
-async def await_window(node, future: Future, stalled: Callable[[], str],
-                       period_s: float = POLL_S) -> str:
-    """
-    Await ``future`` while a timer of ``node`` calls ``stalled`` every ``period_s``.
+async def guarded(guard: ServiceGuard, what: str,
+                  call: Callable[[], Awaitable[Outcome]]) -> Outcome:
+    """Run ``call`` alone under ``guard`` (``what`` names it); a `Refused` is its outcome."""
+    try:
+        guard.begin(what)
+    except Refused as refusal:
+        return refusal.outcome()
+    try:
+        return await call()
+    except Refused as refusal:
+        return refusal.outcome()
+    finally:
+        guard.end()
 
-    ``stalled`` gives the refusal when the stream stalled, else ''; a refusal
-    resolves the future. The timer goes however the await ends.
+
+async def await_window(node, future: Future, poll: Callable[[], Optional[object]],
+                       period_s: float = POLL_S):
+    """
+    Await ``future`` while a timer of ``node`` calls ``poll`` every ``period_s``.
+
+    ``poll`` raises `Refused` when the stream stalled (the await raises it), or
+    gives what resolves the future (None: not yet). The timer goes however the
+    await ends.
     """
     def check() -> None:
         if future.done():
             return
-        refusal = stalled()
-        if refusal:
-            future.set_result(refusal)
+        try:
+            result = poll()
+        except Refused as refusal:
+            future.set_exception(refusal)
+            return
+        if result is not None:
+            future.set_result(result)
 
     timer = node.create_timer(period_s, check)
     try:

@@ -26,7 +26,7 @@ import math
 from typing import Optional
 
 from .messages import saved_reply
-from .service_window import SampleWindow
+from .service_window import Outcome, Refused, SampleWindow
 from ..core.correction import CorrectedModel
 from ..core.errors import CalibrationError, TempCompError
 from ..core.rate_models import AXIS_NAMES
@@ -177,23 +177,22 @@ class ZroRecalibration:
                          f'from {self.path}')
         return offset_model
 
-    def start(self, model, values: dict, correction=None) -> str:
+    def start(self, model, values: dict, correction=None) -> None:
         """
-        Open a window of ``recalibration.duration_s`` on ``model``; give '' or the refusal.
+        Open a window of ``recalibration.duration_s`` on ``model``, or raise `Refused`.
 
         ``correction``: the learnt `CorrectionTable` taken off after ``model`` (None: none).
         One at a time: the node's `ServiceGuard` refuses a second call before this.
         """
         if model is None:
-            return 'refused: no model yet (waiting for the EEPROM tables)'
+            raise Refused('no model yet (waiting for the EEPROM tables)')
         try:
             limits = limits_of(values)
         except (ParameterError, TempCompError) as err:
-            return f'refused: {err}'
+            raise Refused(str(err)) from None
         duration_s = values['recalibration.duration_s']
         self.window = ZroWindow(SampleWindow(int(duration_s * 1e9)), model, model.fingerprint(),
                                 correction, limits, duration_s)
-        return ''
 
     def add(self, stamps_ns: list, raw_rad_s: list, temperature_c: list, rate_rad_s: list) -> None:
         """Give the open window, if any, a corrected block's rows."""
@@ -244,9 +243,9 @@ class ZroRecalibration:
                 f'{stats.samples} samples over {window.duration_s:g} s)')
         return LearnedOffset(new_model, state, text)
 
-    def save(self, learned: LearnedOffset) -> str:
+    def save(self, learned: LearnedOffset) -> Outcome:
         """
-        Persist a learned offset atomically; give the answer: what and where, or why not.
+        Persist a learned offset atomically; give the outcome: what and where, or why not.
 
         ``learned.state`` may hold the bias tracking's and the learner's sections beside
         the ZRO state: all go in the one write.

@@ -55,7 +55,9 @@ def test_start_up_summaries_and_a_warn_for_each_input_that_never_comes(launcher,
     assert ('publishes /adis/imu/data_raw, /adis/imu/temperature_raw, /diagnostics, '
             '/adis/imu/bias_procedure/status; services /adis/imu/run_bias_procedure'
             in adis.output()), adis.output()
-    assert (f"model eeprom on axes ['z'], bias tracking on; waits for /adis/imu/eeprom, "
+    learned = tmp_path / 'compensation_node_learned.yaml'
+    assert (f"model eeprom on axes ['z'], bias tracking on, field learning on "
+            f'(imu/save_learned_model writes {learned}); waits for /adis/imu/eeprom, '
             '/adis/imu/data_raw, /adis/imu/temperature_raw; temperature paired by hold '
             'within 2 s, the rate only without one 5 s after the first sample; the factory '
             'tables waited for 5 s, then the rate only until they come (only an MLX90609 '
