@@ -331,10 +331,18 @@ class CompensationInputs:
                 self.without_temperature = False   # a temperature at last: paired from now on
             return []
         if not came and self._waited_in_vain():
-            # No temperature within temperature.wait_s: the samples go on without one.
+            # No temperature within temperature.wait_s: the samples go on without one,
+            # those more than max_age_s older than the newest counted as waiting first,
+            # however the samples came in blocks.
             self.without_temperature = True
             self.pairer.clear()
-            return [] if self.readings is None else self.readings.take_waiting()
+            readings = self.readings
+            if readings is None:
+                return []
+            before_first = readings.before_first
+            readings.pop()
+            self.samples_waiting += readings.before_first - before_first
+            return readings.take_waiting()
         readings = self.readings
         if readings is None:
             return []

@@ -22,13 +22,15 @@ from typing import Awaitable, Callable, Optional
 import numpy as np
 from rclpy.task import Future
 
+from ..errors import MlxTempCompError
+
 # How often a service checks its stream for a stall (wall time).
 POLL_S = 0.1
 # A device's service window that gets no sample for this long (wall time) gives up.
 STALL_TIMEOUT_S = 5.0
 
 
-class Refused(Exception):
+class Refused(MlxTempCompError):
     """A calibration call refused, with its reason: nothing was changed."""
 
     def outcome(self) -> 'Outcome':
