@@ -50,7 +50,7 @@ import numpy as np
 
 # Where the tests find ../shared (MLX_TEMPCOMP_SHARED, beside this checkout, or beside the
 # repository it was cloned from or is a worktree of).
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test' / 'support'))
 from measured_data import FLIGHT_LOGS  # noqa: E402,I100
 
 SHARED_DATA = FLIGHT_LOGS.parent
