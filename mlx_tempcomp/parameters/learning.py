@@ -121,3 +121,21 @@ def learning_parameters(**given) -> dict:
             value = float(value)
         section[name] = value
     return {'learning': section}
+
+
+def renewal_lines(learner, axes: tuple) -> list:
+    """Say per axis how often the learner renewed, when last and its gain (a file header)."""
+    lines = []
+    for i, axis in enumerate(axes):
+        status = learner.last_renewal[i]
+        when = 'never renewed' if status is None else \
+            f'last renewed at {status[0]:.1f} s, held-out gain {status[1]:.2f}x'
+        lines.append(f'axis {axis}: {learner.renewals[i]} renewals, {when}; '
+                     f'{learner.reason[i]}')
+    return lines
+
+
+def largest_correction_rad_s(learner) -> float:
+    """Give the largest learnt correction in use, any axis and temperature, rad/s."""
+    return max((abs(v) for column in learner.accepted.values_rad_s for v in column),
+               default=0.0)

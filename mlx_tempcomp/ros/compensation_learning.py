@@ -39,7 +39,8 @@ from ..core.errors import CalibrationError, TempCompError
 from ..core.learning import FieldLearner
 from ..parameters.compensation import model_error_of, unit_values
 from ..parameters.files import learned_parameters, parameter_file, write_parameter_file
-from ..parameters.learning import learning_settings, PREFIX as LEARNING_PREFIX
+from ..parameters.learning import (largest_correction_rad_s, learning_settings,
+                                   PREFIX as LEARNING_PREFIX, renewal_lines)
 from ..parameters.state_file import move_aside
 
 LEARNING_STATE = 'saved learning state'
@@ -258,19 +259,13 @@ class CompensationLearning:
                  f"the {prior.name} model of the node's parameters (fingerprint "
                  f'{prior.fingerprint()}) less the learnt correction table (correction.*, rad/s,'
                  ' relative to it; cubic between the temperatures, held beyond)']
-        for i, axis in enumerate(self.axes):
-            status = learner.last_renewal[i]
-            when = 'never renewed' if status is None else \
-                f'last renewed at {status[0]:.1f} s, held-out gain {status[1]:.2f}x'
-            lines.append(f'axis {axis}: {learner.renewals[i]} renewals, {when}; '
-                         f'{learner.reason[i]}')
+        lines += renewal_lines(learner, self.axes)
         if not renewed:
             lines.append('no renewal was accepted: the model is the one the node started with')
         if any(zro_offset):
             lines.append(f'the ZRO offset {list(zro_offset)} ({prior.offset_unit}) of '
                          'imu/recalibrate_zro is kept in the state file, not here')
-        biggest = max((abs(v) for column in learner.accepted.values_rad_s for v in column),
-                      default=0.0)
+        biggest = largest_correction_rad_s(learner)
         base, table = (prior.base, prior.table) if isinstance(prior, CorrectedModel) else \
             (prior, None)
         total = learner.accepted if table is None else table.added(learner.accepted)

@@ -18,7 +18,8 @@ from .running import write_node_parameters
 from ..core.errors import TempCompError
 from ..parameters.compensation import model_error_of
 from ..parameters.files import learned_parameters, node_overrides
-from ..parameters.learning import learning_settings, PREFIX
+from ..parameters.learning import (largest_correction_rad_s, learning_settings, PREFIX,
+                                   renewal_lines)
 from ..parameters.specs import ParameterError
 
 
@@ -56,17 +57,11 @@ def write_learned(path: str, outputs, params: str, node_name: str, source: str, 
     lines = [f'Model renewed by mlx-tempcomp evaluate --learn from {source}:',
              f'the model of {params} less the learnt correction table (correction.*, rad/s, '
              'relative to it; cubic between the temperatures, held beyond)']
-    for i, axis in enumerate(axes):
-        status = learner.last_renewal[i]
-        when = 'never renewed' if status is None else \
-            f'last renewed at {status[0]:.1f} s, held-out gain {status[1]:.2f}x'
-        lines.append(f'axis {axis}: {learner.renewals[i]} renewals, {when}; '
-                     f'{learner.reason[i]}')
+    lines += renewal_lines(learner, axes)
     if not renewed:
         lines.append('no renewal was accepted: the model is the one given')
     write_node_parameters(path, node_name, outputs, parameters, '\n'.join(lines))
-    biggest = max((abs(v) for column in learner.accepted.values_rad_s for v in column),
-                  default=0.0)
+    biggest = largest_correction_rad_s(learner)
     return (f'wrote {path} (the model in use: {", ".join(renewed) or "no axis"} renewed; '
             f'learnt correction up to {biggest:.3g} rad/s)')
 
