@@ -335,7 +335,8 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
         path = folder / 'zro.yaml'
         prepare(case, path, model.fingerprint())
         before = path.read_bytes()
-        node = launcher.compensation({**MODEL, 'recalibration.state_file': str(path)},
+        # The tracking's forms of the file (field learning's section: ros/test_learning.py).
+        node = launcher.compensation({**MODEL, **TRACKED, 'recalibration.state_file': str(path)},
                                      label=case)
         probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
         probe.spin_until(lambda: len(paired(probe)[0]) >= 20, TIMEOUT_S,
