@@ -12,11 +12,11 @@ because this machine is noisy. Target: ratio >= 1 (not slower than polyval).
 import argparse
 import time
 
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import EepromFields
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.interpolation import quadratic_coefficients
-from mlx_tempcomp.core.table_compensation import table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.interpolation import quadratic_coefficients
+from mlx_tempcomp.core.mlx90609.table_compensation import table_compensation
 import numpy as np
 
 

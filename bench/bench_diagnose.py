@@ -133,7 +133,7 @@ def _cubic(data: dict, repeats: int) -> tuple:
 
 
 def _fit(data: dict, max_order: int, blocks: int) -> tuple:
-    from mlx_tempcomp.core.fitting import fit_polynomial, select_orders
+    from mlx_tempcomp.core.fitting.bias_polynomial import fit_polynomial, select_orders
     start, start_cpu = time.perf_counter(), _cpu_s()
     selections = select_orders(data['temperature_c'], data['gyro_rad_s'], axes=('x', 'y', 'z'),
                                candidate_orders=range(max_order + 1), blocks=blocks)

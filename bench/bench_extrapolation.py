@@ -19,9 +19,9 @@ import os
 from pathlib import Path
 import sys
 
-from mlx_tempcomp.core.fitting import fit_polynomial
-from mlx_tempcomp.core.metrics import bin_means, bin_starts, test_start_row
-from mlx_tempcomp.core.validation import block_bounds, split
+from mlx_tempcomp.core.fitting.bias_polynomial import fit_polynomial
+from mlx_tempcomp.core.fitting.validation import block_bounds, split
+from mlx_tempcomp.core.series.metrics import bin_means, bin_starts, test_start_row
 from mlx_tempcomp.recordings.load import load_recording
 import numpy as np
 

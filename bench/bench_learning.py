@@ -279,9 +279,9 @@ def real_pairs(folder: Path, pairs: list, given: list) -> None:
 def week() -> None:
     """Run tracking and learning over a simulated week; print the state sizes each day."""
     sys.path.insert(0, str(ROOT))
-    from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
+    from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
     from mlx_tempcomp.core.learning import LearningTracking
-    from mlx_tempcomp.core.standstill import StandstillSettings
+    from mlx_tempcomp.core.standstill.detector import StandstillSettings
     from mlx_tempcomp.parameters.learning import learning_settings
     rate_hz, axes = 2.0, ('x', 'y', 'z')
     tracking = TrackingSettings(StandstillSettings(rate_noise_rad_s=(2e-4,) * 3,

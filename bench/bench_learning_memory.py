@@ -18,9 +18,9 @@ import gc
 import math
 import tracemalloc
 
-from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
 from mlx_tempcomp.core.learning import LearningTracking
-from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
+from mlx_tempcomp.core.standstill.detector import StandstillSettings
 from mlx_tempcomp.parameters.learning import learning_settings
 import numpy as np
 

@@ -21,11 +21,11 @@ import os
 import tempfile
 import time
 
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 import numpy as np

@@ -61,7 +61,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from mlx_tempcomp.core.pairing import StampPairer
+from mlx_tempcomp.core.series.pairing import StampPairer
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.ros.qos import EEPROM_QOS, SENSOR_INPUT_QOS, SENSOR_QOS
 from mlx_tempcomp.ros.runner import run

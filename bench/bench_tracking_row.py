@@ -23,7 +23,7 @@ import os
 import tempfile
 import time
 
-from mlx_tempcomp.core.bias_tracker import BiasTracking
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.tracking import tracking_settings

@@ -16,6 +16,7 @@ function) stay unloaded.
 """
 
 import ast
+import importlib.util
 import json
 from pathlib import Path
 import re
@@ -174,6 +175,90 @@ def test_the_architecture_document_shows_the_same_graph():
         layer, cells = row
         documented[layer] = set(re.findall(r'`(\w+)`', cells.split('|')[-1]))
     assert documented == ALLOWED
+
+
+# The rooms of core (its sub-packages) -> the other rooms each may import; errors, the
+# core's error classes, is the one loose module, and every room may import it
+# (docs/architecture.md, "The rooms of core").
+CORE_ROOMS = {
+    'series': set(),
+    'mlx90609': set(),
+    'node_models': {'mlx90609'},
+    'effects': {'node_models'},
+    'fitting': {'series', 'node_models', 'effects'},
+    'standstill': {'node_models'},
+    'learning': {'node_models', 'fitting', 'standstill'},
+    'diagnosis': {'series', 'node_models', 'effects', 'fitting', 'standstill'},
+    'procedures': {'series', 'effects'},
+}
+CORE_LOOSE = {'errors'}
+# The packages whose __init__ lists __all__: each room of core, and these layers.
+LISTED_LAYERS = ('parameters', 'recordings')
+
+
+def _room(module: str) -> str:
+    """Give the room of a core module ('' outside core, the module's name if loose)."""
+    parts = module.split('.')
+    return parts[2] if len(parts) > 2 and parts[1] == 'core' else ''
+
+
+def test_core_holds_only_rooms_and_its_errors():
+    modules = [m for m in _modules() if _layer(m) == 'core' and m != 'mlx_tempcomp.core']
+    loose = sorted({_room(m) for m in modules} - set(CORE_ROOMS))
+    assert loose == sorted(CORE_LOOSE), 'place them in a room of CORE_ROOMS and the docs'
+
+
+def test_every_room_of_core_imports_only_the_rooms_below_it():
+    wrong = []
+    for module, line, target, _ in _package_imports():
+        room, imported = _room(module), _room(target)
+        if room and imported and imported != room and imported not in CORE_LOOSE and \
+                imported not in CORE_ROOMS.get(room, set()):
+            wrong.append(f'{module}:{line} imports {target} ({room} -> {imported})')
+    assert not wrong, '\n'.join(wrong)
+
+
+def test_outside_a_room_the_package_imports_what_the_room_lists():
+    """A room's modules are its own: others take the names its ``__init__`` lists."""
+    wrong = []
+    for module, line, target, names in _package_imports():
+        room = _room(target)
+        if room in CORE_ROOMS and _room(module) != room:
+            package = importlib.import_module(f'mlx_tempcomp.core.{room}')
+            if target != package.__name__:
+                wrong.append(f'{module}:{line} imports {target}: import from {package.__name__}')
+            wrong += [f'{module}:{line} imports {name}, which {package.__name__}.__all__ '
+                      'does not list' for name in names if name not in package.__all__]
+    assert not wrong, '\n'.join(wrong)
+
+
+@pytest.mark.parametrize('package', [f'core.{room}' for room in CORE_ROOMS] +
+                         ['core', *LISTED_LAYERS])
+def test_every_room_lists_what_it_gives(package):
+    """``__all__`` names what the package gives, and each name is there."""
+    module = importlib.import_module(f'mlx_tempcomp.{package}')
+    given = getattr(module, '__all__', None)
+    assert given, f'mlx_tempcomp/{package.replace(".", "/")}/__init__.py lists no __all__'
+    missing = [name for name in given if not hasattr(module, name) and
+               importlib.util.find_spec(f'{module.__name__}.{name}') is None]
+    assert missing == []
+    assert len(set(given)) == len(given)
+    if package in ('core', *LISTED_LAYERS):   # a layer lists its modules (and rooms)
+        folder = PACKAGE.joinpath(*package.split('.'))
+        assert sorted(given) == sorted(path.stem if path.suffix else path.name
+                                       for path in folder.iterdir()
+                                       if path.suffix == '.py' and path.stem != '__init__'
+                                       or (path / '__init__.py').exists())
+
+
+def test_the_architecture_document_shows_the_rooms_of_core():
+    text = ARCHITECTURE.read_text(encoding='utf-8')
+    section = text.split('## The rooms of core', 1)[1].split('\n## ', 1)[0]
+    documented = {}
+    for room, cells in re.findall(r'^\|\s*`(\w+)/`\s*\|(.*)\|\s*$', section,
+                                  flags=re.MULTILINE):
+        documented[room] = set(re.findall(r'`(\w+)`', cells.split('|')[-1]))
+    assert documented == CORE_ROOMS
 
 
 # Run by a fresh interpreter: argv[1] is JSON {modules, folder}; prints a JSON report.

@@ -4,16 +4,16 @@ The fleet prior: a population model for units without a record, unit fits shrunk
 Written after the fleet report, from what ``OUT`` holds: each finished unit's
 `MOMENTS_FILE` (the worker's summary of each of its records, added up over a
 unit's records with a bias offset per record, the unit's constant its last
-record's: `core.pooling.unit_moments`), and the report's outlier units, which
+record's: `core.fitting.pooling.unit_moments`), and the report's outlier units, which
 are left out of the population (they are still shrunk, with the small weight
-their distance gives them). The math is `core.pooling`, per axis; here the
+their distance gives them). The math is `core.fitting.pooling`, per axis; here the
 files:
 
 - ``OUT/fleet_params.yaml``: the population mean, an effects model the
   compensation node loads as is, for a unit that has no record of its own;
 - ``OUT/units/<unit>/shrunk_params.yaml``: the unit's coefficients shrunk
   toward the fleet (partial pooling), beside its own params.yaml; none for
-  a unit whose record rejects its shrunk fit (`core.pooling.ConflictTest`):
+  a unit whose record rejects its shrunk fit (`core.fitting.pooling.ConflictTest`):
   it keeps its params.yaml;
 - ``OUT/fleet_prior.json``: the design, the column tests that chose it, the
   noise figures, the population mean and covariance, each unit's own and
@@ -36,7 +36,7 @@ import numpy as np
 from .unit import command_argv, MOMENTS_FILE, parse_command, UNIT_FILE, UnitError
 from ..core.effects import AxisTerms, EffectModel
 from ..core.errors import TempCompError
-from ..core.pooling import (CONFLICT_LEVEL, MIN_POOLED_UNITS, moments_of, pool_fleet,
+from ..core.fitting import (CONFLICT_LEVEL, MIN_POOLED_UNITS, moments_of, pool_fleet,
                             RATE_WINDOW_S, unit_moments)
 from ..parameters.files import effect_parameters, node_values, parameter_file, write_parameter_file
 from ..parameters.models import build_model

@@ -13,7 +13,7 @@ need no view of OUT), with the temporary paths and cached copies in their
 text replaced by where the files will live and the records' own names. A
 record the command refuses gives the unit an error entry with the command's
 one-line reason. Beside the command's files, `MOMENTS_FILE` summarises each
-record for the fleet prior (`core.pooling.record_moments`), so the prior never
+record for the fleet prior (`core.fitting.pooling.record_moments`), so the prior never
 reads a record again. No Dask in here.
 """
 
@@ -27,7 +27,7 @@ import tempfile
 import threading
 
 from .manifest import is_url, OPTIONAL_COLUMNS, RecordSpec, UnitSpec
-from ..core.pooling import record_moments
+from ..core.fitting import record_moments
 from ..errors import MlxTempCompError
 from ..toolkit import diagnose, fit
 from ..toolkit.loading import load, read_options, ReadOptions

@@ -29,7 +29,7 @@ import numpy as np
 from .errors import FaultCounters, HardwareError, NackError, ProtocolError, SilentBusError
 from .transport import RegisterTransport, Transport
 from ..core.errors import CalibrationError
-from ..core.offsets import from_twos_complement, merge_preserving_bit0, STANDARD_GRAVITY_M_S2
+from ..core.procedures import from_twos_complement, merge_preserving_bit0, STANDARD_GRAVITY_M_S2
 
 READ_FLAG = 0x80
 # 7-bit I2C addresses: AD0 low, AD0 high.

@@ -22,9 +22,8 @@ from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
 from .state_paths import state_path
 from .tracking import TRACKING_SPECS, UNIT_SPECS
 from ..core.errors import ConfigError
-from ..core.model_error import ModelErrorTable, table_temperatures
-from ..core.rate_models import AXIS_NAMES
-from ..core.recalibration import RecalibrationLimits
+from ..core.node_models import AXIS_NAMES, ModelErrorTable, table_temperatures
+from ..core.standstill import RecalibrationLimits
 
 # The node's own learning parameter (fit and diagnose do not write it).
 LEARNED_MODEL_FILE = LEARNING + 'learned_model_file'

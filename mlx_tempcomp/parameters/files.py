@@ -29,10 +29,8 @@ from .compensation import COMPENSATION_SPECS
 from .models import build_model
 from .specs import check_choices, check_value, ParameterError, widen_integers
 from .state_file import atomic_write
-from ..core.chain import ChainModel
 from ..core.effects import EffectModel, LinearBtc
-from ..core.model_error import ModelErrorTable
-from ..core.rate_models import AXIS_NAMES
+from ..core.node_models import AXIS_NAMES, ChainModel, ModelErrorTable
 
 _WILDCARDS = ('/**', '**')
 

@@ -14,7 +14,7 @@ import math
 
 from .specs import Spec
 from ..core.errors import ConfigError
-from ..core.learning.settings import derive_settings, LearningSettings
+from ..core.learning import derive_settings, LearningSettings
 
 PREFIX = 'learning.'
 

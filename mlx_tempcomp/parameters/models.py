@@ -20,17 +20,13 @@ from typing import Callable, Optional
 import numpy as np
 
 from .specs import axes_of, NoDefault, ParameterError, Spec, transfer_of
-from ..core.chain import (CalibrationChain, ChainModel,
-                          PARAMETER_DESCRIPTIONS as CHAIN_DESCRIPTIONS)
-from ..core.conversion import Output
-from ..core.correction import CorrectedModel, CorrectionTable
 from ..core.effects import (AxisTerms, EffectModel, LinearBtc, PARAMETER_DESCRIPTIONS,
                             polynomial_model)
 from ..core.errors import ConfigError
-from ..core.interpolation import Interpolation
-from ..core.model_interface import ModelInputs
-from ..core.rate_models import AXIS_NAMES, EepromModel
-from ..core.table_compensation import table_compensation
+from ..core.mlx90609 import Interpolation, Output, table_compensation
+from ..core.node_models import (AXIS_NAMES, CalibrationChain, ChainModel, CorrectedModel,
+                                CorrectionTable, EepromModel, ModelInputs,
+                                PARAMETER_DESCRIPTIONS as CHAIN_DESCRIPTIONS)
 
 
 def _model_specs(prefix: str, parameters: dict, descriptions: dict, required: bool) -> tuple:

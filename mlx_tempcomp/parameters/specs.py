@@ -13,8 +13,8 @@ imports rclpy: the toolkit runs without ROS.
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from ..core.conversion import SensorTransfer
-from ..core.rate_models import AXIS_NAMES
+from ..core.mlx90609 import SensorTransfer
+from ..core.node_models import AXIS_NAMES
 from ..errors import MlxTempCompError
 
 

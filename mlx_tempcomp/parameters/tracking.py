@@ -2,7 +2,7 @@
 The compensation node's ``bias_tracking.*`` parameters: their specs and the settings they make.
 
 `UNIT_SPECS` are the unit's parameters, those ``mlx-tempcomp fit`` and ``diagnose``
-write (`tracking_parameters`, with the values `core.tracking_bounds` derives);
+write (`tracking_parameters`, with the values `core.standstill.tracking_bounds` derives);
 `NODE_SPECS` the robot's, which its configuration sets (the rest hints, the start-up
 zeroing, how often the offset is saved); `TRACKING_SPECS` both, as the compensation
 node declares them (`compensation.COMPENSATION_SPECS`), so the node, the shipped
@@ -16,9 +16,8 @@ import math
 from typing import Optional
 
 from .specs import Spec
-from ..core.bias_tracker import TrackingSettings
 from ..core.errors import ConfigError
-from ..core.standstill import StandstillSettings
+from ..core.standstill import StandstillSettings, TrackingSettings
 
 PREFIX = 'bias_tracking.'
 # The messages a rest hint may come as (`ros/rest_hint.py` reads each).

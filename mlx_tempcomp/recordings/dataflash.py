@@ -28,7 +28,7 @@ import tempfile
 import numpy as np
 
 from .flightlog import FlightLog, FlightLogError, ImuInstance, register
-from ..core.moving_samples import moving_samples
+from ..core.standstill import moving_samples
 
 IMU_TYPES = ('IMU', 'IMU2', 'IMU3')
 MESSAGES = IMU_TYPES + ('PARM', 'MSG')

@@ -14,8 +14,8 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-from ..core.eeprom import EEPROM_SIZE
 from ..core.errors import EepromError
+from ..core.mlx90609 import EEPROM_SIZE
 
 
 def _image_bytes(image, index: int) -> bytes:

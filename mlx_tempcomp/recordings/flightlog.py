@@ -7,7 +7,7 @@ which the package's ``__init__`` imports, so neither this module nor they
 import each other back). Each loads only the messages it needs and gives a
 `FlightLog`: one `ImuInstance` per IMU, with its raw samples in SI
 units (rad/s, m/s^2, degC, time in s from the log's own stamps), the
-samples the vehicle moved in (`core.moving_samples`), the log's parameters and
+samples the vehicle moved in (`core.standstill.moving_samples`), the log's parameters and
 notes on how it was read (units assumed, a file cut short). `instance_columns`
 gives the still samples of one instance as the canonical columns of a
 recording; an instance whose temperature is NaN throughout, or constant,

@@ -25,7 +25,7 @@ from .flightlog import FlightLogError, instance_columns, is_flight_log, read_fli
 from .recording import (AXES, PathLike, Recording, recording_from_columns, RecordingError,
                         SKIP_CORRUPT, SKIP_DUPLICATED_TIME, SKIP_IMU_UNPAIRED, SKIP_NO_SUPPLY,
                         SKIP_TEMPERATURE_UNPAIRED)
-from ..core.pairing import zero_order_hold
+from ..core.series import zero_order_hold
 
 BAG_SUFFIXES = ('.db3', '.mcap')
 # The compensation node's default supply_voltage.max_age_s.

@@ -27,7 +27,7 @@ import struct
 import numpy as np
 
 from .flightlog import FlightLog, FlightLogError, ImuInstance, register
-from ..core.moving_samples import MOTION_MARGIN_S, moving_samples, near
+from ..core.standstill import MOTION_MARGIN_S, moving_samples, near
 
 TOPICS = ('sensor_gyro', 'sensor_accel', 'sensor_combined')
 UNITS_NOTE = 'units as PX4 msg/SensorGyro.msg declares them: rad/s, m/s^2, degC'

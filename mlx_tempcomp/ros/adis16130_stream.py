@@ -2,7 +2,7 @@
 The ADIS16130 driver stream and its ``imu/run_bias_procedure`` service.
 
 One axis, no EEPROM, one temperature; the service runs AN-1042's bias
-procedure (`mlx_tempcomp.core.bias_procedure`) on the stream and writes the
+procedure (`mlx_tempcomp.core.procedures.adis16130_bias`) on the stream and writes the
 ``linear_btc`` parameter file of the compensation node.
 """
 
@@ -21,9 +21,9 @@ from .qos import STATUS_QOS
 from .service_window import (await_window, guarded, Outcome, Refused, ServiceGuard,
                              STALL_TIMEOUT_S)
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
-from ..core.bias_procedure import BiasProcedure, Phase, ProcedureSettings, short_window
 from ..core.errors import CalibrationError, TempCompError
-from ..core.noise import allan_deviation
+from ..core.procedures import BiasProcedure, Phase, ProcedureSettings, short_window
+from ..core.series import allan_deviation
 from ..parameters.driver import effects_of
 from ..parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
 from ..parameters.specs import ParameterError

@@ -28,8 +28,8 @@ import numpy as np
 from sensor_msgs.msg import BatteryState, Temperature
 
 from . import messages
-from ..core.model_interface import ModelInputs
-from ..core.pairing import ReadingPairer, StampPairer, zero_order_hold
+from ..core.node_models import ModelInputs
+from ..core.series import ReadingPairer, StampPairer, zero_order_hold
 
 
 @dataclass(frozen=True)

@@ -34,9 +34,9 @@ import threading
 from typing import Optional
 
 from .service_window import Outcome, Refused
-from ..core.correction import CorrectedModel, CorrectionTable
 from ..core.errors import CalibrationError, TempCompError
 from ..core.learning import FieldLearner
+from ..core.node_models import CorrectedModel, CorrectionTable
 from ..parameters.compensation import model_error_of, unit_values
 from ..parameters.files import learned_parameters, parameter_file, write_parameter_file
 from ..parameters.learning import (largest_correction_rad_s, learning_settings,

@@ -52,10 +52,9 @@ from .qos import EEPROM_QOS, stream_subscription
 from .runner import run
 from .service_window import await_window, guarded, Outcome, Refused, ServiceGuard
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
-from ..core.conversion import Output
 from ..core.errors import CalibrationError, TempCompError
-from ..core.factory_table import sensor_tables
-from ..core.rate_models import RateOnlyModel
+from ..core.mlx90609 import Output, sensor_tables
+from ..core.node_models import RateOnlyModel
 from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
                                        learned_model_file_of, model_error_of, state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES

@@ -16,7 +16,7 @@ from sensor_msgs.msg import Imu, Temperature
 from . import messages
 from .compensation_inputs import InputBlock
 from .qos import stream_publisher
-from ..core.model_error import StillWindows
+from ..core.node_models import StillWindows
 from ..parameters.compensation import covariance_noise_of, model_error_of
 
 

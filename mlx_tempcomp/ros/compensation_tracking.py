@@ -30,10 +30,10 @@ clean stop; read back at start (`tracking_state`) and applied when the model mat
 
 With ``bias_tracking.rest_hint_topic`` the node subscribes to the robot's word that it
 stands still (`ros/rest_hint.py`: Odometry, Twist, TwistStamped or Bool) and hands each
-message to the tracker as a hint (`core.rest_hints`): at its stamp, or, unstamped, at the
-latest sample tracked (a hint before the first sample is ignored and counted). The hints
-are kept across the trackers a parameter change or a recalibration builds; the start-up
-zeroing (``bias_tracking.zero_at_start``) is done once per start.
+message to the tracker as a hint (`core.standstill.rest_hints`): at its stamp, or,
+unstamped, at the latest sample tracked (a hint before the first sample is ignored and
+counted). The hints are kept across the trackers a parameter change or a recalibration
+builds; the start-up zeroing (``bias_tracking.zero_at_start``) is done once per start.
 """
 
 from dataclasses import replace
@@ -52,11 +52,10 @@ from .compensation_inputs import waiting_messages
 from .compensation_learning import CompensationLearning
 from .qos import stream_subscription
 from .zro_recalibration import LEARNING_SECTION, TRACKING_SECTION, ZroRecalibration
-from ..core.bias_tracker import BiasTracking, tracking_state
 from ..core.errors import CalibrationError
 from ..core.learning import LearningTracking
-from ..core.rate_models import AXIS_NAMES
-from ..core.rest_hints import RestHints
+from ..core.node_models import AXIS_NAMES
+from ..core.standstill import BiasTracking, RestHints, tracking_state
 from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
 from ..parameters.tracking import PREFIX, tracking_settings
 

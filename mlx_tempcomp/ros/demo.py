@@ -49,7 +49,7 @@ from .driver_node import DriverNode
 from .messages import stamp_to_ns
 from .qos import SENSOR_INPUT_QOS
 from .runner import run
-from ..core.metrics import ErrorStatistics
+from ..core.series import ErrorStatistics
 
 RAMP_C_PER_MIN = 40.0
 HOLD_S = 60.0

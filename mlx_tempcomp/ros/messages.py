@@ -9,7 +9,7 @@ from sensor_msgs.msg import BatteryState, Imu, Temperature
 from std_msgs.msg import MultiArrayDimension, UInt8MultiArray
 
 from .service_window import Outcome
-from ..core.rate_models import AXIS_NAMES
+from ..core.node_models import AXIS_NAMES
 from ..parameters.state_file import StateFileError, write_state
 from ..recordings.eeprom_multiarray import eeprom_multiarray_from_images
 

@@ -15,9 +15,7 @@ from sensor_msgs.msg import BatteryState
 from . import messages
 from .qos import stream_publisher
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..core.conversion import Output
-from ..core.factory_table import sensor_tables
-from ..core.table_compensation import NominalConversion
+from ..core.mlx90609 import NominalConversion, Output, sensor_tables
 from ..hardware.errors import HardwareError
 from ..parameters.driver import effects_of
 from ..parameters.specs import ParameterError, transfer_of

@@ -4,7 +4,7 @@ The MPU-6000/6050/6500 driver stream, on SPI or I2C, and its ``imu/calibrate_off
 Gyro, accelerometer and one temperature, no EEPROM. The stream writes the
 offset registers saved in its state file at start, offers
 ``imu/calibrate_offsets`` and, given a bias model, refreshes the gyro offset
-registers as the temperature moves (`mlx_tempcomp.core.offsets.OffsetRefresh`).
+registers as the temperature moves (`mlx_tempcomp.core.procedures.mpu6000_offsets.OffsetRefresh`).
 """
 
 import dataclasses
@@ -22,9 +22,9 @@ from .service_window import (await_window, guarded, Outcome, Refused, SampleWind
                              STALL_TIMEOUT_S)
 from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
-from ..core.offsets import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
-from ..core.rate_models import AXIS_NAMES
-from ..core.recalibration import check_window, RecalibrationLimits
+from ..core.node_models import AXIS_NAMES
+from ..core.procedures import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
+from ..core.standstill import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
 from ..parameters.driver import bus_of
@@ -53,8 +53,8 @@ MPU_OFFSETS_FIELDS = (
     Field('samples', 'integer', low=1),
     Field('time', 'text'))
 _MPU_OFFSETS = 'saved offsets'
-# The offset calibration's refusal of a window that moved (fields of core.recalibration's
-# SENSOR_MOVED).
+# The offset calibration's refusal of a window that moved (fields of
+# core.standstill.recalibration's SENSOR_MOVED).
 _BOARD_MOVES = ('the board moves: the {axis_name} gyro rate spread (standard deviation) '
                 '{spread_rad_s:.4g} rad/s is above {noise_multiple:g} x rate_noise_rad_s '
                 '{rate_noise_rad_s:.4g}; keep it still, face up or down, and call again')

@@ -7,7 +7,7 @@ when its linear speed is at most ``rest_hint_max_linear_m_s`` and its angular sp
 ``rest_hint_max_angular_rad_s`` (NaN: moving); std_msgs/Bool says at rest when true.
 Odometry and TwistStamped carry their time in the header stamp, on the Imu's clock; Twist,
 Bool and a zero stamp (never set) carry none, and take the time of the latest sample the
-tracker has seen when they arrive (`core.rest_hints` says how hints count).
+tracker has seen when they arrive (`core.standstill.rest_hints` says how hints count).
 """
 
 from dataclasses import dataclass

@@ -17,7 +17,7 @@ recalibration. Every write holds every part (`save`, `write`).
 
 With a learnt correction in use (`core.learning`), the window holds the rate
 of the model in use, the correction taken off, and the offset learnt is the
-one that zeroes that: the model with the correction (`core.correction`).
+one that zeroes that: the model with the correction (`core.node_models.correction`).
 """
 
 from dataclasses import dataclass
@@ -27,10 +27,9 @@ from typing import Optional
 
 from .messages import saved_reply
 from .service_window import Outcome, Refused, SampleWindow
-from ..core.correction import CorrectedModel
 from ..core.errors import CalibrationError, TempCompError
-from ..core.rate_models import AXIS_NAMES
-from ..core.recalibration import check_window, RecalibrationLimits
+from ..core.node_models import AXIS_NAMES, CorrectedModel
+from ..core.standstill import check_window, RecalibrationLimits
 from ..parameters.compensation import limits_of
 from ..parameters.specs import ParameterError
 from ..parameters.state_file import Field, load_state, reject_state, StateFileError, write_state

@@ -16,9 +16,8 @@ import numpy as np
 
 from .clock import SimClock
 from .physics import GyroPhysics, GyroTruth
-from ..core.conversion import ADC_MAX_CODE, Output
-from ..core.eeprom import EEPROM_SIZE, EepromFields, encode_eeprom
-from ..core.factory_table import ee_from_sf, ee_from_zro, TRIPLET_TEMPERATURES_C
+from ..core.mlx90609 import (ADC_MAX_CODE, ee_from_sf, ee_from_zro, EEPROM_SIZE, EepromFields,
+                             encode_eeprom, Output, TRIPLET_TEMPERATURES_C)
 from ..hardware import mlx90609 as protocol
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from .clock import SimClock
 from .i2c import SimulatedI2cBus
 from .physics import ThermalProfile
-from ..core.offsets import ACCEL_OFFSET_LSB_PER_G, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB
+from ..core.procedures import ACCEL_OFFSET_LSB_PER_G, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB
 from ..hardware import mpu6000 as protocol
 from ..hardware.transport import SmbusTransport
 

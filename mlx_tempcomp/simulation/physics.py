@@ -13,7 +13,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..core.conversion import Output, SensorTransfer
+from ..core.mlx90609 import Output, SensorTransfer
 
 GRAVITY_M_S2 = 9.80665
 NOMINAL_SUPPLY_V = 5.0

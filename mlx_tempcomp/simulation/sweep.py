@@ -18,12 +18,10 @@ import numpy as np
 
 from .mlx90609 import FactoryMeasurement, simulated_device
 from .physics import GyroTruth, Scenario, ThermalProfile
-from ..core.conversion import Output
-from ..core.eeprom import decode_eeprom, EepromFields
 from ..core.errors import TempCompError
-from ..core.factory_table import factory_table
-from ..core.metrics import ErrorStatistics
-from ..core.table_compensation import NominalConversion, table_compensation
+from ..core.mlx90609 import (decode_eeprom, EepromFields, factory_table, NominalConversion, Output,
+                             table_compensation)
+from ..core.series import ErrorStatistics
 from ..hardware.mlx90609 import Mlx90609
 
 

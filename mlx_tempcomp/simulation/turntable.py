@@ -15,8 +15,8 @@ from typing import Optional
 
 import numpy as np
 
-from ..core.chain import CalibrationChain
 from ..core.errors import ConfigError
+from ..core.node_models import CalibrationChain
 
 _RATE_LEVELS_RAD_S = tuple(math.radians(dps) for dps in range(-300, 301, 25))
 _CROSS_LEVELS_RAD_S = tuple(math.radians(dps) for dps in (-300.0, -150.0, 150.0, 300.0))

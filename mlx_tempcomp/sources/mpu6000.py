@@ -13,7 +13,7 @@ from typing import Callable, Sequence, Tuple
 
 import numpy as np
 
-from ..core.offsets import accel_offset_lsb, gyro_offset_lsb, rest_bias, RestBias
+from ..core.procedures import accel_offset_lsb, gyro_offset_lsb, rest_bias, RestBias
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import I2C_ADDRESSES, Mpu6000, variant_named
 from ..hardware.transport import open_i2c, SpidevTransport

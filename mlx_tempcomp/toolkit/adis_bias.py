@@ -22,13 +22,13 @@ from .options import (add_parameter_file_options, finite_float, non_negative_flo
 from .progress import add_progress_option, Progress
 from .running import check_output_file, write_node_parameters
 from .tables import format_btc_table
-from ..core.bias_procedure import (adev_at_rad_s, averaging_time_s, BiasProcedure,
-                                   MIN_TEMPERATURE_CHANGE_C, NOTE_AVERAGE_S, NOTE_PBC_S,
-                                   NOTE_SELF_HEAT_S, NOTE_SETTLE_S, Phase, ProcedureSettings,
-                                   RECORD_FRACTION, short_window)
 from ..core.errors import TempCompError
 from ..core.fitting import table_step_c
-from ..core.noise import allan_deviation
+from ..core.procedures import (adev_at_rad_s, averaging_time_s, BiasProcedure,
+                               MIN_TEMPERATURE_CHANGE_C, NOTE_AVERAGE_S, NOTE_PBC_S,
+                               NOTE_SELF_HEAT_S, NOTE_SETTLE_S, Phase, ProcedureSettings,
+                               RECORD_FRACTION, short_window)
+from ..core.series import allan_deviation
 from ..hardware.errors import HardwareError
 from ..parameters.files import linear_btc_parameters
 from ..simulation.adis16130 import Adis16130Truth, self_heating_profile

@@ -22,8 +22,8 @@ from .loading import load, read_options
 from .options import add_recording_options
 from .running import check_output_file, check_output_folder, write_json, write_result
 from ..core.errors import TempCompError
-from ..core.noise import (allan_deviation, FLICKER_FLOOR_FACTOR, MIN_CLUSTERS, NOISE_DENSITY_TAU_S,
-                          noise_lines, RANDOM_WALK_TAU_S)
+from ..core.series import (allan_deviation, FLICKER_FLOOR_FACTOR, MIN_CLUSTERS,
+                           NOISE_DENSITY_TAU_S, noise_lines, RANDOM_WALK_TAU_S)
 from ..recordings.recording import AXES
 
 SECONDS_PER_HOUR = 3600.0

@@ -11,10 +11,9 @@ import json
 import sys
 
 from .errors import UserError
-from ..core.conversion import Output
-from ..core.eeprom import decode_eeprom, VOTED_FIELDS
 from ..core.errors import TempCompError
-from ..core.factory_table import factory_table, TRIPLET_TEMPERATURES_C
+from ..core.mlx90609 import (decode_eeprom, factory_table, Output, TRIPLET_TEMPERATURES_C,
+                             VOTED_FIELDS)
 
 
 def add_parser(commands) -> None:

@@ -21,7 +21,7 @@ standard deviation per axis, sqrt(noise^2 + model_error(T)^2) from the
 file's ``model_error.*`` and noise (`parameters.compensation`), with
 ``--track-bias`` sqrt(noise^2 + the tracked offset's variance), as the node
 builds it; the error over it, RMS per sample and of 60 s means
-(`core.model_error.normalised_error`), over the rows evaluated. ``--out-csv``
+(`core.node_models.model_error.normalised_error`), over the rows evaluated. ``--out-csv``
 writes it per sample (``std_*``).
 
 ``--learn`` runs the field learner with it (`core.learning`, the file's
@@ -43,12 +43,10 @@ from .loading import load, read_options
 from .options import add_recording_options, float_type, positive_float
 from .running import check_output_file
 from .tracking import offline_twin, rest_hint_column, twin_lines
-from ..core.conversion import Output
 from ..core.errors import TempCompError
-from ..core.factory_table import sensor_tables
-from ..core.metrics import bin_means, bin_starts, ErrorStatistics, test_start_row
-from ..core.model_error import normalised_error
-from ..core.model_interface import INPUTS, ModelInputs
+from ..core.mlx90609 import Output, sensor_tables
+from ..core.node_models import INPUTS, ModelInputs, normalised_error
+from ..core.series import bin_means, bin_starts, ErrorStatistics, test_start_row
 from ..parameters.compensation import covariance_noise_of, model_error_of
 from ..parameters.files import node_values
 from ..parameters.models import build_model

@@ -48,8 +48,7 @@ from .running import check_output_file, write_result
 from ..core.effects import EffectModel
 from ..core.errors import TempCompError
 from ..core.fitting import fit_polynomial
-from ..core.model_interface import ModelInputs
-from ..core.rate_models import AXIS_NAMES
+from ..core.node_models import AXIS_NAMES, ModelInputs
 from ..recordings.dataflash import board_rotation
 from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log
 

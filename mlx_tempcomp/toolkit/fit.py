@@ -28,15 +28,13 @@ from .running import check_output_file, write_node_parameters
 from .tables import format_btc_table, format_order_table, format_stage_table
 from .tracking import tracking_section
 from .uncertainty import block_lines
-from ..core.chain import ChainModel
-from ..core.chain_fit import ChainSettings, find_plateaus, fit_chain
 from ..core.effects import LinearBtc
 from ..core.errors import TempCompError
-from ..core.fitting import (DISTINCT_DECIMALS, fit_linear_btc, fit_polynomial, relative_polynomial,
-                            select_orders, table_step_c)
-from ..core.rate_models import AXIS_NAMES
-from ..core.validation import (block_bounds, DEFAULT_BLOCKS, DEFAULT_FOLDS,
-                               held_out_outside_range, split)
+from ..core.fitting import (block_bounds, ChainSettings, DEFAULT_BLOCKS, DEFAULT_FOLDS,
+                            DISTINCT_DECIMALS, find_plateaus, fit_chain, fit_linear_btc,
+                            fit_polynomial, held_out_outside_range, relative_polynomial,
+                            select_orders, split, table_step_c)
+from ..core.node_models import AXIS_NAMES, ChainModel
 from ..parameters.files import (chain_parameters, linear_btc_parameters, node_model,
                                 polynomial_parameters)
 

@@ -13,12 +13,12 @@ runs it (clamped at its training range). From the residuals:
   the same folds (its RMS over the model's, on the forward blocks), and the
   error in rad/s, deg/s and deg/h;
 - the ``model_error`` parameters the node's covariance takes
-  (`core.model_error`): the white noise of a sample per axis, and per
+  (`core.node_models.model_error`): the white noise of a sample per axis, and per
   temperature bin the larger bias part of the two schemes' residuals (rows
   inside their fold's training range), the noise share taken out;
 - that covariance judged on the forward blocks: each block's error over the
   standard deviation a table built without that block's residuals publishes,
-  RMS per sample and of 60 s means (`core.model_error.normalised_error`),
+  RMS per sample and of 60 s means (`core.node_models.model_error.normalised_error`),
   so no block judges a table it made.
 """
 
@@ -31,12 +31,10 @@ import numpy as np
 from .errors import UserError
 from .tracking import model_residual
 from .uncertainty import gain_words
-from ..core.baseline import fit_cubic
 from ..core.errors import CalibrationError, TempCompError
-from ..core.model_error import (larger_table, normalised_error, NormalisedError,
-                                sample_noise_rad_s)
-from ..core.validation import (block_bounds, error_by_temperature, FORWARD, PURGED, split,
-                               temperature_bin_edges)
+from ..core.fitting import (block_bounds, error_by_temperature, fit_cubic, FORWARD, PURGED, split,
+                            temperature_bin_edges)
+from ..core.node_models import larger_table, normalised_error, NormalisedError, sample_noise_rad_s
 from ..parameters.files import model_error_parameters
 
 ERROR_BINS = 8

@@ -5,7 +5,7 @@ For a CSV file or a bag, the recording as the other commands load it; for a
 PX4 ULog or ArduPilot DataFlash log, each IMU instance (or the one
 ``--instance`` names). Per instance: samples, rate, duration from the
 stamps, temperature range and its rate of change, how many samples moved
-(`core.moving_samples`), gaps in the stamps, and which commands it can feed and why
+(`core.standstill.moving_samples`), gaps in the stamps, and which commands it can feed and why
 not. ``--json`` prints the same as one JSON document (``feeds`` maps each
 command to null when the instance can feed it, else to the reason).
 """
@@ -21,8 +21,8 @@ from .errors import UserError
 from .loading import load, read_options, ReadOptions
 from .options import add_recording_options
 from ..core.diagnosis import DiagnosisSettings
-from ..core.moving_samples import moving_samples
-from ..core.noise import MAX_INTERVAL_SPREAD, MIN_SAMPLES
+from ..core.series import MAX_INTERVAL_SPREAD, MIN_SAMPLES
+from ..core.standstill import moving_samples
 from ..recordings.flightlog import FlightLogError, is_flight_log, read_flight_log, sample_rate_hz
 from ..recordings.load import BAG_SUFFIXES
 

@@ -12,8 +12,8 @@ import argparse
 import math
 import re
 
-from ..core.validation import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
-                               DEFAULT_VALIDATION, SCHEMES)
+from ..core.fitting import (BASELINE_MARGIN, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
+                            DEFAULT_VALIDATION, SCHEMES)
 
 # The topics a bag is read from by default: the driver's raw output, what `simulate` and
 # `convert` write and every driver publishes (the compensated imu/data is the node's output).

@@ -27,10 +27,8 @@ from .errors import UserError
 from .options import non_negative_float, non_negative_int, positive_float
 from .progress import add_progress_option, Progress
 from .running import check_output_file, check_output_folder, write_json, write_result
-from ..core.conversion import Output, SensorTransfer
 from ..core.errors import EepromError, TempCompError
-from ..core.factory_table import sensor_tables
-from ..core.table_compensation import NominalConversion
+from ..core.mlx90609 import NominalConversion, Output, sensor_tables, SensorTransfer
 from ..hardware.errors import HardwareError
 from ..recordings.bag import STORAGES
 from ..recordings.csv_writer import write_csv

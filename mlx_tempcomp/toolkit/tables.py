@@ -5,7 +5,7 @@ The console tables and lines the commands print: what a fit chose and what it de
 marked), `format_btc_table` (``fit --model linear_btc`` and ``adis-bias``: the ADIS16130
 note's Table 6), `format_stage_table` (``fit --model chain``: the error left after
 each stage) and `bounds_lines` (``fit`` and ``diagnose``: the bias tracking bounds the
-record gives, `core.tracking_bounds`). The core computes; these only say it.
+record gives, `core.standstill.tracking_bounds`). The core computes; these only say it.
 """
 
 import math

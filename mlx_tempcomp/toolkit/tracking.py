@@ -2,7 +2,7 @@
 Bias tracking in the toolkit: the section ``fit`` and ``diagnose`` write, and the offline twin.
 
 `tracking_section` derives the ``bias_tracking.*`` values of a unit from its records and
-the model a command writes (`core.tracking_bounds`): the written model is built from its
+the model a command writes (`core.standstill.tracking_bounds`): the written model is built from its
 parameters as the node builds it and run over each record, and the residual it leaves
 gives the noise, the random walk and the bounds.
 
@@ -13,7 +13,7 @@ the model's output of the whole record in one block (the node gets blocks of 1 t
 compares the error with and without tracking, at rest and in motion when the record has
 a reference (moving: any reference rate not zero). ``--rest-hint COLUMN`` gives each sample
 the hint of its row, a 0/1 column of a CSV record (1: the robot said it was at rest;
-`rest_hint_column`), as the node takes the robot's messages (`core.rest_hints`). With
+`rest_hint_column`), as the node takes the robot's messages (`core.standstill.rest_hints`). With
 ``--learn`` the field learner rides on the tracker (`core.learning.LearningTracking`, the
 same bits for any split too).
 """
@@ -27,12 +27,11 @@ import numpy as np
 
 from .errors import UserError
 from .tables import bounds_lines
-from ..core.bias_tracker import BiasTracking
 from ..core.errors import TempCompError
 from ..core.learning import FieldLearner, LearningTracking
-from ..core.metrics import bin_means, bin_starts, ErrorStatistics
-from ..core.model_interface import ModelInputs
-from ..core.tracking_bounds import derive_bounds, RestRecord
+from ..core.node_models import ModelInputs
+from ..core.series import bin_means, bin_starts, ErrorStatistics
+from ..core.standstill import BiasTracking, derive_bounds, RestRecord
 from ..parameters.files import node_model
 from ..parameters.tracking import tracking_parameters, tracking_settings
 from ..recordings.columns import column_preset, parse_column_map

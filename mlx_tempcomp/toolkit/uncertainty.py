@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..core.model_error import bias_rms_rad_s
+from ..core.node_models import bias_rms_rad_s
 from ..parameters.files import model_error_parameters
 
 OUTSIDE_MEANING = ('rows whose temperature (T_eff with a thermal lag) lies outside the range '

@@ -1,5 +1,5 @@
 """
-The PX4-style cubic (core.baseline): PX4's fit and clamp, and written as the node runs it.
+The PX4-style cubic (core.fitting.baseline): PX4's fit and clamp, and written as the node runs it.
 
 `fit_cubic` must be np.polyfit on T - TREF, axis by axis, as PX4's
 process_sensor_caldata.py fits it; the written cubic (`ClampedCubic.effect_model`)
@@ -7,9 +7,9 @@ must give the firmware's clamped formula to the bit, through the node's batch
 and one-row paths alike.
 """
 
-from mlx_tempcomp.core.baseline import cubic_scale_c, fit_cubic
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.fitting.baseline import cubic_scale_c, fit_cubic
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 import numpy as np
 import pytest
 

@@ -8,12 +8,13 @@ import sys
 
 from cli_checks import assert_user_error, node_values
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.bias_procedure import (averaging_time_s, BiasPoint, BiasProcedure,
-                                              btc_rad_s_per_c, MIN_WINDOW_SAMPLES, Phase,
-                                              ProcedureSettings, short_window)
 from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.noise import allan_deviation, NoiseFigures
+from mlx_tempcomp.core.procedures.adis16130_bias import (averaging_time_s, BiasPoint,
+                                                         BiasProcedure, btc_rad_s_per_c,
+                                                         MIN_WINDOW_SAMPLES, Phase,
+                                                         ProcedureSettings, short_window)
+from mlx_tempcomp.core.series.noise import allan_deviation, NoiseFigures
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.simulation.adis16130 import (ADIS16130_NOISE, Adis16130Truth,
                                                self_heating_profile)

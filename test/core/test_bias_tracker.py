@@ -7,10 +7,10 @@ and steps at known times; the figures asserted are what the code computes from t
 
 import math
 
-from mlx_tempcomp.core.bias_tracker import (BiasTracking, tracking_state, TrackingSettings,
-                                            TrackingState)
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.core.standstill.bias_tracker import (BiasTracking, tracking_state,
+                                                       TrackingSettings, TrackingState)
+from mlx_tempcomp.core.standstill.detector import StandstillSettings
 from mlx_tempcomp.parameters.tracking import (PREFIX, tracking_parameters, tracking_settings,
                                               TRACKING_SPECS)
 import numpy as np

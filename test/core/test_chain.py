@@ -14,10 +14,11 @@ largest error seen over 60 seeds. Without noise the fit recovers the truth to 1e
 import dataclasses
 import math
 
-from mlx_tempcomp.core.chain import CalibrationChain, ChainModel, STAGE_NAMES
-from mlx_tempcomp.core.chain_fit import ChainSettings, find_plateaus, fit_chain, stage_errors
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.model_interface import CompensationModel, ModelInputs, ModelStream
+from mlx_tempcomp.core.fitting.chain_fit import (ChainSettings, find_plateaus, fit_chain,
+                                                 stage_errors)
+from mlx_tempcomp.core.node_models.chain import CalibrationChain, ChainModel, STAGE_NAMES
+from mlx_tempcomp.core.node_models.interface import CompensationModel, ModelInputs, ModelStream
 from mlx_tempcomp.simulation.turntable import simulate_turntable, TurntableProtocol
 from mlx_tempcomp.toolkit.tables import format_stage_table
 import numpy as np

@@ -1,10 +1,10 @@
-from mlx_tempcomp.core.conversion import Output, SensorTransfer
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.factory_table import factory_table, FactoryTable
-from mlx_tempcomp.core.interpolation import interpolate, Interpolation
-from mlx_tempcomp.core.metrics import ErrorStatistics
-from mlx_tempcomp.core.table_compensation import NominalConversion, table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output, SensorTransfer
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table, FactoryTable
+from mlx_tempcomp.core.mlx90609.interpolation import interpolate, Interpolation
+from mlx_tempcomp.core.mlx90609.table_compensation import NominalConversion, table_compensation
+from mlx_tempcomp.core.series.metrics import ErrorStatistics
 import numpy as np
 import pytest
 

@@ -9,14 +9,14 @@ output units), and ``build_model`` against ``correction.*`` given whole, in part
 
 import math
 
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.correction import CorrectedModel, CorrectionTable, knot_weights
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.rate_models import EepromModel
-from mlx_tempcomp.core.table_compensation import table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.table_compensation import table_compensation
+from mlx_tempcomp.core.node_models.correction import CorrectedModel, CorrectionTable, knot_weights
+from mlx_tempcomp.core.node_models.rate_models import EepromModel
 from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS
 from mlx_tempcomp.parameters.files import flat_parameters
 from mlx_tempcomp.parameters.models import build_model, correction_of, MODEL_PREFIXES

@@ -1,9 +1,10 @@
 import itertools
 
-from mlx_tempcomp.core.conversion import Output, SensorTransfer
-from mlx_tempcomp.core.eeprom import decode_eeprom, EEPROM_SIZE, EepromFields, encode_eeprom
 from mlx_tempcomp.core.errors import EepromError
-from mlx_tempcomp.core.factory_table import ee_from_sf, ee_from_zro, factory_table
+from mlx_tempcomp.core.mlx90609.conversion import Output, SensorTransfer
+from mlx_tempcomp.core.mlx90609.eeprom import (decode_eeprom, EEPROM_SIZE, EepromFields,
+                                               encode_eeprom)
+from mlx_tempcomp.core.mlx90609.factory_table import ee_from_sf, ee_from_zro, factory_table
 import numpy as np
 import pytest
 

@@ -10,7 +10,7 @@ from mlx_tempcomp.core.effects import (AxisTerms, EFFECT_NAMES, EffectModel, EFF
                                        play_state, PlayOperator, RECORD_EFFECTS, table,
                                        temperature_rate_c_s, TemperatureSlope)
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 import numpy as np
 import pytest
 

@@ -4,8 +4,8 @@ import math
 
 from mlx_tempcomp.core.effects import LinearBtc
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.fitting import (fit_linear_btc, fit_polynomial, relative_polynomial,
-                                       table_step_c)
+from mlx_tempcomp.core.fitting.bias_polynomial import (fit_linear_btc, fit_polynomial,
+                                                       relative_polynomial, table_step_c)
 from mlx_tempcomp.toolkit.tables import format_btc_table
 import numpy as np
 import pytest

@@ -8,14 +8,14 @@ teslameter paper's stages (offset lines in T and T2, sensitivity K(x) dT) are
 evaluated as they are, unflagged.
 """
 
-from mlx_tempcomp.core.chain import CalibrationChain, ChainModel
-from mlx_tempcomp.core.conversion import Output, SensorTransfer
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel, LinearBtc, polynomial_model
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.rate_models import EepromModel
-from mlx_tempcomp.core.table_compensation import table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output, SensorTransfer
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.table_compensation import table_compensation
+from mlx_tempcomp.core.node_models.chain import CalibrationChain, ChainModel
+from mlx_tempcomp.core.node_models.interface import ModelInputs
+from mlx_tempcomp.core.node_models.rate_models import EepromModel
 import numpy as np
 
 RATES_RAD_S = np.array([[0.2], [0.2], [0.2], [0.2]])

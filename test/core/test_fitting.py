@@ -2,9 +2,9 @@ import warnings
 
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.fitting import (CHUNK_ROWS, contiguous_blocks, fit_polynomial,
-                                       fold_rows, select_orders)
-from mlx_tempcomp.core.validation import FORWARD, ROUND_ROBIN
+from mlx_tempcomp.core.fitting.bias_polynomial import (CHUNK_ROWS, contiguous_blocks,
+                                                       fit_polynomial, fold_rows, select_orders)
+from mlx_tempcomp.core.fitting.validation import FORWARD, ROUND_ROBIN
 from mlx_tempcomp.toolkit.tables import format_order_table
 import numpy as np
 import pytest

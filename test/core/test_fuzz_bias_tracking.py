@@ -15,8 +15,8 @@ from dataclasses import replace
 import math
 
 from hypothesis import given, settings, strategies as st
-from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
-from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
+from mlx_tempcomp.core.standstill.detector import StandstillSettings
 import numpy as np
 
 FUZZ = settings(max_examples=150)

@@ -16,7 +16,7 @@ import math
 from hypothesis import given, settings, strategies as st
 from mlx_tempcomp.core.effects import AxisTerms, EFFECT_NAMES, EffectModel
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 import numpy as np
 import pytest
 

@@ -12,9 +12,9 @@ standard deviations, still flags and corrections as one block, and the same stat
 import math
 
 from hypothesis import given, settings, strategies as st
-from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
 from mlx_tempcomp.core.learning import LearningTracking
-from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
+from mlx_tempcomp.core.standstill.detector import StandstillSettings
 from mlx_tempcomp.parameters.learning import learning_settings
 import numpy as np
 

@@ -1,6 +1,6 @@
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.interpolation import (check_triplets, interpolate, Interpolation,
-                                             quadratic_coefficients)
+from mlx_tempcomp.core.mlx90609.interpolation import (check_triplets, interpolate, Interpolation,
+                                                      quadratic_coefficients)
 import numpy as np
 import pytest
 

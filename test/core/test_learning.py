@@ -14,13 +14,13 @@ import json
 import math
 import re
 
-from mlx_tempcomp.core.bias_tracker import BiasTracking, TrackingSettings
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
 from mlx_tempcomp.core.learning import FieldLearner, LearningTracking
 from mlx_tempcomp.core.learning.curve import CurveFilter, observation, prior_covariance
 from mlx_tempcomp.core.learning.guard import Pairs, t_multiple, verdict
 from mlx_tempcomp.core.learning.settings import MIN_FADING_S
-from mlx_tempcomp.core.standstill import StandstillSettings, WindowStatistics
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
+from mlx_tempcomp.core.standstill.detector import StandstillSettings, WindowStatistics
 from mlx_tempcomp.parameters.learning import knots_of, learning_parameters, learning_settings
 import numpy as np
 import pytest

@@ -13,11 +13,12 @@ model runs clamped.
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.model_error import (bias_rms_rad_s, larger_table, ModelErrorTable,
-                                           normalised_error, sample_noise_rad_s, StillWindows)
-from mlx_tempcomp.core.validation import (block_bounds, error_by_temperature,
-                                          held_out_outside_range, outside_range, split,
-                                          temperature_bin_edges)
+from mlx_tempcomp.core.fitting.validation import (block_bounds, error_by_temperature,
+                                                  held_out_outside_range, outside_range, split,
+                                                  temperature_bin_edges)
+from mlx_tempcomp.core.node_models.model_error import (bias_rms_rad_s, larger_table,
+                                                       ModelErrorTable, normalised_error,
+                                                       sample_noise_rad_s, StillWindows)
 import numpy as np
 import pytest
 

@@ -1,15 +1,15 @@
 import math
 
-from mlx_tempcomp.core.conversion import Output, SensorTransfer
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel, LinearBtc, polynomial_model
 from mlx_tempcomp.core.errors import ConfigError
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.interpolation import Interpolation
-from mlx_tempcomp.core.model_interface import (CompensationModel, INPUTS, ModelInputs,
-                                               ModelStream)
-from mlx_tempcomp.core.rate_models import EepromModel, RateOnlyModel
-from mlx_tempcomp.core.table_compensation import table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output, SensorTransfer
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.interpolation import Interpolation
+from mlx_tempcomp.core.mlx90609.table_compensation import table_compensation
+from mlx_tempcomp.core.node_models.interface import (CompensationModel, INPUTS, ModelInputs,
+                                                     ModelStream)
+from mlx_tempcomp.core.node_models.rate_models import EepromModel, RateOnlyModel
 import numpy as np
 import pytest
 

@@ -1,7 +1,7 @@
 """Allan deviation noise figures of synthetic gyro records of known noise."""
 
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.noise import allan_deviation
+from mlx_tempcomp.core.series.noise import allan_deviation
 import numpy as np
 import pytest
 

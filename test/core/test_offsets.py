@@ -4,10 +4,12 @@ import math
 
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.offsets import (
-    accel_offset_lsb, from_twos_complement, GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb,
-    merge_preserving_bit0, OffsetRefresh, recalibrated_offsets, rest_bias, RestBias,
-    STANDARD_GRAVITY_M_S2, twos_complement)
+from mlx_tempcomp.core.procedures.mpu6000_offsets import (accel_offset_lsb, from_twos_complement,
+                                                          GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb,
+                                                          merge_preserving_bit0, OffsetRefresh,
+                                                          recalibrated_offsets, rest_bias,
+                                                          RestBias, STANDARD_GRAVITY_M_S2,
+                                                          twos_complement)
 import numpy as np
 import pytest
 

@@ -9,7 +9,7 @@ arrivals, never in time.
 
 import math
 
-from mlx_tempcomp.core.pairing import APART, ReadingPairer, SHARED
+from mlx_tempcomp.core.series.pairing import APART, ReadingPairer, SHARED
 import pytest
 
 S = 1_000_000_000     # ns per second
@@ -48,7 +48,7 @@ class Events(list):
 
 
 def run(pairer: ReadingPairer, events, stream: str = 'temperature') -> dict:
-    """Feed ``events`` one by one; give {sample stamp: (arrival decided at, Reading or None)}."""
+    """Feed ``events`` one by one; give {sample stamp: (deciding arrival, reading or None)}."""
     decided = {}
     for index, (kind, stamp) in enumerate(events):
         if kind == 'sample':

@@ -1,5 +1,5 @@
 """
-``core.pooling``: the fleet prior and the shrunk unit fits, on seeded fleets whose truth is known.
+``core.fitting.pooling``: the fleet prior and shrunk unit fits, on seeded fleets of known truth.
 
 Each unit is a gyro whose bias is a cubic in temperature plus c x dT/dt, its
 coefficients drawn around a fleet mean; its record is two -20..70 C cycles at
@@ -13,9 +13,9 @@ import json
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.pooling import (CONFLICT_LEVEL, fit_population, information,
-                                       MOMENT_ORDER, moments_of, pool_fleet, PoolingDesign,
-                                       record_moments, shrink, unit_data, unit_moments)
+from mlx_tempcomp.core.fitting.pooling import (CONFLICT_LEVEL, fit_population, information,
+                                               MOMENT_ORDER, moments_of, pool_fleet, PoolingDesign,
+                                               record_moments, shrink, unit_data, unit_moments)
 import numpy as np
 import pytest
 

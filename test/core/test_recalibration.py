@@ -1,9 +1,9 @@
 import math
 
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.pairing import StampPairer, zero_order_hold
-from mlx_tempcomp.core.recalibration import (check_window, moving_axis, rate_spread_rad_s,
-                                             RecalibrationLimits)
+from mlx_tempcomp.core.series.pairing import StampPairer, zero_order_hold
+from mlx_tempcomp.core.standstill.recalibration import (check_window, moving_axis,
+                                                        rate_spread_rad_s, RecalibrationLimits)
 import numpy as np
 import pytest
 

@@ -8,10 +8,11 @@ at known times) as in test_core_bias_tracker.py; the hints are given as each sam
 
 import math
 
-from mlx_tempcomp.core.bias_tracker import BiasTracking, tracking_state, TrackingSettings
 from mlx_tempcomp.core.errors import CalibrationError, ConfigError
-from mlx_tempcomp.core.rest_hints import RestHints
-from mlx_tempcomp.core.standstill import StandstillSettings
+from mlx_tempcomp.core.standstill.bias_tracker import (BiasTracking, tracking_state,
+                                                       TrackingSettings)
+from mlx_tempcomp.core.standstill.detector import StandstillSettings
+from mlx_tempcomp.core.standstill.rest_hints import RestHints
 import numpy as np
 import pytest
 

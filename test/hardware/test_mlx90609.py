@@ -6,9 +6,9 @@
 
 import re
 
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import decode_eeprom, EepromFields, encode_eeprom
-from mlx_tempcomp.core.factory_table import factory_table, TRIPLET_TEMPERATURES_C
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import decode_eeprom, EepromFields, encode_eeprom
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table, TRIPLET_TEMPERATURES_C
 from mlx_tempcomp.hardware.errors import (
     EocTimeoutError, HardwareError, ProtocolError, RefusalError, SilentBusError)
 from mlx_tempcomp.hardware.mlx90609 import (

@@ -6,8 +6,9 @@
 
 import math
 
-from mlx_tempcomp.core.offsets import (
-    accel_offset_lsb, GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb, rest_bias, STANDARD_GRAVITY_M_S2)
+from mlx_tempcomp.core.procedures.mpu6000_offsets import (accel_offset_lsb,
+                                                          GYRO_OFFSET_DPS_PER_LSB, gyro_offset_lsb,
+                                                          rest_bias, STANDARD_GRAVITY_M_S2)
 from mlx_tempcomp.hardware.errors import HardwareError, ProtocolError, SilentBusError
 from mlx_tempcomp.hardware.mpu6000 import (
     ACCEL_CONFIG, GYRO_CONFIG, MPU6000, Mpu6000, MPU6500, PWR_MGMT_1, USER_CTRL, WHO_AM_I)

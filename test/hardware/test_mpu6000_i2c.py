@@ -13,7 +13,8 @@ import glob
 import math
 import os
 
-from mlx_tempcomp.core.offsets import GYRO_OFFSET_DPS_PER_LSB, STANDARD_GRAVITY_M_S2
+from mlx_tempcomp.core.procedures.mpu6000_offsets import (GYRO_OFFSET_DPS_PER_LSB,
+                                                          STANDARD_GRAVITY_M_S2)
 from mlx_tempcomp.hardware.errors import (HardwareError, NackError, ProtocolError,
                                           SilentBusError, TransportError)
 from mlx_tempcomp.hardware.mpu6000 import (

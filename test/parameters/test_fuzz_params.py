@@ -18,7 +18,7 @@ import tempfile
 from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 from mlx_tempcomp.parameters.files import (linear_btc_parameters, node_values, parameter_file,
                                            polynomial_parameters, write_parameter_file)
 from mlx_tempcomp.parameters.models import build_model

@@ -22,13 +22,13 @@ import tempfile
 
 from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import EepromFields
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.factory_table import factory_table
-from mlx_tempcomp.core.rate_models import EepromModel
-from mlx_tempcomp.core.table_compensation import table_compensation
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import EepromFields
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.table_compensation import table_compensation
+from mlx_tempcomp.core.node_models.rate_models import EepromModel
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import axes_of

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 from hypothesis import given, strategies as st
-from mlx_tempcomp.core.model_error import ModelErrorTable
+from mlx_tempcomp.core.node_models.model_error import ModelErrorTable
 from mlx_tempcomp.parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
                                                   limits_of, model_error_of)
 from mlx_tempcomp.parameters.driver import DEVICES, DRIVER_SPECS

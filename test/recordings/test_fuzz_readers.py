@@ -17,10 +17,10 @@ import tempfile
 
 from hypothesis import assume, example, given, settings, strategies as st
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import decode_eeprom, EEPROM_SIZE
 from mlx_tempcomp.core.errors import TempCompError
-from mlx_tempcomp.core.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import decode_eeprom, EEPROM_SIZE
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
 from mlx_tempcomp.recordings.bag import (BagError, ImuRecord, RawTopics, SupplyVoltageRecord,
                                          TemperatureRecord)
 from mlx_tempcomp.recordings.bag_reader import RawBagReader

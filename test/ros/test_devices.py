@@ -13,7 +13,7 @@ import re
 from device_runs import gyro_mean_after_change_dps, mpu_truth, SEED, TIMEOUT_S
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.offsets import STANDARD_GRAVITY_M_S2
+from mlx_tempcomp.core.procedures.mpu6000_offsets import STANDARD_GRAVITY_M_S2
 from mlx_tempcomp.parameters.driver import DEVICES
 from mlx_tempcomp.parameters.state_file import write_state
 from mlx_tempcomp.ros.adis16130_stream import file_linear_btc

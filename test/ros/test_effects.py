@@ -10,9 +10,9 @@ of the whole recording, to rounding. The parameter files are the ones `fit` and
 import math
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from mlx_tempcomp.core.chain import ChainModel
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.chain import ChainModel
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 from mlx_tempcomp.parameters.files import (chain_parameters, effect_parameters, parameter_file,
                                            write_parameter_file)
 from mlx_tempcomp.recordings.bag import ImuRecord, TemperatureRecord

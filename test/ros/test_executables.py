@@ -12,7 +12,7 @@ import signal
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from mlx_tempcomp.core.chain import CalibrationChain, ChainModel
+from mlx_tempcomp.core.node_models.chain import CalibrationChain, ChainModel
 from mlx_tempcomp.parameters.files import chain_parameters
 from mlx_tempcomp.ros.qos import STATUS_QOS
 import pytest

@@ -9,8 +9,8 @@ effects model and a ``model_error`` table.
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel
-from mlx_tempcomp.core.model_error import ModelErrorTable
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.interface import ModelInputs
+from mlx_tempcomp.core.node_models.model_error import ModelErrorTable
 from mlx_tempcomp.parameters.files import (effect_parameters, model_error_parameters,
                                            parameter_file, write_parameter_file)
 from mlx_tempcomp.ros import messages

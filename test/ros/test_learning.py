@@ -23,8 +23,8 @@ import signal
 import stat
 
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.correction import CorrectionTable
 from mlx_tempcomp.core.errors import CalibrationError
+from mlx_tempcomp.core.node_models.correction import CorrectionTable
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import read_state, write_state

@@ -8,8 +8,8 @@ simulator's truth, and that the raw topics reproduce the node's output exactly.
 from dataclasses import dataclass
 import math
 
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.factory_table import sensor_tables
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.factory_table import sensor_tables
 from mlx_tempcomp.parameters.compensation import COMPENSATION_SPECS
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import transfer_of

@@ -4,7 +4,7 @@ import json
 
 from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.noise import allan_deviation
+from mlx_tempcomp.core.series.noise import allan_deviation
 import numpy as np
 from plot_checks import drawn_figures
 import pytest

@@ -7,9 +7,9 @@ import subprocess
 import sys
 
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.conversion import Output
-from mlx_tempcomp.core.eeprom import decode_eeprom, EepromFields, encode_eeprom
-from mlx_tempcomp.core.factory_table import factory_table
+from mlx_tempcomp.core.mlx90609.conversion import Output
+from mlx_tempcomp.core.mlx90609.eeprom import decode_eeprom, EepromFields, encode_eeprom
+from mlx_tempcomp.core.mlx90609.factory_table import factory_table
 from mlx_tempcomp.simulation.mlx90609 import factory_eeprom, FactoryMeasurement
 from mlx_tempcomp.simulation.physics import GyroTruth
 import numpy as np

@@ -23,9 +23,9 @@ from mlx_tempcomp.core.diagnosis.acceptance import choose_model
 from mlx_tempcomp.core.diagnosis.problem import Score
 from mlx_tempcomp.core.effects import EffectModel, LIVE_EFFECTS, RECORD_EFFECTS
 from mlx_tempcomp.core.errors import CalibrationError
-from mlx_tempcomp.core.model_error import bias_rms_rad_s
-from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.validation import block_bounds, OutsideRange, paired
+from mlx_tempcomp.core.fitting.validation import block_bounds, OutsideRange, paired
+from mlx_tempcomp.core.node_models.interface import ModelInputs
+from mlx_tempcomp.core.node_models.model_error import bias_rms_rad_s
 from mlx_tempcomp.parameters.compensation import covariance_noise_of, model_error_of
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.recordings.load import load_recording

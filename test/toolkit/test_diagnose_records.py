@@ -18,9 +18,9 @@ from diagnose_runs import device_run, NOISE_DPS, parameters_of, QUIET, run_cli, 
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.diagnosis import diagnose, DiagnosisSettings
 from mlx_tempcomp.core.effects import EffectModel
-from mlx_tempcomp.core.model_interface import ModelInputs
-from mlx_tempcomp.core.records import join_records
-from mlx_tempcomp.core.validation import record_block_bounds, split
+from mlx_tempcomp.core.fitting.records import join_records
+from mlx_tempcomp.core.fitting.validation import record_block_bounds, split
+from mlx_tempcomp.core.node_models.interface import ModelInputs
 from mlx_tempcomp.fleet.unit import parse_command
 from mlx_tempcomp.parameters.files import flat_parameters
 from mlx_tempcomp.recordings.recording import Recording

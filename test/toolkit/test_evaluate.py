@@ -9,8 +9,8 @@ import sys
 from cli_checks import assert_user_error
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.effects import AxisTerms, EffectModel, polynomial_model
-from mlx_tempcomp.core.model_error import ModelErrorTable
-from mlx_tempcomp.core.model_interface import ModelInputs
+from mlx_tempcomp.core.node_models.interface import ModelInputs
+from mlx_tempcomp.core.node_models.model_error import ModelErrorTable
 from mlx_tempcomp.parameters.files import (effect_parameters, model_error_parameters,
                                            parameter_file, polynomial_parameters,
                                            write_parameter_file)

@@ -20,7 +20,7 @@ import struct
 from cli_checks import assert_user_error
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.fitting import fit_polynomial
+from mlx_tempcomp.core.fitting.bias_polynomial import fit_polynomial
 from mlx_tempcomp.recordings.dataflash import board_rotation
 from mlx_tempcomp.recordings.flightlog import FlightLogError, read_flight_log
 from mlx_tempcomp.recordings.load import load_recording

@@ -5,9 +5,9 @@ import math
 from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.chain import ChainModel, STAGE_NAMES
-from mlx_tempcomp.core.chain_fit import ChainSettings, fit_chain
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
+from mlx_tempcomp.core.fitting.chain_fit import ChainSettings, fit_chain
+from mlx_tempcomp.core.node_models.chain import ChainModel, STAGE_NAMES
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.ros import messages
 from mlx_tempcomp.simulation.turntable import simulate_turntable

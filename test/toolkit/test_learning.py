@@ -12,7 +12,7 @@ import json
 
 from cli_checks import assert_user_error, node_values
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.correction import CorrectedModel
+from mlx_tempcomp.core.node_models.correction import CorrectedModel
 from mlx_tempcomp.parameters.models import build_model
 import numpy as np
 import pytest

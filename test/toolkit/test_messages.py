@@ -12,7 +12,7 @@ import re
 
 from measured_data import FLIGHT_LOGS
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.fitting import select_orders
+from mlx_tempcomp.core.fitting.bias_polynomial import select_orders
 from mlx_tempcomp.recordings.load import load_recording
 import pytest
 

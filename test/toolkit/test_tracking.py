@@ -14,7 +14,7 @@ import math
 from cli_checks import assert_user_error, node_values
 from measured_data import MEASURED_CSV
 from mlx_tempcomp.cli import main
-from mlx_tempcomp.core.bias_tracker import BiasTracking
+from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import axes_of
 from mlx_tempcomp.parameters.tracking import tracking_settings

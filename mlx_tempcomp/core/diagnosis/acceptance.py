@@ -23,7 +23,7 @@ from .folds import Folds
 from .problem import DiagnosisProblem
 from .results import Candidate, HeldOutError, ModelChoice
 from .settings import DiagnosisSettings, RECORD_SEARCH
-from ..validation import cubic_instead, FORWARD, paired
+from ..fitting import cubic_instead, FORWARD, paired
 
 
 @dataclass(frozen=True)

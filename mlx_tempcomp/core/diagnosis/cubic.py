@@ -16,7 +16,7 @@ import numpy as np
 
 from .data import DiagnosisData
 from .folds import Folds, weighted_rms
-from ..baseline import PX4_ORDER
+from ..fitting import PX4_ORDER
 
 
 @dataclass(frozen=True)

@@ -20,13 +20,11 @@ import numpy as np
 from .folds import cut_bins, Folds, weighted_rms
 from .results import HeldOutError
 from .settings import DiagnosisSettings, ProgressCallback
-from ..baseline import cubic_scale_c, cubic_sums, fit_cubic, solve_cubic
 from ..effects import FirstOrderLag, temperature_rate_c_s
 from ..errors import CalibrationError
-from ..fitting import MIN_SPAN_C
-from ..metrics import temperature_branches
-from ..model_interface import INPUTS, ModelInputs
-from ..validation import split
+from ..fitting import cubic_scale_c, cubic_sums, fit_cubic, MIN_SPAN_C, solve_cubic, split
+from ..node_models import INPUTS, ModelInputs
+from ..series import temperature_branches
 
 # Log grids of the 1-D searches (`fits`): ratio 2^(1/4) between neighbours.
 GRID_RATIO = 2.0 ** 0.25

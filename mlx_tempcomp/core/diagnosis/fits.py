@@ -43,7 +43,7 @@ class AxisSpec:
     constant, a width, an order, True), in EFFECT_NAMES order: the order of
     the design columns. ``thermal_gradient`` holds one or two time constants,
     the second being ``thermal_gradient_2``. ``baseline`` marks the PX4-style
-    cubic itself (`core.baseline`: np.polyfit on the rows, clamped), order 3
+    cubic itself (`core.fitting.baseline`: np.polyfit on the rows, clamped), order 3
     and no effects; adding an effect gives a polynomial fitted beside it.
     """
 

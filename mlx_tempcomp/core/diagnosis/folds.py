@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..validation import record_block_bounds
+from ..fitting import record_block_bounds
 
 
 @dataclass(frozen=True)

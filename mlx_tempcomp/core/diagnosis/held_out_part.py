@@ -20,10 +20,10 @@ from .results import BinnedResidual, ErrorByTemperature, HeldOutError, METHODS, 
 from .settings import DEFAULT_REZERO_S, DiagnosisSettings, REZERO_MIN_SAMPLES
 from ..effects import EffectModel, temperature_rate_c_s
 from ..errors import CalibrationError, ConfigError
-from ..metrics import bin_means, bin_starts, last_cycle_start_row, test_start_row
-from ..model_error import larger_table, normalised_error, NormalisedError, sample_noise_rad_s
-from ..validation import (error_by_temperature, FORWARD, held_out_outside_range, outside_range,
-                          temperature_bin_edges)
+from ..fitting import (error_by_temperature, FORWARD, held_out_outside_range, outside_range,
+                       temperature_bin_edges)
+from ..node_models import larger_table, normalised_error, NormalisedError, sample_noise_rad_s
+from ..series import bin_means, bin_starts, last_cycle_start_row, test_start_row
 
 
 def diagnosed_rows(recording, settings: DiagnosisSettings) -> int:

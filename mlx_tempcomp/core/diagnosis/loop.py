@@ -17,11 +17,9 @@ from .problem import DiagnosisProblem, HeldOutRun
 from .results import (AxisDiagnosis, BinnedResidual, Diagnosis, HeldOutError, ModelChoice,
                       RecordFit, Step)
 from .settings import BASE_EFFECT, DiagnosisSettings, ProgressCallback, RECORD_SEARCH
-from ..baseline import PX4_ORDER
 from ..effects import EffectModel, EFFECTS
-from ..model_interface import INPUTS
-from ..records import join_records
-from ..validation import one_standard_error, order_score, paired
+from ..fitting import join_records, one_standard_error, order_score, paired, PX4_ORDER
+from ..node_models import INPUTS
 
 # The record shows motion when the specific force turns by this much, or its
 # magnitude moves by MOTION_M_S2 (1 s means, 1st to 99th percentile).

@@ -6,7 +6,7 @@ bounds it inherits), `fits` (the effects' design columns and trials) and
 `cubic`. It scores an `AxisSpec` on the held-out bins of each fold (least
 squares on bin means, the polynomial clamped as each fold's model runs it),
 fits the models the folds and the written file hold, and runs them over the
-record as the node does. The PX4-style cubic (`core.baseline`) is fitted on
+record as the node does. The PX4-style cubic (`core.fitting.baseline`) is fitted on
 each fold's training rows as PX4 fits it and run clamped (`baseline_run`):
 the incumbent every other model is compared with, fold by fold. An effect's
 trials (`fits.best_trial`) see the problem's data and a scoring function of
@@ -26,8 +26,8 @@ from .fits import AxisSpec, best_trial, design, FITS, Score, Trial
 from .folds import Folds, weighted_rms
 from ..effects import AxisTerms, EffectModel, SLOPE_EFFECTS
 from ..errors import CalibrationError
-from ..model_interface import ModelInputs
-from ..validation import buffer_blocks, PURGED, training_sums
+from ..fitting import buffer_blocks, PURGED, training_sums
+from ..node_models import ModelInputs
 
 # Singular values of the scaled normal matrix below this (relative) count as rank loss.
 RANK_RCOND = 1e-12

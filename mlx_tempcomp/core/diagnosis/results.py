@@ -8,8 +8,8 @@ import numpy as np
 
 from .settings import DiagnosisSettings
 from ..effects import EffectModel
-from ..model_error import ModelErrorTable, NormalisedError
-from ..validation import OutsideRange, split, TemperatureErrors
+from ..fitting import OutsideRange, split, TemperatureErrors
+from ..node_models import ModelErrorTable, NormalisedError
 
 METHODS = ('none', 'px4_cubic', 'temperature_polynomial', 'diagnosed')
 

@@ -5,12 +5,11 @@ import math
 from typing import Callable, Optional
 
 from .folds import INSIDE_ROWS, SCORING
-from ..baseline import PX4_ORDER
 from ..effects import DEFAULT_RATE_WINDOW_S, EFFECT_NAMES, LIVE_EFFECTS, RECORD_EFFECTS
 from ..errors import CalibrationError
-from ..recalibration import RecalibrationLimits
-from ..validation import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
-                          DEFAULT_SIGNIFICANCE, DEFAULT_VALIDATION, FORWARD, PURGED, split)
+from ..fitting import (BASELINE_MARGIN, DEFAULT_BLOCKS, DEFAULT_FOLDS, DEFAULT_MIN_PAST,
+                       DEFAULT_SIGNIFICANCE, DEFAULT_VALIDATION, FORWARD, PURGED, PX4_ORDER, split)
+from ..standstill import RecalibrationLimits
 
 BASE_EFFECT = 'temperature_polynomial'
 SEARCH_EFFECTS = tuple(e for e in LIVE_EFFECTS if e != BASE_EFFECT)

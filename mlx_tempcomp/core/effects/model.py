@@ -27,9 +27,8 @@ from .history import DEFAULT_RATE_WINDOW_S, FirstOrderLag, History, play_state, 
 from .stream import EffectStream
 from .table import clip, EFFECTS, polyval, quotient, RECORD_EFFECTS, SLOPE_EFFECTS
 from ..errors import ConfigError
-from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from ..rate_models import (AXIS_NAMES, finite_tuple, model_fingerprint, OffsetModel,
-                           rate_temperature_columns)
+from ..node_models import (AXIS_NAMES, CorrectedRate, finite_tuple, INPUTS, model_fingerprint,
+                           ModelInputs, NO_INPUTS, OffsetModel, rate_temperature_columns)
 
 MAX_GRADIENT_TERMS = 2
 

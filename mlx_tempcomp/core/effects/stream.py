@@ -13,8 +13,7 @@ from typing import Optional
 import numpy as np
 
 from .history import FirstOrderLag, History, NO_HISTORY, PlayOperator, TemperatureSlope
-from ..model_interface import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS
-from ..rate_models import one_row
+from ..node_models import CorrectedRate, INPUTS, ModelInputs, NO_INPUTS, one_row
 
 
 class _AxisRunner:

@@ -9,7 +9,8 @@ a level and a shape at the knots), `state` (the learner's state dict and its che
 `learner` (`FieldLearner`: windows, runs, trials, the curve in use), `stream`
 (`LearningTracking`: the correction taken off before the tracker, the calls the node and
 ``mlx-tempcomp evaluate --learn`` share). The renewed model is the prior model less a
-`core.correction.CorrectionTable`. docs/learning.md says what it learns and what it cannot.
+`core.node_models.correction.CorrectionTable`. docs/learning.md says what it learns and
+what it cannot.
 """
 
 from .learner import FieldLearner

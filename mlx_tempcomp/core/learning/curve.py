@@ -3,7 +3,7 @@ The learnt correction of one axis: a Kalman filter on a level and a shape over t
 
 The correction to the prior model is c(T) = a + s(T): ``a`` a level common to every
 temperature, s(T) a shape given at the knots T_k (cubic between them, held beyond the
-ends: `core.correction.knot_weights`). The state is x = (a, s_0 .. s_n-1), a fixed size
+ends: `core.node_models.correction.knot_weights`). The state is x = (a, s_0 .. s_n-1), a fixed size
 whatever the running time, with its covariance P:
 
 - **Prior.** x ~ N(0, P0): the prior model is right on average. The level is the
@@ -35,7 +35,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..correction import knot_weights
+from ..node_models import knot_weights
 
 
 def prior_covariance(knots_c: tuple, prior_std_rad_s: tuple, level_std_rad_s: float,

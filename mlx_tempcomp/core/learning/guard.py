@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from ..validation import Paired
+from ..fitting import Paired
 
 
 @dataclass

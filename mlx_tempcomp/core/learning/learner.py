@@ -33,8 +33,8 @@ from .curve import CurveFilter, observation, prior_covariance
 from .guard import Pairs, verdict
 from .settings import LearningSettings, TURN_RAD
 from .state import learner_state, restore_state
-from ..correction import CorrectionTable
 from ..errors import CalibrationError
+from ..node_models import CorrectionTable
 
 # A held-out gain is reported up to this (a curve that predicted every window exactly).
 MAX_GAIN = 1e6

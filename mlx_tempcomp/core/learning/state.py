@@ -15,8 +15,8 @@ import math
 import numpy as np
 
 from .guard import INTEGER_PAIR_FIELDS, PAIR_FIELDS, Pairs
-from ..correction import CorrectionTable
 from ..errors import CalibrationError
+from ..node_models import CorrectionTable
 
 STATE_VERSION = 1
 KEYS = ('version', 'axes', 'knots_c', 'committed', 'working', 'accepted', 'candidate', 'trial',

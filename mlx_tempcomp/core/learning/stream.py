@@ -22,8 +22,8 @@ import numpy as np
 
 from .learner import FieldLearner
 from .settings import LearningSettings
-from ..bias_tracker import BiasTracking
 from ..errors import CalibrationError
+from ..standstill import BiasTracking
 
 
 @dataclass(frozen=True)

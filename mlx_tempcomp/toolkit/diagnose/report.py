@@ -16,7 +16,7 @@ import numpy as np
 
 from ..uncertainty import error_by_temperature_json, normalised_json, outside_range_json
 from ...core.effects import RECORD_EFFECTS
-from ...core.validation import FORWARD
+from ...core.fitting import FORWARD
 
 METRIC = ('RMS and peak |.| of the residual (corrected - truth) averaged over bins of '
           '{average} on held-out rows, rad/s; averaging keeps white noise from hiding the '

@@ -14,7 +14,7 @@ from ..errors import UserError
 from ..progress import Progress
 from ...core.diagnosis import (DEFAULT_REZERO_S, default_rezero_s, diagnose as run_diagnosis,
                                DiagnosisSettings, rezero_window_rows)
-from ...core.records import join_records
+from ...core.fitting import join_records
 
 TEST_RECORD = 'record'
 TEST_EACH = 'each'

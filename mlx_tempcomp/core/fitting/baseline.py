@@ -31,8 +31,8 @@ from typing import Optional
 
 import numpy as np
 
-from .effects import EffectModel, polynomial_model
-from .errors import CalibrationError
+from ..effects import EffectModel, polynomial_model
+from ..errors import CalibrationError
 
 PX4_ORDER = 3
 

@@ -14,11 +14,11 @@ from typing import Optional
 
 import numpy as np
 
-from .chain import (apply_nonlinearity, apply_offset, apply_sensitivity, CalibrationChain,
-                    checked_column, checked_rates, finite, polyfit, polyval, STAGE_NAMES)
-from .errors import CalibrationError, ConfigError
-from .metrics import ErrorStatistics
-from .rate_models import AXIS_NAMES
+from ..errors import CalibrationError, ConfigError
+from ..node_models import (apply_nonlinearity, apply_offset, apply_sensitivity, AXIS_NAMES,
+                           CalibrationChain, checked_column, checked_rates, finite, polyfit,
+                           polyval, STAGE_NAMES)
+from ..series import ErrorStatistics
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ import operator
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..errors import CalibrationError
 
 FORWARD = 'forward'
 ROUND_ROBIN = 'round_robin'

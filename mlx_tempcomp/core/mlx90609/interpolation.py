@@ -9,7 +9,7 @@ import enum
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 
 class Interpolation(str, enum.Enum):

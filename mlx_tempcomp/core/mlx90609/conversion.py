@@ -12,7 +12,7 @@ import enum
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 ADC_MAX_CODE = 2047
 

@@ -19,7 +19,7 @@ block and its rows one by one give the same bits. A closed window gives its
   more than its window mean's noise is held (the gravity seen counted up to
   `GRAVITY_TILT_RAD` off the true vertical). A held axis learns nothing from the
   window; a window whose every axis is held is not quiet. A **hinted** window (the robot
-  said it was at rest over the whole window, `core.rest_hints`) holds no axis: its mean
+  said it was at rest over the whole window, `core.standstill.rest_hints`) holds no axis: its mean
   is an offset, whatever its size; the other tests still apply;
 - **agrees** with the window before it (adjacent and quiet): the offsets they measure
   (the offset in effect plus the window's mean) differ on no axis held in neither by
@@ -48,7 +48,7 @@ from typing import Optional
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 # A window needs this many samples for its spread to mean anything.
 MIN_WINDOW_SAMPLES = 5

@@ -56,8 +56,8 @@ import math
 
 import numpy as np
 
-from .effects import DEFAULT_RATE_WINDOW_S, TemperatureSlope
-from .errors import CalibrationError
+from ..effects import DEFAULT_RATE_WINDOW_S, TemperatureSlope
+from ..errors import CalibrationError
 
 MOMENT_ORDER = 6
 MOMENT_REFERENCE_C = 25.0

@@ -9,7 +9,7 @@ so recalibration and temperature model never count the same bias twice.
 - `EepromModel`: the MLX90609 factory table (AN2 method 4) with its ZRO shift;
 - `OffsetModel`: the ZRO offset in rad/s of the others, the effect model
   (`core.effects`, which also runs the ``polynomial`` and ``linear_btc``
-  models) and the calibration chain (`core.chain`).
+  models) and the calibration chain (`core.node_models.chain`).
 """
 
 from dataclasses import dataclass, replace
@@ -20,10 +20,9 @@ from typing import Optional
 
 import numpy as np
 
-from .conversion import Output, SensorTransfer
-from .errors import ConfigError
-from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
-from .table_compensation import TableCompensation
+from .interface import CorrectedRate, ModelInputs, NO_INPUTS
+from ..errors import ConfigError
+from ..mlx90609 import Output, SensorTransfer, TableCompensation
 
 AXIS_NAMES = ('x', 'y', 'z')
 

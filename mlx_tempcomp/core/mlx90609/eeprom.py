@@ -19,7 +19,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .errors import EepromError
+from ..errors import EepromError
 
 EEPROM_SIZE = 128
 

@@ -22,13 +22,13 @@ import operator
 import numpy as np
 
 from .baseline import cubic_scale_c, CubicSums, fit_cubic, PX4_ORDER, solve_cubic
-from .effects import EffectModel, LinearBtc, polynomial_model
-from .errors import CalibrationError
-from .rate_models import AXIS_NAMES
 from .validation import (BASELINE_MARGIN, block_bounds, cubic_instead, DEFAULT_BLOCKS,
                          DEFAULT_FOLDS, DEFAULT_MIN_PAST, DEFAULT_SIGNIFICANCE,
                          DEFAULT_VALIDATION, FORWARD,
                          one_standard_error, order_score, paired, split)
+from ..effects import EffectModel, LinearBtc, polynomial_model
+from ..errors import CalibrationError
+from ..node_models import AXIS_NAMES
 
 MIN_SPAN_C = 1.0
 BASELINE_RULE = ('the PX4-style cubic unless another order beats it on held-out blocks, fold '

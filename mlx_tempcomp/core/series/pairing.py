@@ -89,7 +89,7 @@ def zero_order_hold(sample_stamps_ns, stamps_ns, values, max_age_ns: int):
 
 
 @dataclass(frozen=True)
-class Reading:
+class PairedReading:
     """What a sample got of one reading stream: the value, the reading, exact or not, the age."""
 
     value: float
@@ -117,7 +117,7 @@ class ReadingPairer:
 
     Samples (``add_sample``: the rate) and readings (``add_reading``: each
     temperature stream) come in any order; `pop` gives the samples now decided,
-    in stamp order, each with a `Reading` per stream, or as unpaired:
+    in stamp order, each with a `PairedReading` per stream, or as unpaired:
 
     - a reading stamped like the sample is its own (exact, whatever the mode);
     - ``hold``: else the latest reading stamped before it, within ``max_age_ns``.
@@ -203,7 +203,7 @@ class ReadingPairer:
         """
         Give (paired, unpaired) samples decided now, each in stamp order.
 
-        ``paired``: (stamp_ns, sample, {stream: `Reading`}); ``unpaired``:
+        ``paired``: (stamp_ns, sample, {stream: `PairedReading`}); ``unpaired``:
         (stamp_ns, sample) with no usable reading within the age.
         """
         paired, unpaired = [], []
@@ -241,7 +241,7 @@ class ReadingPairer:
             self.stamps = APART
 
     def _decide(self, stamp: int, overflow: bool):
-        """Give the sample's {stream: Reading}, None when it cannot be paired, WAIT or LOST."""
+        """Give the sample's {stream: PairedReading}; None when it cannot be paired, WAIT, LOST."""
         newer_ns = self.newest_sample_ns - stamp
         expired = overflow or newer_ns > self.max_age_ns
         late = overflow or newer_ns > self.shared_wait_ns
@@ -262,31 +262,31 @@ class ReadingPairer:
         return readings
 
     def _reading(self, stream: str, stamp: int, expired: bool, late: bool):
-        """One stream's `Reading` for a sample at ``stamp``, None (none usable), WAIT, LOST."""
+        """Give one stream's `PairedReading` at ``stamp``; None (none usable), WAIT, LOST."""
         stamps, readings = self._stamps[stream], self._readings[stream]
         index = bisect.bisect_right(stamps, stamp) - 1
         if index >= 0 and stamps[index] == stamp:
             value, payload = readings[index]
-            return Reading(value, payload, True, 0)
+            return PairedReading(value, payload, True, 0)
         if self.stamps == SHARED and not self.interpolate:
             # As by stamp: its own reading, or none (one stamped after it came first).
             return LOST if index + 1 < len(stamps) or late else WAIT
         before = stamp - stamps[index]
         if index + 1 < len(stamps):
             if not self.interpolate:
-                return Reading(*readings[index], False, before) \
+                return PairedReading(*readings[index], False, before) \
                     if before <= self.max_age_ns else None
             after = stamps[index + 1] - stamp
             if max(before, after) > self.max_age_ns:
                 return None
             (low, payload), high = readings[index], readings[index + 1][0]
-            return Reading(low + (high - low) * (before / (before + after)), payload, False,
-                           max(before, after))
+            return PairedReading(low + (high - low) * (before / (before + after)), payload,
+                                 False, max(before, after))
         if not expired and (self.interpolate or self.stamps != APART):
             return WAIT
         if self.interpolate or before > self.max_age_ns:
             return None
-        return Reading(*readings[index], False, before)
+        return PairedReading(*readings[index], False, before)
 
     def has_readings(self, streams=None) -> bool:
         """Tell whether each of ``streams`` (default: all) gave a reading."""

@@ -12,7 +12,7 @@ temperature_c)``, so a command line loop or a ROS node can drive it from its
 stream. The last ``allan_record_s`` of the 40-minute wait, when the part is
 thermally settled, are kept as a rest record: their Allan deviation (computed
 by the ``noise_figures`` function the caller passes, e.g. the one of
-`mlx_tempcomp.core.noise`, which keeps this module numpy-only) gives the
+`mlx_tempcomp.core.series.noise`, which keeps this module numpy-only) gives the
 per-sample rate noise, the expected uncertainty of each averaging window and,
 unless the PBC window is fixed, its length (`averaging_time_s`). The noise
 figure also drives the motion check: a window whose rate spread exceeds
@@ -26,9 +26,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from .effects import EffectModel, LinearBtc
-from .errors import CalibrationError, ConfigError
-from .noise import MIN_SAMPLES
+from ..effects import EffectModel, LinearBtc
+from ..errors import CalibrationError, ConfigError
+from ..series import MIN_SAMPLES
 
 # The note's timings (AN-1042 steps 3 to 8).
 NOTE_AVERAGE_S = 10.0
@@ -45,7 +45,7 @@ MIN_TEMPERATURE_CHANGE_C = 0.5
 MOTION_NOISE_MULTIPLE = 2.0
 MIN_WINDOW_SAMPLES = 10
 # Taus beyond a tenth of the rest record rest on fewer than ten clusters
-# (the limit `mlx_tempcomp.core.noise` applies to its bias-instability search).
+# (the limit `mlx_tempcomp.core.series.noise` applies to its bias-instability search).
 RECORD_FRACTION = 10.0
 
 

@@ -16,8 +16,8 @@ from typing import Optional
 
 import numpy as np
 
-from .errors import CalibrationError
-from .model_interface import INPUTS
+from ..errors import CalibrationError
+from ..node_models import INPUTS
 
 # Columns beside time_s, temperature_c and gyro_rad_s a record may hold.
 OPTIONAL_COLUMNS = ('reference_rad_s',) + tuple(name for name in INPUTS if name != 'time_s')

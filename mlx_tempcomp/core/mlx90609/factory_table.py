@@ -7,8 +7,8 @@ import numpy as np
 
 from .conversion import Output, SensorTransfer
 from .eeprom import decode_eeprom, EepromFields
-from .errors import ConfigError, EepromError
 from .interpolation import check_triplets
+from ..errors import ConfigError, EepromError
 
 # Calibration temperatures of the triplets (AN2 section 3).
 TRIPLET_TEMPERATURES_C = (-40.0, 25.0, 85.0)

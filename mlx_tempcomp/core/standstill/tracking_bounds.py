@@ -27,9 +27,9 @@ from typing import Optional
 
 import numpy as np
 
-from .errors import CalibrationError
-from .model_error import sample_noise_rad_s
-from .standstill import MIN_WINDOW_SAMPLES
+from .detector import MIN_WINDOW_SAMPLES
+from ..errors import CalibrationError
+from ..node_models import sample_noise_rad_s
 
 MEAN_RATE_BOUND_RAD_S = math.radians(0.1)
 MIN_WINDOW_S = 5.0

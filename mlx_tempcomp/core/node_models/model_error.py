@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .errors import CalibrationError, ConfigError
+from ..errors import CalibrationError, ConfigError
 
 # The windows `normalised_error` averages the error over besides single samples.
 WINDOW_S = 60.0

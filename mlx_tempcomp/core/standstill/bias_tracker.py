@@ -25,7 +25,7 @@ is learnt: the temperature model carries the shape, the offset stays (and fades)
   long as the run before it held when that one drifted out. A ramp, which looks like a
   staircase of steps, is never followed past a provisional step.
 - **Rest hints.** When the robot says it is at rest (`hint`, or a 0/1 column given to
-  `process`; `core.rest_hints` says when a window counts as hinted), the detector holds
+  `process`; `core.standstill.rest_hints` says when a window counts as hinted), the detector holds
   no axis of a hinted window: an offset of any size is taken. A still run whose windows
   were all hinted begins with a shift that is not provisional: a turn cannot explain it.
   The spread, temperature, accelerometer and agreement tests still apply, and so does the
@@ -56,10 +56,10 @@ from typing import Optional
 
 import numpy as np
 
-from .errors import CalibrationError, ConfigError
+from .detector import (per_axis, StandstillDetector, StandstillSettings, WindowStatistics,
+                       WindowSums)
 from .rest_hints import RestHints
-from .standstill import (per_axis, StandstillDetector, StandstillSettings, WindowStatistics,
-                         WindowSums)
+from ..errors import CalibrationError, ConfigError
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class TrackingSettings:
     window, and the most its variance grows to in motion. ``stable_std_rad_s``: an
     axis's estimate is stable while its standard deviation is at most this and it has
     learnt from a window or a seed. ``rest_hint_max_age_s``: how long a rest hint says
-    what it says (`core.rest_hints`); ``zero_at_start``: every window counts as hinted
+    what it says (`core.standstill.rest_hints`); ``zero_at_start``: every window counts as hinted
     until the first still run begins.
     """
 

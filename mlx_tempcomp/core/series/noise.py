@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..errors import CalibrationError
 
 MIN_SAMPLES = 100
 MAX_INTERVAL_SPREAD = 0.10

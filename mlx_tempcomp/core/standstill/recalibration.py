@@ -12,7 +12,7 @@ from typing import Optional
 
 import numpy as np
 
-from .errors import CalibrationError, ConfigError
+from ..errors import CalibrationError, ConfigError
 
 # How `check_window` words a window that moved: ``axis`` is the axis's index, ``axis_name``
 # its x, y or z.

@@ -22,10 +22,10 @@ import math
 
 import numpy as np
 
-from .errors import ConfigError
+from .interface import CorrectedRate, ModelInputs, NO_INPUTS
 from .model_error import table_temperatures
-from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
 from .rate_models import model_fingerprint, rate_temperature_columns
+from ..errors import ConfigError
 
 
 @dataclass(frozen=True)

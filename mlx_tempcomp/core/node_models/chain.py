@@ -32,9 +32,9 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-from .errors import ConfigError
-from .model_interface import CorrectedRate, ModelInputs, NO_INPUTS
+from .interface import CorrectedRate, ModelInputs, NO_INPUTS
 from .rate_models import AXIS_NAMES, model_fingerprint, OffsetModel, one_row
+from ..errors import ConfigError
 
 STAGE_NAMES = ('raw', 'nonlinearity', 'offset', 'sensitivity', 'offset_2', 'misalignment')
 

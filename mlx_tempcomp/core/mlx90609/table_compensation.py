@@ -20,8 +20,8 @@ import functools
 import numpy as np
 
 from .conversion import Output, SensorTransfer
-from .errors import ConfigError
 from .interpolation import interpolate, Interpolation, quadratic_coefficients
+from ..errors import ConfigError
 
 # Samples per block: small enough for the scratch arrays to stay in cache.
 _BLOCK = 1 << 14

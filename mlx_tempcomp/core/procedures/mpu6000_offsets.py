@@ -24,7 +24,7 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..errors import CalibrationError
 
 STANDARD_GRAVITY_M_S2 = 9.80665
 GYRO_OFFSET_DPS_PER_LSB = 0.031       # the note's figure; 1000 / 32768 = 0.0305 exactly
