@@ -390,9 +390,9 @@ class CompensationTracking:
                 rate, std, _ = tracker.process_one(stamp_s, rates[0], temperature_c[0],
                                                    acceleration[0])
             else:
-                rate, std, _, correction = self.stream.process_one(
+                rate, std, _, _, row_in_use = self.stream.process_one(
                     stamp_s, rates[0], temperature_c[0], acceleration[0])
-                in_use = [[r - c for r, c in zip(rates[0], correction)]]
+                in_use = [row_in_use]
             tracked, stds = [rate], [std]
         else:
             stamp_s, tracked, stds, in_use = self._track_block(stamps_ns, rates, temperature_c,
