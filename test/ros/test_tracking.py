@@ -9,10 +9,12 @@ replayed through driver_node into compensation_node must give what ``evaluate
 twin's final estimate. The learnt offset survives a SIGKILL and applies from the first
 sample after a restart; a ZRO recalibration seeds the tracker; the state file loads in
 every form it can have (the format before tracking included), and a bad tracking section
-is refused without losing the ZRO offset beside it. With an offset of 0.3 deg/s the fit
-never saw, a test publisher's nav_msgs/Odometry (the schedule's truth, by stamp) makes the
-node track as ``evaluate --track-bias --rest-hint`` does, bit for bit; a std_msgs/Bool from
-a live publisher, unstamped, lets it re-zero a supply's shift on the simulated sensor.
+is refused without losing the ZRO offset beside it; tracking turned on by a parameter (the
+node in this process, stamps the test sets) writes the file only once it learns. With an
+offset of 0.3 deg/s the fit never saw, a test publisher's nav_msgs/Odometry (the
+schedule's truth, by stamp) makes the node track as ``evaluate --track-bias --rest-hint``
+does, bit for bit; a std_msgs/Bool from a live publisher, unstamped, lets it re-zero a
+supply's shift on the simulated sensor.
 """
 
 from contextlib import redirect_stdout
