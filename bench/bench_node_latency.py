@@ -34,9 +34,17 @@ Part (d), bias tracking in process: a ``CompensationNode`` built in this
 process (polynomial model, one axis, as in part (a)) is handed one paired
 message at a time through ``process`` (pairing, model, tracking, publishing,
 the recalibration's window: everything but the executor and DDS's receiving),
-tracking off, on, and on with field learning in 5 alternating rounds, the best of each
-kept: the CPU the tracking and the learning add to a message without the machine's load
-in it. At rest, at 1 kHz of sensor time, so windows close and learn every 5 s.
+tracking off, on, on with field learning (the prior in use: no renewal in 20 s), and on
+with a renewed curve in use (read from the state file, as after a robot's first renewal)
+in 5 alternating rounds, the best of each kept: the CPU the tracking and the learning add
+to a message without the machine's load in it. At rest, at 1 kHz of sensor time, so
+windows close and learn every 5 s; the temperature moves at every message, as the
+ADIS16130's does, so no row of the curve is reused. Windows and state writes come by
+sensor time, so per message they cost what they cost a robot at 1 kHz (a window per 5000
+messages), but for the start: the first learnt window writes the state at once, later
+ones every ``bias_tracking.save_period_s`` (60 s). The split times each message (5
+alternating runs, the lowest kept): the median of those that closed no window (per
+sample), and the totals of those that closed one and of those that wrote the state.
 
 Targets: zero lost samples at 1 kHz publish with 5.7 kHz sampling; at every
 rate, compensation drops no more than the relay and its p99 latency is at
@@ -447,53 +455,130 @@ def measure_device(name: str, duration_s: float, warmup_s: float, env) -> dict:
             'us_per_msg': 1e6 * (cpu_end[0] - cpu_start[0]) / max(len(raw), 1)}
 
 
-def measure_process(messages_count: int, rounds: int) -> dict:
-    """Part (d): CPU us per message of ``CompensationNode.process``: off, tracking, learning."""
+# Part (d): tracking off, on, on with field learning, and with a renewed curve in use.
+PROCESS_KEYS = ('without', 'with', 'learning', 'renewed')
+
+
+def _process_samples(count: int) -> list:
+    """Give part (d)'s paired messages: at rest, 1 kHz of sensor time, temperature rising."""
+    # Fresh each run: the node republishes the input Imu with its rate rewritten.
+    rng = np.random.default_rng(0)
+    paired = []
+    for i in range(count):
+        stamp = messages.ns_to_stamp(1_000_000_000_000 + i * 1_000_000)
+        imu = messages.imu_message(stamp, 'imu_link', (2,), [float(rng.normal(0.0, 1e-3))],
+                                   [0.0] * 9)
+        temperature = messages.temperature_message(stamp, 'imu_link', 25.0 + i * 1e-5)
+        paired.append((messages.stamp_to_ns(stamp), {'imu': imu, 'temperature': temperature}))
+    return paired
+
+
+def _process_node(key: str, path: str):
+    """Build part (d)'s node for ``key``, its own state file ``path`` (no offset shared)."""
     from mlx_tempcomp.ros.compensation_node import CompensationNode
     from rclpy.parameter import Parameter
 
-    def samples() -> list:
-        # Fresh each run: the node republishes the input Imu with its rate rewritten.
-        rng = np.random.default_rng(0)
-        paired = []
-        for i in range(messages_count):
-            stamp = messages.ns_to_stamp(1_000_000_000_000 + i * 1_000_000)
-            imu = messages.imu_message(stamp, 'imu_link', (2,),
-                                       [float(rng.normal(0.0, 1e-3))], [0.0] * 9)
-            temperature = messages.temperature_message(stamp, 'imu_link', 25.0 + i * 1e-5)
-            paired.append((messages.stamp_to_ns(stamp), {'imu': imu,
-                                                         'temperature': temperature}))
-        return paired
-    best, runs = {}, []
+    return CompensationNode(local_input=True, parameter_overrides=[
+        Parameter('model', value='polynomial'),
+        Parameter('polynomial.bias.z', value=[0.001, 0.0001]),
+        Parameter('bias_tracking.enabled', value=key != 'without'),
+        Parameter('learning.enabled', value=key in ('learning', 'renewed')),
+        Parameter('recalibration.state_file', value=path)])
+
+
+def _renewed_state(path: str) -> None:
+    """
+    Write a state file whose learning section has a renewed curve in use (a bowl, 1e-4 rad/s).
+
+    The node's own section (`CompensationLearning.section`) of a fresh learner, its curve
+    accepted and taken off: what a robot holds after its first renewal, read back at start.
+    """
+    from mlx_tempcomp.parameters.state_file import write_state
+
+    node = _process_node('learning', path)
+    section = node.tracking.learning.section()
+    node.destroy_node()
+    curve = [1e-4 * ((t - 25.0) / 20.0) ** 2 for t in section['knots_c']]
+    section.update(accepted=[curve], applied=[curve],
+                   counts={**section['counts'], 'renewals': [1]})
+    write_state(path, {'learning': section})
+
+
+def measure_process(messages_count: int, rounds: int) -> dict:
+    """Part (d): CPU us per message of ``CompensationNode.process`` for each of PROCESS_KEYS."""
+    best, runs = {}, 0
     rclpy.init(args=[])
     try:
         with tempfile.TemporaryDirectory(prefix='bench_node_process_') as folder:
             for _ in range(rounds):
-                for key in ('without', 'with', 'learning'):
-                    tracking = key != 'without'
-                    paired = samples()
-                    node = CompensationNode(local_input=True, parameter_overrides=[
-                        Parameter('model', value='polynomial'),
-                        Parameter('polynomial.bias.z', value=[0.001, 0.0001]),
-                        Parameter('bias_tracking.enabled', value=tracking),
-                        Parameter('learning.enabled', value=key == 'learning'),
-                        # A state file each: no run starts from another's offset.
-                        Parameter('recalibration.state_file',
-                                  value=f'{folder}/zro_{len(runs)}.yaml')])
-                    runs.append(tracking)
+                for key in PROCESS_KEYS:
+                    paired = _process_samples(messages_count)
+                    path = f'{folder}/zro_{runs}.yaml'
+                    runs += 1
+                    if key == 'renewed':
+                        _renewed_state(path)
+                    node = _process_node(key, path)
                     start = time.process_time()
                     for sample in paired:
                         node.process([sample])
                     used = time.process_time() - start
-                    updates = node.tracking.tracker.updates if tracking else 0
+                    tracking = node.tracking
+                    if key != 'without':
+                        best['updates'] = max(best.get('updates', 0), tracking.tracker.updates)
                     if key == 'learning':
-                        best['learnt_windows'] = node.tracking.learning.learner.windows
+                        best['learnt_windows'] = tracking.learning.learner.windows
+                    if key == 'renewed':
+                        best['renewed_in_use'] = not tracking.learning.applied().is_zero
                     node.destroy_node()
                     best[key] = min(best.get(key, float('inf')), 1e6 * used / messages_count)
-                    best['updates'] = max(best.get('updates', 0), updates)
     finally:
         rclpy.try_shutdown()
     return best
+
+
+def measure_split(messages_count: int, rounds: int) -> dict:
+    """
+    Part (d), split: each message timed (thread CPU time), tracking alone and with learning.
+
+    Give per key, the lowest of ``rounds`` alternating runs: the per-message median of the
+    messages that closed no window, and the ms and count of those that closed one without a
+    state write and of those that wrote.
+    """
+    best = {}
+    rclpy.init(args=[])
+    try:
+        with tempfile.TemporaryDirectory(prefix='bench_node_split_') as folder:
+            for round_ in range(rounds):
+                for key in ('with', 'learning'):
+                    figures = _timed_run(key, f'{folder}/zro_{key}_{round_}.yaml',
+                                         messages_count)
+                    kept = best.setdefault(key, figures)
+                    for name in ('median_us', 'window_ms', 'write_ms'):
+                        kept[name] = min(kept[name], figures[name])
+    finally:
+        rclpy.try_shutdown()
+    return best
+
+
+def _timed_run(key: str, path: str, messages_count: int) -> dict:
+    """One run of `measure_split`: each message's CPU, by what it did."""
+    paired = _process_samples(messages_count)
+    node = _process_node(key, path)
+    tracking = node.tracking
+    used = np.empty(len(paired))
+    window = np.zeros(len(paired), dtype=bool)
+    wrote = np.zeros(len(paired), dtype=bool)
+    for i, sample in enumerate(paired):
+        windows, writes = tracking.windows, tracking.writes
+        start = time.thread_time()
+        node.process([sample])
+        used[i] = time.thread_time() - start
+        window[i], wrote[i] = tracking.windows != windows, tracking.writes != writes
+    node.destroy_node()
+    closed = window & ~wrote
+    return {'median_us': 1e6 * float(np.median(used[~window & ~wrote])),
+            'window_ms': 1e3 * float(used[closed].sum()), 'windows': int(closed.sum()),
+            'write_ms': 1e3 * float(used[wrote].sum()), 'writes': int(wrote.sum())}
 
 
 # Part (c): device, its natural sample rate (the driver's default), publish rate.
@@ -556,7 +641,8 @@ def _missed_table(results) -> None:
         print(f'{device:<10} {sample_hz:>9} {cells[0]:>27} {cells[1]:>34}')
 
 
-def _device_table(results) -> None:
+def _device_table(results) -> tuple:
+    """Print part (a)'s table and verdicts; give the tracking's and the learning's rise, %."""
     print(f'{"node":<13} {"raw msgs":>8} {"not out":>7} {"missed reads":>12} {"p50 ms":>7} '
           f'{"p99 ms":>7} {"+p50 ms":>7} {"+p99 ms":>7} {"CPU % node":>10} {"us/msg":>7} '
           f'{"driver":>6}')
@@ -588,7 +674,7 @@ def _device_table(results) -> None:
           f'{100.0 * learning / by["unlearnt"]:+.1f} % (target < 5 %: '
           f'{"met" if learning < 0.05 * by["unlearnt"] else "NOT met"}); the relay '
           f'{by["relay"]:.1f} us')
-    return 100.0 * rise / by['untracked']
+    return 100.0 * rise / by['untracked'], 100.0 * learning / by['unlearnt']
 
 
 def _figures(name: str, rate_hz: float, sent, records, feed_s: float, cpu: list) -> dict:
@@ -685,7 +771,7 @@ def _run(rates, rounds: int, duration_s: float, warmup_s: float, env) -> list:
 
 
 def _device_part(args, env) -> None:
-    """Part (a), ``--device-rounds`` times; the median rise of the tracking's CPU."""
+    """Part (a), ``--device-rounds`` times; the median rises of the tracking's, learning's CPU."""
     print(f'(a) driver sampling the simulated ADIS16130 at 5.7 kHz, publishing at '
           f'{DEVICE_PUBLISH_HZ:g} Hz, into each node for {args.device_duration:g} s',
           flush=True)
@@ -697,27 +783,53 @@ def _device_part(args, env) -> None:
               'averages); +: arrival of imu/data - arrival of the same imu/data_raw')
         rises.append(_device_table(results))
         print(flush=True)
-    if len(rises) > 1:
-        median = float(np.median(rises))
-        print(f'  bias tracking over {len(rises)} rounds: median rise {median:+.1f} % of the '
-              f'node\'s own CPU a message (rounds: {", ".join(f"{r:+.1f}" for r in rises)}; '
-              f'target < 10 %: {"met" if median < 10.0 else "NOT met"})', flush=True)
+    if len(rises) < 2:
+        return
+    for index, (what, target) in enumerate((('bias tracking', 10.0), ('field learning', 5.0))):
+        each = [r[index] for r in rises]
+        median = float(np.median(each))
+        listed = ', '.join(f'{r:+.1f}' for r in each)
+        verdict = 'met' if median < target else 'NOT met'
+        print(f"  {what} over {len(rises)} rounds: median rise {median:+.1f} % of the node's "
+              f'own CPU a message (rounds: {listed}; target < {target:g} %: {verdict})',
+              flush=True)
 
 
 def _process_part(count: int) -> None:
-    """Part (d): the tracking's CPU a message through ``CompensationNode.process``."""
+    """Part (d): the tracking's and the learning's CPU a message through ``process``."""
     figures = measure_process(count, 5)
     rise = figures['with'] - figures['without']
     print(f'(d) CompensationNode.process in this process, one message at a time, {count} '
           f'messages at rest, best of 5 alternating rounds: {figures["without"]:.1f} us a '
           f'message without bias tracking, {figures["with"]:.1f} us with '
           f'({figures["updates"]} windows learnt): {rise:+.1f} us a message', flush=True)
-    learning = figures['learning'] - figures['with']
-    print(f'    with field learning too: {figures["learning"]:.1f} us a message '
-          f'({figures["learnt_windows"]} windows used): {learning:+.1f} us, '
-          f'{100.0 * learning / figures["with"]:+.1f} % over tracking alone (target < 5 %: '
-          f'{"met" if learning < 0.05 * figures["with"] else "NOT met"})', flush=True)
+    for key, what in (('learning', f'with field learning too ({figures["learnt_windows"]} '
+                                   'windows used, no renewal: the prior in use)'),
+                      ('renewed', 'with a renewed curve in use (read from the state file: '
+                                  f'{"in use" if figures["renewed_in_use"] else "NOT in use"})')):
+        learning = figures[key] - figures['with']
+        print(f'    {what}: {figures[key]:.1f} us a message: {learning:+.1f} us, '
+              f'{100.0 * learning / figures["with"]:+.1f} % over tracking alone (target < 5 %: '
+              f'{"met" if learning < 0.05 * figures["with"] else "NOT met"})', flush=True)
+    _split_part(count)
     print(flush=True)
+
+
+def _split_part(count: int) -> None:
+    """Part (d), split: per sample against per window and per state write."""
+    split = measure_split(count, 5)
+    print(f'    split, each message timed, lowest of 5 alternating runs: messages that closed no '
+          f'window, median '
+          f'{split["with"]["median_us"]:.1f} us tracking alone, '
+          f'{split["learning"]["median_us"]:.1f} with learning '
+          f'({split["learning"]["median_us"] - split["with"]["median_us"]:+.1f} us per sample)',
+          flush=True)
+    for key in ('with', 'learning'):
+        s = split[key]
+        print(f'      {key:<8}: {s["windows"]} windows closed without a write {s["window_ms"]:.2f}'
+              f' ms, {s["writes"]} state writes {s["write_ms"]:.2f} ms: '
+              f'{1e3 * (s["window_ms"] + s["write_ms"]) / count:.2f} us a message over {count}',
+              flush=True)
 
 
 def main() -> int:
@@ -727,7 +839,8 @@ def main() -> int:
     parser.add_argument('--device-duration', type=float, default=20.0,
                         help='seconds per device run (part a); 0 skips part a')
     parser.add_argument('--device-rounds', type=int, default=1,
-                        help='repeat part a; the tracking verdict takes the median rise')
+                        help='repeat part a; the tracking and learning verdicts take the '
+                        'median rise')
     parser.add_argument('--process-messages', type=int, default=20000,
                         help='messages per run of part d; 0 skips part d')
     parser.add_argument('--missed-duration', type=float, default=20.0,

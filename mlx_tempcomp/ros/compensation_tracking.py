@@ -71,6 +71,9 @@ SECTION_FIELDS = (Field('model', 'text'), Field('fingerprint', 'text'),
                   Field('zro_offset', 'number', length='axes'), Field('saved', 'text'))
 # REP-145's "no data" for the linear part of the bias message: it holds a rate bias only.
 NO_DATA = -1.0
+# The progress of a state the file does not hold (a seed's, until written with the ZRO
+# state): no progress equals it, so it is written at the next chance.
+UNWRITTEN = ()
 
 
 def stamp_seconds(stamps_ns: np.ndarray) -> np.ndarray:
@@ -135,7 +138,9 @@ class CompensationTracking:
         self.initial_std_rad_s = None   # the followed model's own, else the settings'
         self.held_state = None          # the state while tracking is off, to resume from
         self.saved = self._checked(recalibration.tracking_section, full_scale_rad_s)
-        self.written = None             # the tracker's and learner's progress at the last write
+        # The tracker's and learner's progress at the last write; None while no tracker ran
+        # since the model was followed (the next one starts from what the file holds).
+        self.written = None
         self.written_s = None           # and its sensor time
         self.writes = 0
         self.write_error = ''
@@ -333,7 +338,9 @@ class CompensationTracking:
             self._create_publishers()
         written = self.written
         self._build(self.held_state)
-        self.written = written
+        # Turned on, it starts from the file's state or from nothing: nothing to write yet.
+        self.written = self._progress() if written is None and self.tracker is not None \
+            else written
 
     def seed(self, samples: int) -> dict:
         """
@@ -352,7 +359,7 @@ class CompensationTracking:
                           self.latest_s)
         self._stream()
         self.held_state = None
-        self.written = None
+        self.written = UNWRITTEN
         self._publish(None, '')
         return self.section()
 
@@ -389,9 +396,9 @@ class CompensationTracking:
                 rate, std, _ = tracker.process_one(stamp_s, rates[0], temperature_c[0],
                                                    acceleration[0])
             else:
-                rate, std, _, correction = self.stream.process_one(
+                rate, std, _, _, row_in_use = self.stream.process_one(
                     stamp_s, rates[0], temperature_c[0], acceleration[0])
-                in_use = [[r - c for r, c in zip(rates[0], correction)]]
+                in_use = [row_in_use]
             tracked, stds = [rate], [std]
         else:
             stamp_s, tracked, stds, in_use = self._track_block(stamps_ns, rates, temperature_c,

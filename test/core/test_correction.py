@@ -46,17 +46,55 @@ def test_knots_give_their_values_and_the_ends_are_held():
     assert math.isnan(table.at(0, math.nan))
 
 
+def _same_bits(a, b) -> bool:
+    """Tell whether two columns hold the same values, the sign of a zero included (not NaN's)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    number = ~np.isnan(a)
+    return np.array_equal(a, b, equal_nan=True) and \
+        np.array_equal(np.signbit(a[number]), np.signbit(b[number]))
+
+
 def test_a_row_gives_the_bits_of_a_block():
     rng = np.random.default_rng(1)
-    table = CorrectionTable(KNOTS, tuple(tuple(rng.normal(0.0, 1e-3, len(KNOTS)))
-                                         for _ in range(3)))
-    temperature = np.concatenate([rng.uniform(-30.0, 60.0, 500), KNOTS, [math.nan]])
-    for axis in range(3):
-        block = table.at(axis, temperature)
-        rows = np.array([table.at(axis, float(t)) for t in temperature])
-        assert np.array_equal(block, rows, equal_nan=True)
-        assert np.array_equal(block, [table.row(float(t))[axis] for t in temperature],
-                              equal_nan=True)
+    # Every knot, just below each (the end of an interval), the ends and beyond, NaN.
+    temperature = np.concatenate([rng.uniform(-30.0, 60.0, 500), KNOTS,
+                                  np.nextafter(KNOTS, -math.inf), [-math.inf, math.inf, math.nan]])
+    tables = {'random': CorrectionTable(KNOTS, tuple(tuple(rng.normal(0.0, 1e-3, len(KNOTS)))
+                                                     for _ in range(3))),
+              'zeros': CorrectionTable.zero(KNOTS, 3),
+              'negative zeros': CorrectionTable(KNOTS, ((-0.0,) * len(KNOTS),) * 3),
+              'one knot': CorrectionTable.zero((25.0,), 3),
+              'two knots': CorrectionTable((0.0, 10.0), ((1e-3, -2e-3),) * 3)}
+    for name, table in tables.items():
+        for axis in range(3):
+            with np.errstate(invalid='ignore'):   # one knot: its weight at inf is NaN
+                block = table.at(axis, temperature)
+            rows = np.array([table.at(axis, float(t)) for t in temperature])
+            assert _same_bits(block, rows), name
+            assert _same_bits(block, [table.row(float(t))[axis] for t in temperature]), name
+
+
+def test_a_table_of_positive_zeros_subtracts_nothing_at_any_temperature_but_nan():
+    """The learner's table until its first renewal: its stream skips the row (bits unchanged)."""
+    temperature = np.concatenate([np.linspace(-60.0, 100.0, 1601), KNOTS,
+                                  np.nextafter(KNOTS, -math.inf), [-math.inf, math.inf]])
+    rates = np.array([0.0, -0.0, 1e-3, -2e-3, 5e-324, math.inf, -math.inf, math.nan])
+    zeros = CorrectionTable.zero(KNOTS, 2)
+    assert zeros.subtracts_nothing and CorrectionTable.zero(KNOTS[:2], 1).subtracts_nothing
+    for axis in range(2):
+        for row in (zeros.at(axis, temperature),
+                    [zeros.at(axis, float(t)) for t in temperature],
+                    [zeros.row(float(t))[axis] for t in temperature]):
+            row = np.asarray(row)
+            assert np.all(row == 0.0) and not np.signbit(row).any()
+            less = rates[:, None] - row[None, :]
+            assert _same_bits(less, np.repeat(rates[:, None], row.size, axis=1))
+    assert math.isnan(zeros.row(math.nan)[0])
+    # -0.0 gives terms of either sign; one knot a NaN weight at an infinite temperature.
+    negative = CorrectionTable(KNOTS, ((-0.0,) * len(KNOTS),))
+    for table in (negative, CorrectionTable.zero((25.0,), 1),
+                  CorrectionTable(KNOTS, ((0.0,) * 4 + (1e-9,),))):
+        assert not table.subtracts_nothing
 
 
 def test_a_table_is_checked_and_adds_on_its_knots():

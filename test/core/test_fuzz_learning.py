@@ -89,7 +89,9 @@ def test_any_split_gives_the_bits_of_one_block(stream, with_acceleration, data):
                                     float(temperature[start]),
                                     None if acceleration is None else
                                     acceleration[start].tolist())
-            parts.append(tuple(np.array([v]) for v in out))
+            # The rates in use: the prior model's less the correction, before the offset.
+            assert _same(out[4], rate[start] - np.array(out[3]))
+            parts.append(tuple(np.array([v]) for v in out[:4]))
         else:
             block = split.process(time_s[start:end], rate[start:end], temperature[start:end],
                                   None if acceleration is None else acceleration[start:end])

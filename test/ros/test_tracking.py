@@ -9,10 +9,12 @@ replayed through driver_node into compensation_node must give what ``evaluate
 twin's final estimate. The learnt offset survives a SIGKILL and applies from the first
 sample after a restart; a ZRO recalibration seeds the tracker; the state file loads in
 every form it can have (the format before tracking included), and a bad tracking section
-is refused without losing the ZRO offset beside it. With an offset of 0.3 deg/s the fit
-never saw, a test publisher's nav_msgs/Odometry (the schedule's truth, by stamp) makes the
-node track as ``evaluate --track-bias --rest-hint`` does, bit for bit; a std_msgs/Bool from
-a live publisher, unstamped, lets it re-zero a supply's shift on the simulated sensor.
+is refused without losing the ZRO offset beside it; tracking turned on by a parameter (the
+node in this process, stamps the test sets) writes the file only once it learns. With an
+offset of 0.3 deg/s the fit never saw, a test publisher's nav_msgs/Odometry (the
+schedule's truth, by stamp) makes the node track as ``evaluate --track-bias --rest-hint``
+does, bit for bit; a std_msgs/Bool from a live publisher, unstamped, lets it re-zero a
+supply's shift on the simulated sensor.
 """
 
 from contextlib import redirect_stdout
@@ -35,11 +37,16 @@ from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.csv_writer import write_csv
 from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.ros import messages, rest_hint
-from mlx_tempcomp.ros.compensation_tracking import stamp_second, stamp_seconds
+from mlx_tempcomp.ros.compensation_node import CompensationNode
+from mlx_tempcomp.ros.compensation_tracking import NS_PER_S, stamp_second, stamp_seconds
 from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rest_records import offset_record, rest_record
 from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
                          first_line_with, paired, Probe, reliable, simulated_driver_params,
@@ -326,17 +333,19 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
     params_path = write_params(tmp_path / 'model.yaml', 'compensation_node', MODEL)
     model = build_model(node_values(params_path, 'compensation_node'))
     probe.subscribe_pipeline()
-    # A constant 3 deg/s turn: held, so the tracker learns nothing and the offset stays.
+    # A constant 10 deg/s turn: moving, so the tracker learns nothing and the offset stays
+    # however many windows close before the stop (3 deg/s, less a case's ZRO offset of
+    # 0.01 rad/s, looked still: a loaded machine that let a window close had it learnt).
     launcher.driver(simulated_driver_params(**{'simulation.seed': 4,
-                                               'simulation.rate_dps': [3.0]}))
+                                               'simulation.rate_dps': [10.0]}))
     for case, (level, text, files, offset_rad_s) in STATE_CASES.items():
         folder = tmp_path / case.replace(' ', '_')
         folder.mkdir()
         path = folder / 'zro.yaml'
         prepare(case, path, model.fingerprint())
         before = path.read_bytes()
-        # The tracking's forms of the file (field learning's section: ros/test_learning.py).
-        node = launcher.compensation({**MODEL, **TRACKED, 'recalibration.state_file': str(path)},
+        # Learning on, as shipped (its own section's forms: ros/test_learning.py).
+        node = launcher.compensation({**MODEL, 'recalibration.state_file': str(path)},
                                      label=case)
         probe.wait_streaming(['imu/data'], TIMEOUT_S, launcher)
         probe.spin_until(lambda: len(paired(probe)[0]) >= 20, TIMEOUT_S,
@@ -363,6 +372,54 @@ def test_every_form_of_the_state_file_loads_and_a_bad_section_keeps_the_zro_offs
                                     abs=1e-6), case
         print(f'{case}: {line.split("]: ", 1)[-1]}')
         probe.clear()
+
+
+def _hand_off(node, stamps_ns, rates_rad_s, temperature_c: float) -> None:
+    """Give the node one sample at a time as a driver in its process would (bringup)."""
+    for stamp_ns, rate in zip(stamps_ns, rates_rad_s):
+        stamp = messages.ns_to_stamp(int(stamp_ns))
+        node.take_local([
+            ('temperature', messages.temperature_message(stamp, 'imu_link', temperature_c)),
+            ('imu', messages.imu_message(stamp, 'imu_link', (2,), [float(rate)], [0.0] * 9))])
+
+
+def test_tracking_turned_on_writes_the_state_file_only_once_it_learns(tmp_path):
+    """
+    Off at start, on by a parameter: its state is the file's, nothing to write till it learns.
+
+    The node in this process, fed samples whose stamps the test sets (100 Hz, 5 s windows).
+    """
+    params_path = write_params(tmp_path / 'model.yaml', 'compensation_node', MODEL)
+    model = build_model(node_values(params_path, 'compensation_node'))
+    path = tmp_path / 'zro.yaml'
+    write_state(str(path), {'bias_tracking': section(model.fingerprint(), zro_offset=[0.0])})
+    before = path.read_bytes()
+    context = Context()
+    rclpy.init(args=['tracking', '--ros-args', '--disable-external-lib-logs'], context=context,
+               signal_handler_options=SignalHandlerOptions.NO)
+    overrides = {**MODEL, 'bias_tracking.enabled': False, 'recalibration.state_file': str(path)}
+    node = CompensationNode(context=context, local_input=True, parameter_overrides=[
+        Parameter(name, value=value) for name, value in overrides.items()])
+    try:
+        rng = np.random.default_rng(5)
+        temperature_c = 30.0
+        at_rest = -model.correct(np.zeros((1, 1)), np.array([temperature_c])).rate_rad_s[0, 0]
+        stamps = 1_800_000_000 * NS_PER_S + np.arange(6000) * NS_PER_S // 100
+        turning = at_rest + math.radians(10.0) + 1e-4 * rng.standard_normal(6000)
+        _hand_off(node, stamps[:200], turning[:200], temperature_c)
+        assert node.set_parameters([Parameter('bias_tracking.enabled', value=True)])[0].successful
+        _hand_off(node, stamps[200:3200], turning[200:3200], temperature_c)
+        tracking = node.tracking
+        assert tracking.tracker.window_count >= 5 and tracking.tracker.updates == 7
+        assert tracking.writes == 0 and path.read_bytes() == before
+        # At rest it learns, and the next window writes.
+        resting = at_rest + 1e-4 * rng.standard_normal(6000)
+        _hand_off(node, stamps[3200:], resting[3200:], temperature_c)
+        assert tracking.tracker.updates > 7 and tracking.writes >= 1
+        assert read_state(str(path))['bias_tracking']['updates'] > 7
+    finally:
+        node.destroy_node()
+        context.try_shutdown()
 
 
 def test_each_hint_type_says_at_rest_by_its_bounds_and_takes_its_stamp():

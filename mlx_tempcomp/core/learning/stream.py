@@ -13,6 +13,10 @@ learnt and may renew c, from that sample on (`FieldLearner.close`). So c changes
 where a window starts, and every window is corrected by one curve. A block (`process`)
 is cut at the window boundaries and each part goes through the same numpy operations as
 its rows one by one (`process_one`): any split gives the same bits, as the tracker's does.
+
+Until the first renewal c is +0.0, which takes nothing off a rate, bit for bit, at any
+temperature but NaN (`CorrectionTable.subtracts_nothing`): `process_one`, the node's
+per-message path, then hands the rate on as it came (tracking alone's bits, and its cost).
 """
 
 from dataclasses import dataclass
@@ -49,6 +53,7 @@ class LearningTracking:
         # The last row of the curve taken off (curve, temperature, row): a sensor's
         # temperature holds over many samples, and a row is a pure function of both.
         self._row = (None, None, None)
+        self._nothing = [0.0] * len(tracker.axes)    # the row of a curve of +0.0
 
     @classmethod
     def start(cls, tracker: BiasTracking, settings: LearningSettings,
@@ -113,14 +118,23 @@ class LearningTracking:
 
     def process_one(self, time_s: float, rate_rad_s, temperature_c: float,
                     acceleration_m_s2=None, rest_hint=None) -> tuple:
-        """Correct, track and learn one sample: (rates, stds, still, corrections), lists."""
+        """
+        Correct, track and learn one sample: (rates, stds, still, corrections, rates in use).
+
+        Lists; the rates in use are the prior model's less the correction, before the
+        tracker's offset (what the node's recalibration window takes).
+        """
         self._closing(time_s)
-        table, temperature, correction = self._row
-        if table is not self.learner.applied or temperature != temperature_c:
-            table = self.learner.applied
-            correction = table.row(temperature_c)
-            self._row = (table, temperature_c, correction)
-        out = [r - c for r, c in zip(rate_rad_s, correction)]
-        rate, std, still = self.tracker.process_one(time_s, out, temperature_c,
+        table = self.learner.applied
+        if table.subtracts_nothing and temperature_c == temperature_c:
+            # The prior in use (before the first renewal): the row is +0.0, the rate itself.
+            correction, in_use = self._nothing, rate_rad_s
+        else:
+            cached, temperature, correction = self._row
+            if cached is not table or temperature != temperature_c:
+                correction = table.row(temperature_c)
+                self._row = (table, temperature_c, correction)
+            in_use = [r - c for r, c in zip(rate_rad_s, correction)]
+        rate, std, still = self.tracker.process_one(time_s, in_use, temperature_c,
                                                     acceleration_m_s2, rest_hint)
-        return rate, std, still, correction
+        return rate, std, still, correction, in_use

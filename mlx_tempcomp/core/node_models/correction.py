@@ -8,6 +8,12 @@ line), held beyond the first and the last, as PX4 clamps its cubic at its range.
 is a weighted sum of four knot values (`knot_weights`), computed with the same operations
 for a column and for a float, so a row gives, bit for bit, the element of a block.
 
+A table of +0.0 (the learner's until its first renewal) takes nothing off any rate, bit
+for bit, at any temperature but NaN (`CorrectionTable.subtracts_nothing`), so the node's
+per-sample path need not compute its row: each term is a weight times +0.0, and the upper
+knot's weight (h01 + g0) is never negative for a temperature held within its interval, so
+the sum is +0.0 (and NaN at NaN, whose weights are NaN).
+
 `CorrectedModel` is a model the compensation node runs (`CompensationModel`): the base
 model's corrected rate less the table at each axis's temperature. The field learner
 (`core.learning`) renews a model this way, whatever the model is (eeprom, polynomial,
@@ -18,6 +24,7 @@ parameter file against the factory or chamber file shows exactly what was learnt
 
 import bisect
 from dataclasses import dataclass
+import functools
 import math
 
 import numpy as np
@@ -98,6 +105,19 @@ class CorrectionTable:
         (i0, w0), (i1, w1), (i2, w2), (i3, w3) = knot_weights(self.temperature_c,
                                                               temperature_c)
         return [w0 * v[i0] + w1 * v[i1] + w2 * v[i2] + w3 * v[i3] for v in self.values_rad_s]
+
+    # Cached (the table is frozen): the learner's stream asks at every sample.
+    @functools.cached_property
+    def subtracts_nothing(self) -> bool:
+        """
+        Tell whether a rate less the table is the rate, bit for bit, at any temperature but NaN.
+
+        So it is with +0.0 on two knots or more (see the module notes): the row is +0.0, and
+        r - (+0.0) is r, -0.0 included. Not with -0.0 (the terms' signs would follow the
+        weights'), nor with one knot (its weight is NaN at an infinite temperature).
+        """
+        return len(self.temperature_c) > 1 and all(
+            v == 0.0 and math.copysign(1.0, v) > 0.0 for axis in self.values_rad_s for v in axis)
 
     def columns(self, temperature_c: np.ndarray) -> np.ndarray:
         """Give the bias (samples, axes) at temperatures (samples, axes)."""
