@@ -402,7 +402,7 @@ class BagStream:
                   'passes': self.passes, 'stamp_shift_ns': self.shift_ns}
         if self.reader.skipped:
             return DiagnosticStatus.WARN, f'{self.reader.skipped} bag messages skipped', values
-        return DiagnosticStatus.OK, values['state'], values
+        return DiagnosticStatus.OK, state, values
 
     def close(self) -> None:
         self.reader.close()

@@ -1,15 +1,19 @@
 """
 The nodes' settings: every parameter reaches one, and the parameters that do not go together.
 
-`driver_settings` turns the driver's values into `DriverSettings`; each parameter
-must reach a field: changed alone to another value it takes (on one of a few
-bases: the defaults, a part it belongs to), the settings differ. A parameter added
-to the specs and forgotten in the settings fails here, by name.
+`driver_settings` and `compensation_settings` turn a node's values into its settings;
+each parameter must reach a field: changed alone to another value it takes (on one
+of a few bases: the defaults, a part or table it belongs to), the settings differ.
+A parameter added to the specs and forgotten in the settings fails here, by name; the
+compensation node's model parameters are the one exception, named: the node builds its
+model from the values (`build_model`).
 """
 
 import dataclasses
 
+from mlx_tempcomp.parameters.compensation import compensation_settings, COMPENSATION_SPECS
 from mlx_tempcomp.parameters.driver import driver_settings, DRIVER_SPECS
+from mlx_tempcomp.parameters.models import CORRECTION_SPECS, MODELS
 from mlx_tempcomp.parameters.specs import check_value, ParameterError, Spec
 import pytest
 
@@ -32,7 +36,8 @@ def alternatives(spec) -> list:
     elif kind == 'bool':
         candidates = [not default]
     elif kind in ('integer', 'double'):
-        candidates = [default + 1, default * 2 + 1] if spec.low is None else \
+        given = 0 if default == [] else default     # a double declared without a default
+        candidates = [given + 1, given * 2 + 1] if spec.low is None else \
             [spec.high, spec.low, (spec.low + spec.high) / 2]
         candidates = [int(v) if kind == 'integer' else float(v) for v in candidates]
     elif kind == 'string':
@@ -140,3 +145,79 @@ def test_driver_parameters_that_do_not_go_together_are_refused_naming_one(case):
     with pytest.raises(ParameterError) as raised:
         driver_settings(defaults(DRIVER_SPECS, **given))
     assert str(raised.value).startswith(message)
+
+
+# Read from the values by build_model, as evaluate reads them: not settings of the node.
+MODEL_PARAMETERS = {spec.name for kind in MODELS.values() for spec in kind.specs} | \
+    {spec.name for spec in CORRECTION_SPECS}
+COMPENSATION_BASES = (
+    defaults(COMPENSATION_SPECS),
+    # A model error table of three axes: each column is read.
+    defaults(COMPENSATION_SPECS, **{
+        'axes': MPU_AXES, 'model_error.temperature_c': [0.0], 'model_error.x_rad_s': [1e-3],
+        'model_error.y_rad_s': [1e-3], 'model_error.z_rad_s': [1e-3]}),
+)
+
+
+def test_every_compensation_parameter_reaches_a_setting_but_the_model_s():
+    missing = unreached(compensation_settings, COMPENSATION_SPECS, COMPENSATION_BASES)
+    # The eeprom model's wait is the node's: how long the samples wait for the tables.
+    assert sorted(missing) == sorted(MODEL_PARAMETERS - {'eeprom.wait_s'})
+
+
+def test_the_compensation_settings_are_frozen_and_hold_no_list():
+    settings = compensation_settings(COMPENSATION_BASES[1])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.model = 'polynomial'
+    hash(settings)
+    assert settings.model_error.temperature_c == (0.0,)
+    assert settings.covariance_noise_rad_s == (0.0058,) * 3
+
+
+COMPENSATION_REFUSED = {
+    'model error without temperatures': (
+        {'model_error.z_rad_s': [1e-3]},
+        'invalid parameter model_error.temperature_c: unset, but model_error.z_rad_s is given'),
+    'covariance noise of another axis count': (
+        {'model_error.rate_noise_rad_s': [1e-3, 1e-3]},
+        'invalid parameter model_error.rate_noise_rad_s: needs one finite noise >= 0 per axis '
+        '(1: z)'),
+    'tracking without a noise figure': (
+        {'rate_noise_rad_s': 0.0},
+        'invalid parameter bias_tracking.rate_noise_rad_s: bias tracking needs the noise of a '
+        'sample; give it here or in rate_noise_rad_s (both are 0)'),
+    'tracking std per axis of another count': (
+        {'axes': ['x', 'z'], 'bias_tracking.initial_std_rad_s': [1e-3] * 3},
+        'invalid parameter bias_tracking.initial_std_rad_s: give one value or one per axis (2)'),
+    'learning knots upside down': (
+        {'learning.temperature_min_c': 50.0, 'learning.temperature_max_c': 10.0},
+        'invalid parameter learning.temperature_max_c: must be above temperature_min_c (50), '
+        'got 10'),
+    'learning prior per axis of another count': (
+        {'learning.prior_std_rad_s': [1e-3, 1e-3]},
+        'invalid parameter learning.prior_std_rad_s: give one value or one per axis (1)'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(COMPENSATION_REFUSED))
+def test_compensation_parameters_that_do_not_go_together_are_refused_naming_one(case):
+    given, message = COMPENSATION_REFUSED[case]
+    with pytest.raises(ParameterError) as raised:
+        compensation_settings(defaults(COMPENSATION_SPECS, **given))
+    assert str(raised.value).startswith(message)
+
+
+def test_what_is_not_used_is_not_checked_and_the_recalibration_refuses_without_a_noise():
+    # Tracking off: its values are not used (a change turning it on checks them).
+    off = compensation_settings(defaults(COMPENSATION_SPECS, **{
+        'bias_tracking.enabled': False, 'learning.enabled': False, 'rate_noise_rad_s': 0.0,
+        'learning.temperature_min_c': 50.0, 'learning.temperature_max_c': 10.0}))
+    assert off.tracking.tracker is None and off.learning is None
+    # A model with a correction table: the learnt table takes its knots, not learning.*'s.
+    corrected = compensation_settings(defaults(COMPENSATION_SPECS, **{
+        'correction.temperature_c': [0.0, 40.0], 'correction.z_rad_s': [0.0, 1e-3],
+        'learning.temperature_min_c': 50.0, 'learning.temperature_max_c': 10.0}))
+    assert corrected.learning.knots_c is None
+    with pytest.raises(ParameterError, match='invalid parameter rate_noise_rad_s: recalibration '
+                                             'needs a positive noise figure'):
+        off.recalibration_limits()
