@@ -171,8 +171,10 @@ SENSOR_STEPS = {
              ' high=1000.0),\n', before=True),
         Edit('mlx_tempcomp/parameters/driver.py', ('DriverSettings',),
              '@dataclass(frozen=True)\nclass DriverSettings:',
-             f'@dataclass(frozen=True)\nclass {PART_SECTION}:\n    """``{PART}.*``: the toy part\'s '
-             'bandwidth."""\n\n    bandwidth_hz: float\n\n\n', before=True),
+             f'@dataclass(frozen=True)\nclass {PART_SECTION}:\n'
+             f'    """``{PART}.*``: the toy part\'s bandwidth."""\n\n'
+             '    bandwidth_hz: float\n\n\n',
+             before=True),
         Edit('mlx_tempcomp/parameters/driver.py', ('DriverSettings',),
              '    mpu6000: Mpu6000Settings\n', f'    {PART}: {PART_SECTION}\n'),
         Edit('mlx_tempcomp/parameters/driver.py', ('driver_settings',), '        mpu6000=mpu6000',
