@@ -152,6 +152,7 @@ EFFECT_STEPS = {
 # for its protocol, simulation, source and stream.
 PART = 'toygyro'
 PART_SETTING = f'{PART}.bandwidth_hz'
+PART_SECTION = 'ToygyroSettings'
 SENSOR_STEPS = {
     1: (StandIn('mlx_tempcomp/hardware/<part>.py'), StandIn('test/hardware/test_<part>.py')),
     2: (StandIn('mlx_tempcomp/simulation/<part>.py'),),
@@ -168,6 +169,16 @@ SENSOR_STEPS = {
              "    Spec('mpu6000.variant',",
              f"    Spec('{PART_SETTING}', 50.0, 'toy part: bandwidth', read_only=True, low=1.0,"
              ' high=1000.0),\n', before=True),
+        Edit('mlx_tempcomp/parameters/driver.py', ('DriverSettings',),
+             '@dataclass(frozen=True)\nclass DriverSettings:',
+             f'@dataclass(frozen=True)\nclass {PART_SECTION}:\n'
+             f'    """``{PART}.*``: the toy part\'s bandwidth."""\n\n'
+             '    bandwidth_hz: float\n\n\n',
+             before=True),
+        Edit('mlx_tempcomp/parameters/driver.py', ('DriverSettings',),
+             '    mpu6000: Mpu6000Settings\n', f'    {PART}: {PART_SECTION}\n'),
+        Edit('mlx_tempcomp/parameters/driver.py', ('driver_settings',), '        mpu6000=mpu6000',
+             f",\n        {PART}=_section({PART_SECTION}, values, '{PART}.')"),
         Edit('mlx_tempcomp/parameters/driver.py', ('sample_rate_hz',),
              'output rate over 1 + SMPLRT_DIV', f'; {PART} 5700'),
         Edit('mlx_tempcomp/parameters/driver.py', ('spi.speed_hz',),
@@ -414,9 +425,11 @@ def test_a_toy_part_is_accepted_by_the_driver_s_parameters_and_listed(sensor_cop
     assert refused == f'invalid parameter {PART_SETTING}: 5000.0 is outside 1 to 1000'
     assert PART in devices.split()
     report = _pytest(sensor_copy, 'test/parameters/test_specs.py', 'test/sources/test_protocol.py',
-                     '-k', 'config or device or source')
+                     'test/parameters/test_settings.py', '-k',
+                     'config or device or source or driver_parameter')
     for test in ('test_the_shipped_config_lists_every_parameter',
                  'test_every_device_is_listed_where_a_user_looks',
+                 'test_every_driver_parameter_reaches_a_setting',
                  'test_every_device_has_its_simulated_source_here',
                  f'test_simulated_sources_satisfy_the_protocol[{PART}]'):
         assert re.search(rf'^PASSED \S+::{re.escape(test)}$', report, re.M), test

@@ -2,7 +2,8 @@
 The nodes' parameters and state on disk, without rclpy: specs, checks, models, files.
 
 `specs` holds the `Spec` type, its checks and the parameters both nodes have;
-`driver` and `compensation` each node's specs, `tracking` the bias tracking's
+`driver` and `compensation` each node's specs and the frozen settings they make
+(`driver_settings`, `compensation_settings`), `tracking` the bias tracking's
 (``bias_tracking.*``) and `learning` the field learning's (``learning.*``); `models` the
 table of the models the compensation node runs (`MODELS`, `build_model`); `files` reading
 a node's values from a parameter file and writing a fitted model's; `command_line` the

@@ -6,24 +6,34 @@ The compensation node's parameters: its specs, and the settings read from their 
 table any model may carry (`models.CORRECTION_SPECS`), the model error table,
 the ZRO recalibration, the inputs, and the bias tracking
 (``bias_tracking.*``, `tracking.TRACKING_SPECS`) with its field learning
-(``learning.*``, `learning.LEARNING_SPECS`). `model_error_of`,
-`covariance_noise_of`, `limits_of` and `state_file_of` read the settings the node and the toolkit
-build from the values, raising `ParameterError` naming the parameter.
+(``learning.*``, `learning.LEARNING_SPECS`). `model_error_of` and
+`covariance_noise_of` read the settings the node and the toolkit build from the
+values, raising `ParameterError` naming the parameter.
+
+`compensation_settings` gives the node's settings of its values, `CompensationSettings`:
+frozen, typed, one section per group of parameters (``temperature.*``,
+``supply_voltage.*``, ``recalibration.*``, ``bias_tracking.*`` with the core's
+`TrackingSettings`, ``learning.*`` as `learning.FieldLearning`), the model error table
+and the covariance's noise, each checked by the builder the toolkit shares
+(`model_error_of`, `tracking.tracking_settings`, `learning.field_learning`);
+`ParameterError` names the parameter. The model's own parameters are not in it: the
+node builds the model from the values (`models.build_model`), as ``evaluate`` does.
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import math
 import os
 from typing import Optional
 
-from .learning import LEARNING_SPECS, PREFIX as LEARNING
-from .models import CORRECTION_SPECS, MODELS
-from .specs import axes_of, COMMON_SPECS, NoDefault, ParameterError, Spec
+from .learning import field_learning, FieldLearning, LEARNING_SPECS, PREFIX as LEARNING
+from .models import correction_of, CORRECTION_SPECS, MODELS
+from .specs import (axes_of, COMMON_SPECS, NoDefault, ParameterError, sensor_of, SensorSettings,
+                    Spec)
 from .state_paths import state_path
-from .tracking import TRACKING_SPECS, UNIT_SPECS
+from .tracking import PREFIX as TRACKING, tracking_settings, TRACKING_SPECS, UNIT_SPECS
 from ..core.errors import ConfigError
 from ..core.node_models import AXIS_NAMES, ModelErrorTable, table_temperatures
-from ..core.standstill import RecalibrationLimits
+from ..core.standstill import RecalibrationLimits, TrackingSettings
 
 # The node's own learning parameter (fit and diagnose do not write it).
 LEARNED_MODEL_FILE = LEARNING + 'learned_model_file'
@@ -99,17 +109,6 @@ COMPENSATION_SPECS = COMMON_SPECS + (
 )
 
 
-def limits_of(values: dict) -> RecalibrationLimits:
-    noise = values['rate_noise_rad_s']
-    if noise <= 0.0:
-        msg = 'invalid parameter rate_noise_rad_s: recalibration needs a positive noise figure'
-        raise ParameterError(msg)
-    return RecalibrationLimits(
-        rate_noise_rad_s=noise, noise_multiple=values['recalibration.noise_multiple'],
-        max_mean_rate_rad_s=values['recalibration.max_mean_rate_rad_s'],
-        max_temperature_change_c=values['recalibration.max_temperature_change_c'])
-
-
 def model_error_of(values: dict) -> Optional[ModelErrorTable]:
     """
     Build the model error table of the measured axes; None when model_error.* is unset.
@@ -162,20 +161,6 @@ def covariance_noise_of(values: dict) -> tuple:
     return tuple(float(v) for v in given)
 
 
-def state_file_of(values: dict, fully_qualified_name: str, log) -> str:
-    """Give the node's state file: the parameter, else its default (`state_paths.state_path`)."""
-    return state_path(values['recalibration.state_file'], fully_qualified_name, '_zro.yaml', log)
-
-
-def learned_model_file_of(values: dict, state_file: str, node_name: str) -> str:
-    """Give where imu/save_learned_model writes: the parameter, else beside the state file."""
-    path = values[LEARNED_MODEL_FILE]
-    if not path:
-        path = os.path.join(os.path.dirname(os.path.abspath(state_file)),
-                            f'{node_name}_learned.yaml')
-    return os.path.expanduser(path)
-
-
 def unit_values(values: dict) -> dict:
     """
     Give the node's values that describe the unit's model, as ``fit`` writes them (flat).
@@ -189,3 +174,145 @@ def unit_values(values: dict) -> dict:
         {spec.name for spec in UNIT_SPECS + LEARNING_SPECS}
     return {key: value for key, value in values.items()
             if (key in unit or key.startswith(prefixes)) and value != []}
+
+
+@dataclass(frozen=True)
+class TemperatureSettings:
+    """``temperature.*``: how the temperature pairs with the samples, and how long it waits."""
+
+    pairing: str                 # hold, interpolate, stamp or none
+    max_age_s: float
+    wait_s: float
+
+
+@dataclass(frozen=True)
+class SupplyVoltageSettings:
+    """``supply_voltage.*``: how the supply voltage pairs with the samples."""
+
+    pairing: str                 # hold or stamp
+    max_age_s: float
+
+
+@dataclass(frozen=True)
+class RecalibrationSettings:
+    """``recalibration.*``: the ZRO recalibration's window, its rest limits, the state file."""
+
+    duration_s: float
+    noise_multiple: float
+    max_mean_rate_rad_s: float
+    max_temperature_change_c: float
+    state_file: str              # '' = under ROS_HOME (`state_file_of`)
+
+
+@dataclass(frozen=True)
+class RestHintSettings:
+    """``bias_tracking.rest_hint_*`` but its age: the robot's word that it stands still."""
+
+    topic: str                   # '' = none
+    message_type: str
+    max_linear_m_s: float
+    max_angular_rad_s: float
+
+
+@dataclass(frozen=True)
+class BiasTrackingSettings:
+    """``bias_tracking.*``: the tracker's settings (None: off) and what the node adds."""
+
+    tracker: Optional[TrackingSettings]
+    zero_at_start: bool
+    save_period_s: float
+    rest_hint: RestHintSettings
+
+
+@dataclass(frozen=True)
+class CompensationSettings:
+    """The compensation node's parameters, checked, but the model's own (`build_model`)."""
+
+    axes: tuple
+    sensor: SensorSettings
+    rate_noise_rad_s: float
+    model: str
+    eeprom_wait_s: float
+    model_error: Optional[ModelErrorTable]
+    covariance_noise_rad_s: tuple        # per axis (`covariance_noise_of`)
+    recalibration: RecalibrationSettings
+    stale_timeout_s: float
+    max_block: int
+    supply_voltage: SupplyVoltageSettings
+    temperature: TemperatureSettings
+    rate_only_offset_std_rad_s: float
+    tracking: BiasTrackingSettings
+    learning: Optional[FieldLearning]    # None: learning.enabled false
+    learned_model_file: str              # '' = beside the state file (`learned_model_file_of`)
+
+    def recalibration_limits(self) -> RecalibrationLimits:
+        """Give when a recalibration window is at rest; `ParameterError` without a noise figure."""
+        if self.rate_noise_rad_s <= 0.0:
+            msg = ('invalid parameter rate_noise_rad_s: recalibration needs a positive noise '
+                   'figure')
+            raise ParameterError(msg)
+        given = self.recalibration
+        return RecalibrationLimits(
+            rate_noise_rad_s=self.rate_noise_rad_s, noise_multiple=given.noise_multiple,
+            max_mean_rate_rad_s=given.max_mean_rate_rad_s,
+            max_temperature_change_c=given.max_temperature_change_c)
+
+
+def compensation_settings(values: dict) -> CompensationSettings:
+    """
+    Give the node's settings of its parameter values; `ParameterError` names what is wrong.
+
+    The values are those `ros.declare.declare` gives (types, ranges and choices checked).
+    The field learning's are checked while it is on, whether tracking runs or not
+    (``bias_tracking.enabled`` may change at run time, ``learning.*`` may not); its knots
+    unless the model carries a correction table, whose knots the learnt one takes.
+    """
+    axes = axes_of(values)
+    model_error = model_error_of(values)
+    try:
+        tracker = tracking_settings(values, axes, values['rate_noise_rad_s'])
+        learning = field_learning(values, len(axes), knots=correction_of(values) is None) \
+            if values[LEARNING + 'enabled'] else None
+    except ConfigError as err:
+        raise ParameterError(str(err)) from None
+    return CompensationSettings(
+        axes=axes, sensor=sensor_of(values), rate_noise_rad_s=values['rate_noise_rad_s'],
+        model=values['model'], eeprom_wait_s=values['eeprom.wait_s'], model_error=model_error,
+        covariance_noise_rad_s=covariance_noise_of(values),
+        recalibration=RecalibrationSettings(
+            duration_s=values['recalibration.duration_s'],
+            noise_multiple=values['recalibration.noise_multiple'],
+            max_mean_rate_rad_s=values['recalibration.max_mean_rate_rad_s'],
+            max_temperature_change_c=values['recalibration.max_temperature_change_c'],
+            state_file=values['recalibration.state_file']),
+        stale_timeout_s=values['stale_timeout_s'], max_block=values['max_block'],
+        supply_voltage=SupplyVoltageSettings(values['supply_voltage.pairing'],
+                                             values['supply_voltage.max_age_s']),
+        temperature=TemperatureSettings(values['temperature.pairing'],
+                                        values['temperature.max_age_s'],
+                                        values['temperature.wait_s']),
+        rate_only_offset_std_rad_s=values['rate_only.offset_std_rad_s'],
+        tracking=BiasTrackingSettings(
+            tracker=tracker, zero_at_start=values[TRACKING + 'zero_at_start'],
+            save_period_s=values[TRACKING + 'save_period_s'],
+            rest_hint=RestHintSettings(
+                topic=values[TRACKING + 'rest_hint_topic'],
+                message_type=values[TRACKING + 'rest_hint_type'],
+                max_linear_m_s=values[TRACKING + 'rest_hint_max_linear_m_s'],
+                max_angular_rad_s=values[TRACKING + 'rest_hint_max_angular_rad_s'])),
+        learning=learning, learned_model_file=values[LEARNED_MODEL_FILE])
+
+
+def state_file_of(settings: CompensationSettings, fully_qualified_name: str, log) -> str:
+    """Give the node's state file: the parameter, else its default (`state_paths.state_path`)."""
+    return state_path(settings.recalibration.state_file, fully_qualified_name, '_zro.yaml', log)
+
+
+def learned_model_file_of(settings: CompensationSettings, state_file: str,
+                          node_name: str) -> str:
+    """Give where imu/save_learned_model writes: the parameter, else beside the state file."""
+    path = settings.learned_model_file
+    if not path:
+        path = os.path.join(os.path.dirname(os.path.abspath(state_file)),
+                            f'{node_name}_learned.yaml')
+    return os.path.expanduser(path)

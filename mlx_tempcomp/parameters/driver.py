@@ -1,5 +1,5 @@
 """
-The driver node's parameters: its specs per device and source, and the simulated effects.
+The driver node's parameters: its specs per device and source, and the settings they make.
 
 `DEVICES` names the parts the driver reads (a test holds it equal to the
 driver's ``STREAMS``), `I2C_DEVICES` those of them that also speak I2C;
@@ -7,9 +7,21 @@ driver's ``STREAMS``), `I2C_DEVICES` those of them that also speak I2C;
 then the driver's: the source, SPI, I2C, bag replay, the simulated part, and
 one group per device (``adis16130.*``, ``mpu6000.*``). `bus_of` gives the bus
 a part is read over and refuses I2C for a part that has none.
+
+`driver_settings` turns the values into `DriverSettings`, frozen and typed, one
+section per group of parameters, checking what no descriptor can say: how the
+parameters go together (a part on the bus it has, one axis for the ADIS16130, the
+chip selects the axes need, a bag source with its path, the supply monitor on the
+simulated MLX90609 only); `ParameterError` names the parameter. What needs the part
+itself stays with its stream (its natural rate against ``publish_rate_hz``, the
+MPU's register ranges and addresses, which are the hardware layer's).
 """
 
-from .specs import COMMON_SPECS, NoDefault, ParameterError, Spec
+from dataclasses import dataclass, fields
+
+from .specs import (axes_of, COMMON_SPECS, NoDefault, ParameterError, sensor_of, SensorSettings,
+                    Spec)
+from ..core.procedures import ProcedureSettings, short_window
 from ..simulation.mlx90609 import Fault
 from ..simulation.physics import Effects
 
@@ -197,3 +209,266 @@ def effects_of(values: dict) -> Effects:
     return Effects(thermal_lag_s=values['simulation.thermal_lag_s'],
                    hysteresis_dps=values['simulation.hysteresis_dps'],
                    zro_supply_dps_per_v=values['simulation.zro_supply_dps_per_v'])
+
+
+@dataclass(frozen=True)
+class SpiSettings:
+    """``spi.*``: the spidev bus, a chip select per part, the clock (0 = the part's) and mode."""
+
+    bus: int
+    chip_selects: tuple
+    speed_hz: int
+    mode: int
+
+
+@dataclass(frozen=True)
+class I2cSettings:
+    """``i2c.*``: the i2c-dev bus and the part's 7-bit address."""
+
+    bus: int
+    address: int
+
+
+@dataclass(frozen=True)
+class BagSettings:
+    """``bag.*``: the bag replayed, how fast, what at its end, and its topics."""
+
+    path: str
+    rate_factor: float
+    pace_topic: str
+    pace_timeout_s: float
+    on_end: str
+    imu_topic: str
+    temperature_topic: str
+    eeprom_topic: str
+    supply_voltage_topic: str
+    temperature_2_topic: str     # '' = none
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """``simulation.*``: the simulated part, its clock, chamber, truth, effects and fault."""
+
+    bus: str
+    seed: int
+    real_time_factor: float
+    lossless: bool
+    wait_for_subscriber: bool
+    eeprom_version: int
+    start_temperature_c: float
+    cycle_temperatures_c: tuple
+    ramp_c_per_min: float
+    hold_s: float
+    die_time_constant_s: float
+    rate_dps: tuple
+    supply_v: float
+    supply_monitor_hz: float
+    effects: Effects
+    fault: str
+    bias_dps: float
+    bias_dps_per_c: float
+
+
+@dataclass(frozen=True)
+class BiasProcedureSettings:
+    """``adis16130.bias_procedure.*``: its windows and waits, and the file it writes."""
+
+    average_s: float
+    self_heat_s: float
+    settle_s: float
+    pbc_s: float                 # 0 = the averaging time the rest record advises
+    allan_record_s: float
+    min_temperature_change_c: float
+    output_file: str             # '' = under ROS_HOME
+    node_name: str
+
+
+@dataclass(frozen=True)
+class Adis16130Settings:
+    """``adis16130.*``: the conversion, the register read-back and the bias procedure."""
+
+    resolution_bits: int
+    verify_registers: bool
+    bias_procedure: BiasProcedureSettings
+
+
+@dataclass(frozen=True)
+class Mpu6000Settings:
+    """``mpu6000.*``: the part, its ranges and filter, its offsets and their refresh."""
+
+    variant: str
+    gyro_full_scale_dps: int
+    accel_full_scale_g: int
+    dlpf_config: int
+    sample_rate_divider: int
+    accel_noise_m_s2: float
+    offsets_file: str            # '' = under ROS_HOME
+    calibration_duration_s: float
+    calibration_noise_multiple: float
+    offset_model_file: str       # '' = no refresh
+    offset_model_node: str
+    offset_refresh_c: float
+
+
+@dataclass(frozen=True)
+class DriverSettings:
+    """The driver node's parameters, checked; one section per group."""
+
+    device: str
+    source: str
+    axes: tuple
+    bus: str                     # what the part is read over: 'spi' or 'i2c' (`bus_of`)
+    frame_id: str
+    rate_noise_rad_s: float
+    publish_rate_hz: float
+    sample_rate_hz: float        # 0 = the part's natural rate
+    oversample: int
+    sensor: SensorSettings
+    spi: SpiSettings
+    i2c: I2cSettings
+    bag: BagSettings
+    simulation: SimulationSettings
+    adis16130: Adis16130Settings
+    mpu6000: Mpu6000Settings
+
+    @property
+    def simulated(self) -> bool:
+        return self.source == 'simulated'
+
+    @property
+    def simulated_mlx90609(self) -> bool:
+        """Tell whether the simulated MLX90609 runs: the one with a supply to set and monitor."""
+        return self.device == 'mlx90609' and self.simulated
+
+
+def _section(cls, values: dict, prefix: str, **given):
+    """Give ``cls`` with each field the value of ``prefix`` + its name, but those ``given``."""
+    names = [field.name for field in fields(cls) if field.name not in given]
+    return cls(**{name: _plain(values[prefix + name]) for name in names}, **given)
+
+
+def _plain(value):
+    """Give a list value as a tuple (frozen settings), any other as it is."""
+    return tuple(value) if isinstance(value, list) else value
+
+
+def driver_settings(values: dict) -> DriverSettings:
+    """
+    Give the driver's settings of its parameter values; `ParameterError` names what is wrong.
+
+    The values are those `ros.declare.declare` gives (types, ranges and choices
+    checked); here how they go together.
+    """
+    axes = axes_of(values)
+    sensor = sensor_of(values)
+    bus = bus_of(values)
+    simulation = _section(SimulationSettings, values, 'simulation.', effects=effects_of(values))
+    mpu6000 = _section(Mpu6000Settings, values, 'mpu6000.',
+                       calibration_duration_s=values['mpu6000.calibration.duration_s'],
+                       calibration_noise_multiple=values['mpu6000.calibration.noise_multiple'])
+    settings = DriverSettings(
+        device=values['device'], source=values['source'], axes=axes, bus=bus,
+        frame_id=values['frame_id'], rate_noise_rad_s=values['rate_noise_rad_s'],
+        publish_rate_hz=values['publish_rate_hz'], sample_rate_hz=values['sample_rate_hz'],
+        oversample=values['oversample'], sensor=sensor, spi=_section(SpiSettings, values, 'spi.'),
+        i2c=_section(I2cSettings, values, 'i2c.'), bag=_section(BagSettings, values, 'bag.'),
+        simulation=simulation,
+        adis16130=_section(Adis16130Settings, values, 'adis16130.', bias_procedure=_section(
+            BiasProcedureSettings, values, 'adis16130.bias_procedure.')),
+        mpu6000=mpu6000)
+    _check(settings)
+    return settings
+
+
+def _check(settings: DriverSettings) -> None:
+    """Raise `ParameterError` for parameters that do not go together; see the module notes."""
+    if not settings.frame_id:
+        raise ParameterError('invalid parameter frame_id: must not be empty')
+    if settings.simulation.supply_monitor_hz and not settings.simulated_mlx90609:
+        msg = ('invalid parameter simulation.supply_monitor_hz: the supply monitor belongs '
+               'to the simulated MLX90609 (device mlx90609, source simulated); a real '
+               'board monitor publishes imu/supply_voltage itself')
+        raise ParameterError(msg)
+    if settings.source == 'bag':
+        if not settings.bag.path:
+            raise ParameterError('invalid parameter bag.path: the bag source needs a path')
+        return
+    check_part = _PART_CHECKS.get(settings.device)
+    if check_part is not None:
+        check_part(settings)
+    if settings.source != 'spidev':
+        return
+    selects = settings.spi.chip_selects
+    if settings.device == 'mlx90609' and len(selects) != len(settings.axes):
+        msg = (f'invalid parameter spi.chip_selects: {len(selects)} chip selects for '
+               f'{len(settings.axes)} axes')
+        raise ParameterError(msg)
+    if settings.device != 'mlx90609' and len(selects) != 1:
+        msg = (f'invalid parameter spi.chip_selects: the {settings.device} is one part on one '
+               f'chip select, got {len(selects)}')
+        raise ParameterError(msg)
+
+
+def _check_adis16130(settings: DriverSettings) -> None:
+    if len(settings.axes) != 1:
+        msg = (f'invalid parameter axes: the adis16130 measures one axis, got '
+               f'{list(settings.axes)}')
+        raise ParameterError(msg)
+    bits = settings.adis16130.resolution_bits
+    if bits not in (16, 24):
+        msg = f'invalid parameter adis16130.resolution_bits: 24 or 16, got {bits}'
+        raise ParameterError(msg)
+    rate_dps = settings.simulation.rate_dps
+    if settings.simulated and len(rate_dps) != 1:
+        msg = (f'invalid parameter simulation.rate_dps: the adis16130 measures one '
+               f'axis, give one value, got {len(rate_dps)}')
+        raise ParameterError(msg)
+
+
+def _check_mpu6000(settings: DriverSettings) -> None:
+    if settings.oversample != 1:
+        msg = (f'invalid parameter oversample: the mpu6000 averages in its DLPF, not in '
+               f'the driver; give 1, got {settings.oversample}')
+        raise ParameterError(msg)
+    if not settings.simulated:
+        return
+    simulation = settings.simulation
+    if simulation.die_time_constant_s != 0.0:
+        msg = ('invalid parameter simulation.die_time_constant_s: the simulated mpu6000 '
+               'follows its thermal profile directly, give 0')
+        raise ParameterError(msg)
+    if len(simulation.rate_dps) not in (1, len(settings.axes)):
+        msg = (f'invalid parameter simulation.rate_dps: one value or one per axis '
+               f'({len(settings.axes)}), got {len(simulation.rate_dps)}')
+        raise ParameterError(msg)
+
+
+# The checks of each part's parameters (the MLX90609's chip selects are the driver's).
+_PART_CHECKS = {'adis16130': _check_adis16130, 'mpu6000': _check_mpu6000}
+
+
+def procedure_settings(settings: DriverSettings) -> ProcedureSettings:
+    """
+    Give the ADIS16130 bias procedure's settings; `ParameterError` names a window too short.
+
+    Checked when a procedure starts: ``adis16130.bias_procedure.*`` may change at run time.
+    """
+    prefix = 'adis16130.bias_procedure.'
+    given = settings.adis16130.bias_procedure
+    rate_hz = settings.publish_rate_hz
+    allan_s = given.allan_record_s
+    pbc_s = given.pbc_s or None
+    short = short_window(rate_hz, given.average_s, pbc_s, allan_s)
+    if short is not None:
+        name, seconds, why = short
+        msg = f'invalid parameter {prefix}{name}: {seconds:g} s at rate_hz {rate_hz:g} {why}'
+        raise ParameterError(msg)
+    if pbc_s is None and allan_s == 0.0:
+        msg = (f'invalid parameter {prefix}pbc_s: 0 (advised by the rest record) needs '
+               f'{prefix}allan_record_s > 0')
+        raise ParameterError(msg)
+    return ProcedureSettings(
+        average_s=given.average_s, self_heat_s=given.self_heat_s, settle_s=given.settle_s,
+        pbc_s=pbc_s, allan_record_s=allan_s,
+        min_temperature_change_c=given.min_temperature_change_c,
+        rate_noise_rad_s=settings.rate_noise_rad_s or None)

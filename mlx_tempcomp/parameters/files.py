@@ -7,7 +7,8 @@ rcl checks them, unknown names warned of as the node does (a misspelled name
 of the model refused: `command_line.file_names_check`); `flat_parameters` gives
 a file's keys as rcl names them; `node_overrides` every key the sections hold,
 as written; `node_model` the model the compensation node runs of a command's
-(nested) parameters, the node's defaults where they say nothing.
+(nested) parameters, the node's defaults where they say nothing;
+`offset_register_model` the bias a file's polynomial gives the MPU's offset registers.
 
 Writing: one function per model the toolkit fits builds its
 ``ros__parameters`` mapping: `polynomial_parameters` (bias polynomials, also
@@ -22,12 +23,14 @@ float (rcl refuses an int for a double parameter) and axis names are quoted
 strings (YAML 1.1 reads a bare y as a boolean).
 """
 
+import dataclasses
+
 import yaml
 
 from .command_line import file_names_check
 from .compensation import COMPENSATION_SPECS
-from .models import build_model
-from .specs import check_choices, check_value, ParameterError, widen_integers
+from .models import build_model, correction_of
+from .specs import axes_of, check_choices, check_value, ParameterError, widen_integers
 from .state_file import atomic_write
 from ..core.effects import EffectModel, LinearBtc
 from ..core.node_models import AXIS_NAMES, ChainModel, ModelErrorTable
@@ -128,6 +131,37 @@ def node_values(path: str, node_name: str, warn=None) -> dict:
     except ParameterError as err:
         raise ParameterError(f'{path}: {err}') from None
     return values
+
+
+def offset_register_model(path: str, node_name: str) -> EffectModel:
+    """
+    Give the bias model of ``node_name``'s polynomial in the file at ``path`` for the MPU.
+
+    The offset registers take a polynomial bias of gyro x, y and z (``mlx-tempcomp fit``),
+    without a learnt correction; its scale polynomial is left out: a register can only
+    add, and at rest there is no rate to scale. `ParameterError` names
+    ``mpu6000.offset_model_file`` and says what is wrong.
+    """
+    try:
+        values = node_values(path, node_name)
+        if values['model'] != 'polynomial':
+            msg = (f'model {values["model"]!r}: the offset registers take a polynomial '
+                   'bias (mlx-tempcomp fit --model polynomial or relative)')
+            raise ParameterError(msg)
+        if correction_of(values) is not None:
+            msg = ('correction.* (a learnt correction table): the offset registers take the '
+                   "polynomial's bias alone; run the learnt model in compensation_node (its "
+                   'model less the table), or give the file the node started from')
+            raise ParameterError(msg)
+        if axes_of(values) != AXIS_NAMES:
+            msg = f'axes {values["axes"]}: the model must cover gyro x, y and z in that order'
+            raise ParameterError(msg)
+        model = build_model(values)
+    except ParameterError as err:
+        msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
+        raise ParameterError(msg) from None
+    return dataclasses.replace(model, terms=tuple(
+        dataclasses.replace(term, scale=()) for term in model.terms))
 
 
 # libyaml's emitter when PyYAML has it: the same text, four times faster (a fleet writes a

@@ -3,14 +3,18 @@ The compensation node's ``learning.*`` parameters: their specs and the learner's
 
 `LEARNING_SPECS` lists each, as `tracking.TRACKING_SPECS` lists ``bias_tracking.*``:
 the compensation node declares them (`compensation.COMPENSATION_SPECS`) and ``mlx-tempcomp
-evaluate --learn`` reads them from a parameter file's node section. `learning_settings`
-turns the values (defaults where absent), the tracking settings and the prior model's
-error table into `core.learning.LearningSettings` (``core/learning/settings.py`` gives
-the maths of what a 0 stands for), checking what a descriptor cannot say; a ConfigError
-names the parameter. `learning_parameters` gives the section of a parameter file.
+evaluate --learn`` reads them from a parameter file's node section. `field_learning`
+turns the values (defaults where absent) into `FieldLearning`, checking what a
+descriptor cannot say (a ConfigError names the parameter); its `settings` adds the
+tracking settings and the prior model's error table and gives
+`core.learning.LearningSettings` (``core/learning/settings.py`` gives the maths of what
+a 0 stands for). `learning_settings` does both for ``evaluate``, whose prior model is
+read with the values. `learning_parameters` gives the section of a parameter file.
 """
 
+from dataclasses import dataclass
 import math
+from typing import Optional
 
 from .specs import Spec
 from ..core.errors import ConfigError
@@ -88,23 +92,63 @@ def knots_of(values: dict) -> tuple:
     return tuple(float(low + step * k) for k in range(count - 1)) + (float(high),)
 
 
+@dataclass(frozen=True)
+class FieldLearning:
+    """
+    The ``learning.*`` values, checked, per axis where they may be: what the learner starts from.
+
+    ``knots_c`` are those of ``temperature_min_c`` to ``_max_c`` by ``knot_step_c``
+    (None when not asked for: the prior model's table gives them).
+    """
+
+    knots_c: Optional[tuple]
+    prior_std_rad_s: tuple
+    fading_s: tuple
+    correlation_c: float
+    significance: float
+    min_runs: int
+    min_windows: int
+
+    def settings(self, tracking, model_error=None, knots_c=None) -> LearningSettings:
+        """
+        Give the learner's settings with the tracker's `TrackingSettings` ``tracking``.
+
+        ``model_error`` is the prior model's `ModelErrorTable` or None; ``knots_c`` the
+        knots of the correction the prior model carries already (the learnt one adds to
+        it), else those of the values.
+        """
+        knots = tuple(knots_c) if knots_c is not None else self.knots_c
+        return derive_settings(
+            tracking, knots, self.prior_std_rad_s, self.fading_s, self.correlation_c,
+            model_error, significance=self.significance, min_runs=self.min_runs,
+            min_windows=self.min_windows)
+
+
+def field_learning(values: dict, axes: int, knots: bool = True) -> FieldLearning:
+    """
+    Give the checked ``learning.*`` ``values`` (defaults where absent) of ``axes`` axes.
+
+    ``knots``: check and give the knots of the values (else None: the prior model's).
+    """
+    return FieldLearning(
+        knots_c=knots_of(values) if knots else None,
+        prior_std_rad_s=_axis_values(values, 'prior_std_rad_s', axes),
+        fading_s=_axis_values(values, 'fading_s', axes),
+        correlation_c=_scalar(values, 'correlation_c'),
+        significance=_scalar(values, 'significance'), min_runs=_scalar(values, 'min_runs'),
+        min_windows=_scalar(values, 'min_windows'))
+
+
 def learning_settings(values: dict, tracking, model_error=None, knots_c=None
                       ) -> LearningSettings:
     """
     Build the learner's settings from ``learning.*`` ``values`` (defaults where absent).
 
-    ``tracking`` is the tracker's `TrackingSettings`; ``model_error`` the prior model's
-    `ModelErrorTable` or None; ``knots_c`` the knots of the correction the prior model
-    carries already (the learnt one adds to it), else those of the values.
+    ``tracking`` is the tracker's `TrackingSettings`; ``model_error`` and ``knots_c`` as
+    `FieldLearning.settings` takes them (the values' knots are not read with ``knots_c``).
     """
-    axes = tracking.standstill.axes
-    knots = tuple(knots_c) if knots_c is not None else knots_of(values)
-    prior_std = _axis_values(values, 'prior_std_rad_s', axes)
-    fading = _axis_values(values, 'fading_s', axes)
-    return derive_settings(
-        tracking, knots, prior_std, fading, _scalar(values, 'correlation_c'), model_error,
-        significance=_scalar(values, 'significance'), min_runs=_scalar(values, 'min_runs'),
-        min_windows=_scalar(values, 'min_windows'))
+    return field_learning(values, tracking.standstill.axes, knots_c is None).settings(
+        tracking, model_error, knots_c)
 
 
 def learning_parameters(**given) -> dict:

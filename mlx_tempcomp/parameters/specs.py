@@ -155,6 +155,7 @@ def axes_of(values: dict) -> tuple:
 
 
 def transfer_of(values: dict) -> SensorTransfer:
+    """Give the nominal transfer of ``sensor.*`` (full scale aside)."""
     return SensorTransfer(
         nominal_zro_mv=values['sensor.nominal_zro_mv'],
         output_swing_mv=values['sensor.output_swing_mv'],
@@ -162,3 +163,15 @@ def transfer_of(values: dict) -> SensorTransfer:
         temperature_sensor_mv_per_k=values['sensor.temperature_sensor_mv_per_k'],
         temperature_mv_per_lsb=values['sensor.temperature_mv_per_lsb'],
         temperature_offset_mv=values['sensor.temperature_offset_mv'])
+
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """The ``sensor.*`` parameters: the full scale (0 = the EEPROM's RANGE) and the transfer."""
+
+    full_scale_dps: float
+    transfer: SensorTransfer
+
+
+def sensor_of(values: dict) -> SensorSettings:
+    return SensorSettings(values['sensor.full_scale_dps'], transfer_of(values))

@@ -20,11 +20,11 @@ from . import messages
 from .qos import STATUS_QOS
 from .service_window import (await_window, guarded, Outcome, Refused, ServiceGuard,
                              STALL_TIMEOUT_S)
-from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
+from .timed_stream import DeviceStream, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError, TempCompError
-from ..core.procedures import BiasProcedure, Phase, ProcedureSettings, short_window
+from ..core.procedures import BiasProcedure, Phase
 from ..core.series import allan_deviation
-from ..parameters.driver import effects_of
+from ..parameters.driver import DriverSettings, procedure_settings
 from ..parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
 from ..parameters.specs import ParameterError
 from ..parameters.state_paths import default_state_path
@@ -37,21 +37,16 @@ ADIS16130_SAMPLE_RATE_HZ = 5700.0
 PROGRESS_PERIOD_S = 1.0
 
 
-def simulated_adis(values: dict) -> adis16130.SimulatedSensor:
-    """Return the simulated ADIS16130 the driver reads for these parameter values, started."""
-    rate_dps = values['simulation.rate_dps']
-    if len(rate_dps) != 1:
-        msg = (f'invalid parameter simulation.rate_dps: the adis16130 measures one '
-               f'axis, give one value, got {len(rate_dps)}')
-        raise ParameterError(msg)
-    truth = Adis16130Truth(bias_dps=values['simulation.bias_dps'],
-                           bias_dps_per_c=values['simulation.bias_dps_per_c'],
-                           effects=effects_of(values))
+def simulated_adis(settings: DriverSettings) -> adis16130.SimulatedSensor:
+    """Return the simulated ADIS16130 the driver reads with these settings, started."""
+    simulation = settings.simulation
+    truth = Adis16130Truth(bias_dps=simulation.bias_dps,
+                           bias_dps_per_c=simulation.bias_dps_per_c, effects=simulation.effects)
     config = adis16130.SimulationConfig(
-        seed=values['simulation.seed'], resolution_bits=values['adis16130.resolution_bits'],
-        truth=truth, thermal=thermal_profile(values, values['simulation.die_time_constant_s']),
-        rate_dps=rate_dps[0], supply_v=values['simulation.supply_v'],
-        sclk_hz=float(speed_hz(values, adis16130.DEFAULT_SPEED_HZ)))
+        seed=simulation.seed, resolution_bits=settings.adis16130.resolution_bits,
+        truth=truth, thermal=thermal_profile(simulation, simulation.die_time_constant_s),
+        rate_dps=simulation.rate_dps[0], supply_v=simulation.supply_v,
+        sclk_hz=float(settings.spi.speed_hz or adis16130.DEFAULT_SPEED_HZ))
     return adis16130.SimulatedSensor(config)
 
 
@@ -59,25 +54,18 @@ class AdisStream(DeviceStream):
     """An ADIS16130 (one axis); offers the AN-1042 bias procedure as a service."""
 
     def __init__(self, ports: StreamPorts):
-        values = ports.values
-        if len(ports.axes) != 1:
-            msg = (f'invalid parameter axes: the adis16130 measures one axis, got '
-                   f'{list(ports.axes)}')
-            raise ParameterError(msg)
-        bits = values['adis16130.resolution_bits']
-        if bits not in (16, 24):
-            msg = f'invalid parameter adis16130.resolution_bits: 24 or 16, got {bits}'
-            raise ParameterError(msg)
-        self.oversample = values['oversample']
-        if values['source'] == 'simulated':
-            source = simulated_adis(values)
-            hardware_id = f'simulated ADIS16130 (seed {values["simulation.seed"]})'
+        settings = ports.settings()
+        bits = settings.adis16130.resolution_bits
+        self.oversample = settings.oversample
+        spi = settings.spi
+        if settings.simulated:
+            source = simulated_adis(settings)
+            hardware_id = f'simulated ADIS16130 (seed {settings.simulation.seed})'
         else:
-            cs = chip_select(values, 'adis16130')
             source = adis16130.spidev_sensor(
-                values['spi.bus'], cs, speed_hz(values, adis16130.DEFAULT_SPEED_HZ),
-                values['spi.mode'], bits, values['adis16130.verify_registers'])
-            hardware_id = f'ADIS16130 on /dev/spidev{values["spi.bus"]}.{cs}'
+                spi.bus, spi.chip_selects[0], spi.speed_hz or adis16130.DEFAULT_SPEED_HZ,
+                spi.mode, bits, settings.adis16130.verify_registers)
+            hardware_id = f'ADIS16130 on /dev/spidev{spi.bus}.{spi.chip_selects[0]}'
         self.bits = bits
         self.procedure = None
         self.guard = ServiceGuard()   # the driver's one calibration service: one call at a time
@@ -85,8 +73,8 @@ class AdisStream(DeviceStream):
             String, 'imu/bias_procedure/status', STATUS_QOS)
         ports.node.create_service(Trigger, 'imu/run_bias_procedure', self.run_bias_procedure,
                                   callback_group=ReentrantCallbackGroup())
-        super().__init__(ports, source, f'{hardware_id}, {bits}-bit',
-                         values['source'] == 'simulated', ADIS16130_SAMPLE_RATE_HZ)
+        super().__init__(ports, source, f'{hardware_id}, {bits}-bit', settings.simulated,
+                         ADIS16130_SAMPLE_RATE_HZ)
 
     def read(self):
         return self.source.read(self.oversample)
@@ -128,7 +116,7 @@ class AdisStream(DeviceStream):
     async def _run(self) -> Outcome:
         """Run the procedure while the stream feeds it (`Refused` when it fails); finish it."""
         try:
-            running = _RunningProcedure(self, self.values)
+            running = _RunningProcedure(self, self.settings)
         except (ParameterError, TempCompError) as err:
             raise Refused(str(err)) from None
         self.procedure = running
@@ -150,30 +138,15 @@ def _noise_figures(time_s, rate_rad_s):
 class _RunningProcedure:
     """One bias procedure: the state machine, its future and where it writes."""
 
-    def __init__(self, stream: AdisStream, values: dict):
+    def __init__(self, stream: AdisStream, settings: DriverSettings):
         self.stream = stream
-        prefix = 'adis16130.bias_procedure.'
-        rate_hz = values['publish_rate_hz']
-        allan_s = values[prefix + 'allan_record_s']
-        pbc_s = values[prefix + 'pbc_s'] or None
-        short = short_window(rate_hz, values[prefix + 'average_s'], pbc_s, allan_s)
-        if short is not None:
-            name, seconds, why = short
-            msg = f'invalid parameter {prefix}{name}: {seconds:g} s at rate_hz {rate_hz:g} {why}'
-            raise ParameterError(msg)
-        if pbc_s is None and allan_s == 0.0:
-            msg = (f'invalid parameter {prefix}pbc_s: 0 (advised by the rest record) needs '
-                   f'{prefix}allan_record_s > 0')
-            raise ParameterError(msg)
-        settings = ProcedureSettings(
-            average_s=values[prefix + 'average_s'], self_heat_s=values[prefix + 'self_heat_s'],
-            settle_s=values[prefix + 'settle_s'], pbc_s=pbc_s, allan_record_s=allan_s,
-            min_temperature_change_c=values[prefix + 'min_temperature_change_c'],
-            rate_noise_rad_s=values['rate_noise_rad_s'] or None)
-        self.procedure = BiasProcedure(settings, _noise_figures if allan_s > 0.0 else None)
-        self.path = os.path.expanduser(values[prefix + 'output_file']) or default_state_path(
+        procedure = procedure_settings(settings)
+        self.procedure = BiasProcedure(
+            procedure, _noise_figures if procedure.allan_record_s > 0.0 else None)
+        given = settings.adis16130.bias_procedure
+        self.path = os.path.expanduser(given.output_file) or default_state_path(
             stream.ports.node.get_fully_qualified_name(), '_linear_btc.yaml')
-        self.node_name = values[prefix + 'node_name']
+        self.node_name = given.node_name
         self.phase = self.procedure.phase
         self.future = Future()
 

@@ -4,9 +4,9 @@ Field learning in the compensation node: the learner beside the tracker, its sta
 `CompensationLearning` holds the `FieldLearner` the tracker's stream runs with
 (`core.learning.LearningTracking`, built by `CompensationTracking` as ``mlx-tempcomp
 evaluate --track-bias --learn`` builds it): its settings come from the node's
-``learning.*``, the tracking settings, the prior model's ``model_error.*`` table and the
-knots of the correction the prior model carries already (`learning_settings`, as
-`toolkit.learning.learning_of` gives them), so the node gives the offline twin's bits.
+``learning.*`` (`FieldLearning.settings`), the tracking settings, the prior model's
+``model_error.*`` table and the knots of the correction the prior model carries already,
+as `toolkit.learning.learning_of` gives them, so the node gives the offline twin's bits.
 
 The learner is relative to the prior model's coefficients (its name and fingerprint): a
 ZRO recalibration keeps it, a model with other coefficients starts it from the prior. It
@@ -37,10 +37,9 @@ from .service_window import Outcome, Refused
 from ..core.errors import CalibrationError, TempCompError
 from ..core.learning import FieldLearner
 from ..core.node_models import CorrectedModel, CorrectionTable
-from ..parameters.compensation import model_error_of, unit_values
+from ..parameters.compensation import CompensationSettings, unit_values
 from ..parameters.files import learned_parameters, parameter_file, write_parameter_file
-from ..parameters.learning import (largest_correction_rad_s, learning_settings,
-                                   PREFIX as LEARNING_PREFIX, renewal_lines)
+from ..parameters.learning import largest_correction_rad_s, renewal_lines
 from ..parameters.state_file import move_aside
 
 LEARNING_STATE = 'saved learning state'
@@ -70,18 +69,20 @@ class CompensationLearning:
     """
     The node's field learner (None while ``learning.enabled`` or tracking is off).
 
+    ``settings`` are the node's, ``values`` its parameter values (what a save writes);
     ``section`` is the state file's ``learning`` section read at start (unchecked);
     ``path`` the state file (for the log); ``learned_model_file`` where the service writes.
     """
 
-    def __init__(self, values: dict, axes: tuple, section, path: str, learned_model_file: str,
-                 logger):
-        self.enabled = values[LEARNING_PREFIX + 'enabled']
-        self.axes = axes
+    def __init__(self, settings: CompensationSettings, values: dict, section, path: str,
+                 learned_model_file: str, logger):
+        self.enabled = settings.learning is not None
+        self.axes = settings.axes
         self.logger = logger
         self.path = path
         self.learned_model_file = learned_model_file
         self.saved = section
+        self.node_settings = settings
         self.values = dict(values)
         self.settings = None
         self.learner: Optional[FieldLearner] = None
@@ -91,8 +92,9 @@ class CompensationLearning:
         self.saves = 0
         self.saver = LearnedModelSaver()
 
-    def configure(self, values: dict) -> None:
-        """Take the node's values now (the model's, its error table: what a save writes)."""
+    def configure(self, settings: CompensationSettings, values: dict) -> None:
+        """Take the node's settings (the model's error table) and values (what a save writes)."""
+        self.node_settings = settings
         self.values = dict(values)
 
     def describe(self) -> str:
@@ -108,8 +110,9 @@ class CompensationLearning:
 
     def _settings(self, tracking, model):
         table = prior_table(model)
-        return learning_settings(self.values, tracking, model_error_of(self.values),
-                                 None if table is None else table.temperature_c)
+        return self.node_settings.learning.settings(
+            tracking, self.node_settings.model_error,
+            None if table is None else table.temperature_c)
 
     def learner_for(self, model, tracking) -> Optional[FieldLearner]:
         """

@@ -55,16 +55,12 @@ from .zro_recalibration import full_scale_rad_s, ZroRecalibration
 from ..core.errors import CalibrationError, TempCompError
 from ..core.mlx90609 import Output, sensor_tables
 from ..core.node_models import RateOnlyModel
-from ..parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
-                                       learned_model_file_of, model_error_of, state_file_of)
+from ..parameters.compensation import (compensation_settings, COMPENSATION_SPECS,
+                                       learned_model_file_of, state_file_of)
 from ..parameters.models import build_model, MODEL_PREFIXES
-from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
-from ..parameters.tracking import tracking_settings
+from ..parameters.specs import check_choices, ParameterError
 from ..recordings.eeprom_multiarray import eeprom_images_from_multiarray
 
-_MODEL_ERROR_PREFIX = 'model_error.'
-# Parameters the bias tracking's settings depend on.
-_TRACKING_PREFIXES = ('bias_tracking.', 'rate_noise_rad_s')
 _POLL_S = 0.05
 # An input missing this long after the start is a WARN naming what to set, repeated at most
 # once a period (wall time).
@@ -83,41 +79,43 @@ class CompensationNode(Node):
         process through `take_local`, not from subscriptions (bringup).
         """
         super().__init__('compensation_node', **kwargs)
+        # The node reads the settings; the values build the model, the candidate settings of
+        # a change and the learnt model's file.
         self.values = declare(self, COMPENSATION_SPECS)
-        self.axes = axes_of(self.values)
+        self.settings = settings = compensation_settings(self.values)
+        self.axes = settings.axes
         self.indices = messages.axis_indices(self.axes)
-        self.transfer = transfer_of(self.values)
         self.sensor = None
         self.eeprom_error = ''
         # The model first: a node that cannot start leaves its state file as it is.
         model = build_model(self.values)
         self.recalibration = ZroRecalibration(
-            state_file_of(self.values, self.get_fully_qualified_name(), self.get_logger().warn),
+            state_file_of(settings, self.get_fully_qualified_name(), self.get_logger().warn),
             self.axes, self.get_logger())
         self.recalibration.load(self._full_scale_rad_s())
         model = self._with_saved_offset(model)
         self.model = None
         self.stream = None
         self.last_input = None
-        values = self.values
+        temperature = settings.temperature
         self.inputs = CompensationInputs(
-            self.axes, self.indices, len(self.axes) > 1 and values['model'] == 'eeprom',
-            values['supply_voltage.pairing'] == 'hold', values['temperature.pairing'],
-            values['temperature.max_age_s'], values['temperature.wait_s'])
+            self.axes, self.indices, len(self.axes) > 1 and settings.model == 'eeprom',
+            settings.supply_voltage.pairing == 'hold', temperature.pairing,
+            temperature.max_age_s, temperature.wait_s)
         # The rate only, while no temperature model can run (`alone` says why).
         self.rate_only = RateOnlyModel(len(self.axes))
         self.rate_only_stream = self.rate_only.stream()
         self.alone = ''
-        self.outputs = CompensationOutputs(self, self.values, self.indices,
+        self.outputs = CompensationOutputs(self, settings, self.indices,
                                            self.inputs.temperature_streams)
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         learning = CompensationLearning(
-            self.values, self.axes, self.recalibration.learning_section, self.recalibration.path,
-            learned_model_file_of(self.values, self.recalibration.path, self.get_name()),
+            settings, self.values, self.recalibration.learning_section,
+            self.recalibration.path,
+            learned_model_file_of(settings, self.recalibration.path, self.get_name()),
             self.get_logger())
-        self.tracking = CompensationTracking(self, self.values, self.axes, self.indices,
-                                             self.recalibration, self._full_scale_rad_s(),
-                                             learning)
+        self.tracking = CompensationTracking(self, settings, self.indices, self.recalibration,
+                                             self._full_scale_rad_s(), learning)
         # The EEPROM subscription first: when it and samples are ready together, the
         # executor takes it first, so no sample waits for a model.
         self.create_subscription(UInt8MultiArray, 'imu/eeprom', self.on_eeprom, EEPROM_QOS)
@@ -147,7 +145,8 @@ class CompensationNode(Node):
 
     def _start_summary(self) -> str:
         """Say what the node runs, reads, writes and what it loaded, in one line."""
-        eeprom = self.values['model'] == 'eeprom'
+        settings = self.settings
+        eeprom = settings.model == 'eeprom'
         inputs = ['raw rate and temperature from the driver in this process'] if \
             self.local_input else []
         hint = self.tracking.hint_topic
@@ -162,14 +161,14 @@ class CompensationNode(Node):
             f' (covariance: rate noise + model error at {len(table.temperature_c)} temperatures)'
         tracking = 'on' if self.tracking.settings is not None else 'off'
         if hint:
-            tracking += f' (rest hint: {hint}, {self.values["bias_tracking.rest_hint_type"]})'
-        if self.values['bias_tracking.zero_at_start']:
+            tracking += f' (rest hint: {hint}, {settings.tracking.rest_hint.message_type})'
+        if settings.tracking.zero_at_start:
             tracking += ' (zero at start: the first still run is taken as at rest)'
         learning = self.tracking.learning
         tracking += f', field learning {"on" if learning.enabled else "off"}'
         if learning.enabled:
             tracking += f' (imu/save_learned_model writes {learning.learned_model_file})'
-        return (f'model {self.values["model"]} on axes {list(self.axes)}, bias tracking '
+        return (f'model {settings.model} on axes {list(self.axes)}, bias tracking '
                 f'{tracking}; waits for {", ".join(inputs)}; {self._temperature_summary()}; '
                 f'publishes {", ".join(outputs)}{covariance}; state file '
                 f'{self.recalibration.path}: '
@@ -178,17 +177,18 @@ class CompensationNode(Node):
 
     def _temperature_summary(self) -> str:
         """Say how the temperature pairs, and when the node runs the rate only."""
-        values = self.values
-        pairing = values['temperature.pairing']
+        settings = self.settings
+        temperature = settings.temperature
+        pairing = temperature.pairing
         if pairing == 'none':
             return ('no temperature (temperature.pairing none): the rate only, less the '
                     'tracked offset, no temperature model')
-        within = f' within {values["temperature.max_age_s"]:g} s' \
+        within = f' within {temperature.max_age_s:g} s' \
             if pairing in ('hold', 'interpolate') else ''
         text = (f'temperature paired by {pairing}{within}, the rate only without one '
-                f'{values["temperature.wait_s"]:g} s after the first sample')
-        if values['model'] == 'eeprom':
-            text += (f'; the factory tables waited for {values["eeprom.wait_s"]:g} s, then '
+                f'{temperature.wait_s:g} s after the first sample')
+        if settings.model == 'eeprom':
+            text += (f'; the factory tables waited for {settings.eeprom_wait_s:g} s, then '
                      'the rate only until they come (only an MLX90609 driver sends them)')
         return text
 
@@ -196,7 +196,7 @@ class CompensationNode(Node):
         """WARN, throttled, for an input still missing a few seconds after the start."""
         if time.monotonic() - self.started < WAIT_WARN_S:
             return
-        missing = missing_inputs(self.values['model'], self.sensor is not None, self.inputs)
+        missing = missing_inputs(self.settings.model, self.sensor is not None, self.inputs)
         if missing:
             self.get_logger().warn(f'waiting {time.monotonic() - self.started:.0f} s: '
                                    + '; '.join(missing), throttle_duration_sec=WAIT_WARN_PERIOD_S)
@@ -216,7 +216,7 @@ class CompensationNode(Node):
         return super().destroy_node()
 
     def _full_scale_rad_s(self) -> float:
-        return full_scale_rad_s(self.values['sensor.full_scale_dps'], self.sensor)
+        return full_scale_rad_s(self.settings.sensor.full_scale_dps, self.sensor)
 
     def _with_saved_offset(self, model):
         return self.recalibration.with_saved_offset(model, self._full_scale_rad_s())
@@ -250,13 +250,14 @@ class CompensationNode(Node):
         dims = [(d.label, d.size, d.stride) for d in msg.layout.dim]
         try:
             images = eeprom_images_from_multiarray(dims, msg.data, msg.layout.data_offset)
-            self.sensor = sensor_tables(images, Output.DIGITAL, self.transfer,
-                                        self.values['sensor.full_scale_dps'])
+            sensor = self.settings.sensor
+            self.sensor = sensor_tables(images, Output.DIGITAL, sensor.transfer,
+                                        sensor.full_scale_dps)
             if len(self.sensor.tables) != len(self.axes):
                 reason = (f'the sensor sent {len(self.sensor.tables)} EEPROM images for '
                           f'{len(self.axes)} axes')
                 raise ParameterError(reason)
-            if self.values['model'] == 'eeprom':
+            if self.settings.model == 'eeprom':
                 self._use(self._with_saved_offset(self._build(self.values)))
         except (TempCompError, ParameterError) as err:
             self.eeprom_error = str(err)
@@ -277,7 +278,7 @@ class CompensationNode(Node):
 
     def on_input(self, stream: str, msg) -> None:
         """Pair ``msg`` and what else waits (`CompensationInputs.take`); compensate."""
-        complete = self.inputs.take(stream, msg, self.values['max_block'])
+        complete = self.inputs.take(stream, msg, self.settings.max_block)
         if complete:
             self.process(complete)
 
@@ -295,9 +296,10 @@ class CompensationNode(Node):
 
     def _process(self, samples: list, has_temperature: bool) -> None:
         """Compensate samples all with or all without a temperature as one block."""
+        settings = self.settings
         if has_temperature and self.stream is None:
             # The eeprom model without its tables: the samples wait eeprom.wait_s of stamps.
-            wait_ns = self.inputs.first_imu_ns + int(self.values['eeprom.wait_s'] * 1e9)
+            wait_ns = self.inputs.first_imu_ns + int(settings.eeprom_wait_s * 1e9)
             waiting = bisect.bisect_left([stamp for stamp, _ in samples], wait_ns)
             self.inputs.samples_waiting += waiting
             samples = samples[waiting:]
@@ -305,7 +307,7 @@ class CompensationNode(Node):
                 return
         stream = self._running(has_temperature)
         alone = stream is self.rate_only_stream
-        block = self.inputs.block(samples, self.values['supply_voltage.max_age_s'], not alone)
+        block = self.inputs.block(samples, settings.supply_voltage.max_age_s, not alone)
         if block is None:
             return
         rates, clamped = block.correct(stream)
@@ -315,7 +317,7 @@ class CompensationNode(Node):
         tracked, stds, in_use = self.tracking.track(block if has_temperature else replace(
             block, temperature_c=[[0.0]] * len(rates)), rates)
         if alone and stds is None:
-            stds = [[self.values['rate_only.offset_std_rad_s']] * len(self.axes)] * len(rates)
+            stds = [[settings.rate_only_offset_std_rad_s] * len(self.axes)] * len(rates)
         tracker = self.tracking.tracker
         self.outputs.publish(block, tracked, clamped, stds,
                              still=tracker is not None and tracker.still)
@@ -323,27 +325,29 @@ class CompensationNode(Node):
 
     def _running(self, has_temperature: bool):
         """Give the stream to run: the model's, else the rate only's (`alone` says why)."""
+        settings = self.settings
         if has_temperature and self.stream is not None:
             if self.alone:
                 self.alone = ''
                 self.tracking.follow(self.model)
-                self.get_logger().info(f'the {self.values["model"]} model runs from now on '
+                self.get_logger().info(f'the {settings.model} model runs from now on '
                                        '(a temperature and the model are there)')
             return self.stream
+        unpaired = settings.temperature.pairing == 'none'
         if has_temperature:
-            reason = (f'no factory tables on imu/eeprom {self.values["eeprom.wait_s"]:g} s '
+            reason = (f'no factory tables on imu/eeprom {settings.eeprom_wait_s:g} s '
                       'after the first sample: the eeprom model needs an MLX90609 driver; with '
                       'another, give a fitted model (mlx-tempcomp fit) or polynomial')
-        elif self.values['temperature.pairing'] == 'none':
+        elif unpaired:
             reason = 'no temperature (temperature.pairing none)'
         else:
             reason = (f'no temperature on {", ".join(self.inputs.temperature_topics.values())} '
-                      f'{self.values["temperature.wait_s"]:g} s after the first sample')
+                      f'{settings.temperature.wait_s:g} s after the first sample')
         if self.alone != reason:
             self.alone = reason
-            std = self.values['rate_only.offset_std_rad_s']
+            std = settings.rate_only_offset_std_rad_s
             self.tracking.follow(self.rate_only, [std] * len(self.axes))
-            until = '' if self.values['temperature.pairing'] == 'none' else \
+            until = '' if unpaired else \
                 ', until they come' if has_temperature else ', until one comes'
             self.get_logger().warn(
                 f'{reason}: the rate only, less the tracked offset, no temperature model'
@@ -359,7 +363,7 @@ class CompensationNode(Node):
         A coroutine: the executor keeps running the stream while it waits.
         """
         started = time.monotonic()
-        stale_s = self.values['stale_timeout_s']
+        stale_s = self.settings.stale_timeout_s
 
         def stale() -> None:
             if time.monotonic() - max(self.last_input or started, started) > stale_s:
@@ -377,7 +381,7 @@ class CompensationNode(Node):
             raise Refused(f'no temperature model runs ({self.alone}); the ZRO offset is '
                           'learnt on top of one (the bias tracking follows the rate offset at '
                           'rest meanwhile)')
-        recalibration.start(self.model, self.values, self._correction())
+        recalibration.start(self.model, self.settings, self._correction())
         window = recalibration.window
         try:
             await await_window(self, window.samples.future, stale, _POLL_S)
@@ -437,16 +441,12 @@ class CompensationNode(Node):
 
     # Parameters.
     def validate_parameters(self, parameters) -> SetParametersResult:
+        """Refuse a change whose candidate settings, or model, do not build; say why."""
         candidate = dict(self.values)
         candidate.update({p.name: messages_value(p) for p in parameters})
         try:
             check_choices(COMPENSATION_SPECS, candidate)
-            if any(p.name.startswith(_MODEL_ERROR_PREFIX) or p.name == 'rate_noise_rad_s'
-                   for p in parameters):
-                model_error_of(candidate)
-                covariance_noise_of(candidate)
-            if any(p.name.startswith(_TRACKING_PREFIXES) for p in parameters):
-                tracking_settings(candidate, self.axes, candidate['rate_noise_rad_s'])
+            compensation_settings(candidate)
             if _changes_model(parameters):
                 if self.recalibration.window is not None:
                     raise ParameterError('a ZRO recalibration is running; try again after it')
@@ -456,26 +456,28 @@ class CompensationNode(Node):
         return SetParametersResult(successful=True)
 
     def apply_parameters(self, parameters) -> None:
+        """Swap in the settings (and model) of the values set, validated: from the next sample."""
         for parameter in parameters:
             self.values[parameter.name] = messages_value(parameter)
-        self.outputs.configure(self.values)
-        self.tracking.configure(self.values)
+        self.settings = settings = compensation_settings(self.values)
+        self.outputs.configure(settings)
+        self.tracking.configure(settings, self.values)
         if _changes_model(parameters):
             # Validated in validate_parameters; swapped between two samples.
             self._use(self._with_saved_offset(self._build(self.values)))
-            self.get_logger().info(f'model now {self.values["model"]}')
+            self.get_logger().info(f'model now {settings.model}')
 
     def publish_diagnostics(self) -> None:
         self._warn_waiting()
         level, text, values = compensation_status(
-            values=self.values, model=self.model, sensor=self.sensor,
+            settings=self.settings, model=self.model, sensor=self.sensor,
             eeprom_error=self.eeprom_error, alone=self.alone, now=time.monotonic(),
             inputs=self.inputs, outputs=self.outputs, recalibration=self.recalibration,
             tracking={**self.tracking.status_values(), **self.tracking.learning_values()})
         self.outputs.clamped_recent = False
         self.inputs.clear_recent()
         status = messages.diagnostic_status(f'{self.get_name()}: compensation',
-                                            self.values['model'], level, text, values)
+                                            self.settings.model, level, text, values)
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diagnostics_publisher.publish(array)

@@ -17,7 +17,7 @@ from . import messages
 from .compensation_inputs import InputBlock
 from .qos import stream_publisher
 from ..core.node_models import StillWindows
-from ..parameters.compensation import covariance_noise_of, model_error_of
+from ..parameters.compensation import CompensationSettings
 
 
 class CompensationOutputs:
@@ -27,24 +27,25 @@ class CompensationOutputs:
     ``clamped_recent`` says a sample was clamped since the last status.
     """
 
-    def __init__(self, node, values: dict, indices: tuple, temperature_streams: tuple):
+    def __init__(self, node, settings: CompensationSettings, indices: tuple,
+                 temperature_streams: tuple):
         self.imu_publisher = stream_publisher(node, Imu, 'imu/data')
         self.temperature_publisher = stream_publisher(node, Temperature, 'imu/temperature')
         self.indices = indices
         self.temperature_streams = temperature_streams
-        self.configure(values)
+        self.configure(settings)
         self.samples_out = 0
         self.blocks = 0
         self.largest_block = 0
         self.clamped_samples = 0
         self.clamped_recent = False
 
-    def configure(self, values: dict) -> None:
-        """Take the parameter values the covariance depends on (checked before)."""
-        self.noise_rad_s = covariance_noise_of(values)
+    def configure(self, settings: CompensationSettings) -> None:
+        """Take the settings the covariance depends on: the noise, the model error table."""
+        self.noise_rad_s = settings.covariance_noise_rad_s
         self.covariance = messages.diagonal_covariance(self.indices,
                                                        [n * n for n in self.noise_rad_s])
-        self.model_error = model_error_of(values)
+        self.model_error = settings.model_error
         self._tracked = (None, None)   # the last tracked std and its covariance
         # A new covariance is judged afresh.
         self.still_windows = StillWindows()

@@ -2,7 +2,7 @@
 What the compensation node reports: its diagnostic status, and what it still waits for.
 
 `compensation_status` gives the level, text and values of its ``/diagnostics``
-status from the node's parts: the parameter values, the model, the factory
+status from the node's parts: its settings, the model, the factory
 tables, the inputs (`CompensationInputs`: what arrived when, what they could
 not pair), what it compensated (`OutputCounts`), the ZRO recalibration
 (`ZroRecalibration`) and the bias tracking (`CompensationTracking.status_values`).
@@ -17,6 +17,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from .compensation_inputs import CompensationInputs
 from .compensation_outputs import CompensationOutputs
 from .zro_recalibration import ZroRecalibration
+from ..parameters.compensation import CompensationSettings
 
 
 def _age(now: float, then: Optional[float]) -> float:
@@ -51,18 +52,19 @@ def missing_inputs(model_name: str, tables: bool, inputs: CompensationInputs) ->
     return missing
 
 
-def compensation_status(*, values: dict, model, sensor, eeprom_error: str, alone: str,
-                        now: float, inputs: CompensationInputs, outputs: CompensationOutputs,
-                        recalibration: ZroRecalibration, tracking: dict) -> tuple:
+def compensation_status(*, settings: CompensationSettings, model, sensor, eeprom_error: str,
+                        alone: str, now: float, inputs: CompensationInputs,
+                        outputs: CompensationOutputs, recalibration: ZroRecalibration,
+                        tracking: dict) -> tuple:
     """
     Give (level, text, values) of the node's status.
 
-    ``values`` are the parameter values, ``sensor`` the factory tables (None
+    ``settings`` are the node's, ``sensor`` the factory tables (None
     before the EEPROM message), ``alone`` why the node runs the rate only ('' when
     the model runs), ``now`` the monotonic time the input ages count to;
     ``tracking`` the bias tracking's values.
     """
-    model_name = values['model']
+    model_name = settings.model
     imu_age_s = _age(now, inputs.last_imu)
     temperature_age_s = _age(now, inputs.last_temperature)
     model_error = outputs.model_error
@@ -76,7 +78,7 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str, alone
         'blocks': outputs.blocks, 'largest_block': outputs.largest_block,
         'unpaired_dropped': inputs.unpaired_dropped,
         'compensation': f'rate only: {alone}' if alone else 'model',
-        'temperature_pairing': values['temperature.pairing'],
+        'temperature_pairing': settings.temperature.pairing,
         'no_temperature_samples': inputs.no_temperature_samples,
         'imu_age_s': imu_age_s, 'temperature_age_s': temperature_age_s,
         'temperature_stamp_age_s': inputs.temperature_stamp_age_ns / 1e9,
@@ -97,16 +99,17 @@ def compensation_status(*, values: dict, model, sensor, eeprom_error: str, alone
         'eeprom_outvoted_bits': 0 if sensor is None else sensor.outvoted_bits,
         **tracking,
     }
-    level, text = _level_and_text(values, model, eeprom_error, alone, inputs, outputs, tracking,
+    level, text = _level_and_text(settings, model, eeprom_error, alone, inputs, outputs, tracking,
                                   imu_age_s, temperature_age_s)
     return level, text, diagnostic_values
 
 
-def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, tracking,
+def _level_and_text(settings, model, eeprom_error, alone, inputs, outputs, tracking,
                     imu_age_s, temperature_age_s) -> tuple:
     """Give the status's level and text: the worst of what the node sees, first."""
-    model_name = values['model']
-    stale_s = values['stale_timeout_s']
+    model_name = settings.model
+    stale_s = settings.stale_timeout_s
+    max_age_s = settings.temperature.max_age_s
     topics = ', '.join(inputs.temperature_topics.values())
     if not imu_age_s <= stale_s:   # NaN before the first too
         if temperature_age_s <= stale_s:
@@ -117,7 +120,7 @@ def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, trackin
     if inputs.no_temperature_recent:
         return (DiagnosticStatus.ERROR,
                 f'Imu samples without a temperature within temperature.max_age_s '
-                f'({values["temperature.max_age_s"]:g} s) on {topics} (last one '
+                f'({max_age_s:g} s) on {topics} (last one '
                 f'{temperature_age_s:.3g} s ago): {inputs.no_temperature_samples} samples not '
                 'compensated')
     if eeprom_error:
@@ -131,9 +134,9 @@ def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, trackin
         level, text = (DiagnosticStatus.ERROR,
                        f'the {model_name} model needs the supply voltage but '
                        'imu/supply_voltage gave none within supply_voltage.max_age_s '
-                       f'({values["supply_voltage.max_age_s"]:g} s) of the samples: '
+                       f'({settings.supply_voltage.max_age_s:g} s) of the samples: '
                        f'{inputs.no_supply_samples} samples not compensated')
-    elif inputs.held_back[1] > values['temperature.max_age_s']:
+    elif inputs.held_back[1] > max_age_s:
         waiting, waited_s = inputs.held_back
         level, text = (DiagnosticStatus.WARN,
                        f'{waiting} Imu samples waiting for the temperature of their own stamp '
@@ -145,11 +148,11 @@ def _level_and_text(values, model, eeprom_error, alone, inputs, outputs, trackin
     elif inputs.waiting_for_temperature:
         level, text = (DiagnosticStatus.WARN,
                        f'waiting for a first temperature on {topics}: the rate only after '
-                       f'temperature.wait_s ({values["temperature.wait_s"]:g} s)')
+                       f'temperature.wait_s ({settings.temperature.wait_s:g} s)')
     elif model is None:
         level, text = (DiagnosticStatus.WARN,
                        'waiting for the EEPROM tables: the rate only after eeprom.wait_s '
-                       f'({values["eeprom.wait_s"]:g} s)')
+                       f'({settings.eeprom_wait_s:g} s)')
     elif inputs.waiting_for_supply:
         level, text = DiagnosticStatus.WARN, 'waiting for a supply voltage on imu/supply_voltage'
     elif outputs.clamped_recent:

@@ -1,8 +1,9 @@
 """
 Bias tracking in the compensation node: the tracker over each corrected block, topics, state.
 
-`CompensationTracking` runs the core's `BiasTracking` (built from ``bias_tracking.*`` by
-`tracking_settings`, as ``mlx-tempcomp evaluate --track-bias`` builds it) over the
+`CompensationTracking` runs the core's `BiasTracking` (its settings built from
+``bias_tracking.*`` by `tracking_settings` in the node's `CompensationSettings`, as
+``mlx-tempcomp evaluate --track-bias`` builds them) over the
 model's output of every block (`track`): the node publishes that rate less the tracked
 offset, and the Imu covariance takes the offset's variance. Time is the header stamp
 in seconds as the bag reader makes it (`stamp_seconds`), so a replayed bag gives the
@@ -56,8 +57,8 @@ from ..core.errors import CalibrationError
 from ..core.learning import LearningTracking
 from ..core.node_models import AXIS_NAMES
 from ..core.standstill import BiasTracking, RestHints, tracking_state
+from ..parameters.compensation import CompensationSettings, RestHintSettings
 from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
-from ..parameters.tracking import PREFIX, tracking_settings
 
 NS_PER_S = 1_000_000_000
 # The estimate: the latest kept for late joiners, as the EEPROM images are.
@@ -120,16 +121,17 @@ class CompensationTracking:
     ``learning`` the field learner the stream runs with while it is on.
     """
 
-    def __init__(self, node, values: dict, axes: tuple, indices: tuple,
+    def __init__(self, node, settings: CompensationSettings, indices: tuple,
                  recalibration: ZroRecalibration, full_scale_rad_s: float,
                  learning: CompensationLearning):
         self.node = node
-        self.axes = axes
+        self.axes = settings.axes
         self.indices = indices
         self.recalibration = recalibration
         self.logger = node.get_logger()
-        self.settings = tracking_settings(values, axes, values['rate_noise_rad_s'])
-        self.save_period_s = values['bias_tracking.save_period_s']
+        tracking = settings.tracking
+        self.settings = tracking.tracker
+        self.save_period_s = tracking.save_period_s
         self.tracker: Optional[BiasTracking] = None
         self.learning = learning
         self.stream: Optional[LearningTracking] = None   # the tracker with the learner
@@ -151,13 +153,13 @@ class CompensationTracking:
         if self.settings is not None:
             self._create_publishers()
         self.hints = RestHints()
-        self.hint_topic = values[PREFIX + 'rest_hint_topic']
-        self.hint_kind = rest_hint.KINDS[values[PREFIX + 'rest_hint_type']]
+        self.hint_topic = tracking.rest_hint.topic
+        self.hint_kind = rest_hint.KINDS[tracking.rest_hint.message_type]
         self.hint_limits = ()
         self.hint_messages = 0
         self.hints_ignored = 0          # unstamped hints before the first sample
         self.zeroed_at_start = False    # the start-up zeroing is done (or not wanted)
-        self._hint_limits(values)
+        self._hint_limits(tracking.rest_hint)
         self.hint_subscription = None if not self.hint_topic else stream_subscription(
             node, self.hint_kind.message_type, self.hint_topic, self.on_hint)
 
@@ -297,9 +299,8 @@ class CompensationTracking:
             self.learning.learner_for(self.model, self.settings)
         self.stream = None if learner is None else LearningTracking(self.tracker, learner)
 
-    def _hint_limits(self, values: dict) -> None:
-        self.hint_limits = (values[PREFIX + 'rest_hint_max_linear_m_s'],
-                            values[PREFIX + 'rest_hint_max_angular_rad_s'])
+    def _hint_limits(self, hint: RestHintSettings) -> None:
+        self.hint_limits = (hint.max_linear_m_s, hint.max_angular_rad_s)
 
     def on_hint(self, msg) -> None:
         """Take a rest hint and those waiting behind it (a busy node must not fall behind)."""
@@ -319,12 +320,13 @@ class CompensationTracking:
             return
         self.tracker.hint(time_s, rest_hint.at_rest(self.hint_kind, msg, *self.hint_limits))
 
-    def configure(self, values: dict) -> None:
-        """Take new ``bias_tracking.*`` values (checked before); the offset carries over."""
-        self.save_period_s = values['bias_tracking.save_period_s']
-        self._hint_limits(values)
-        settings = tracking_settings(values, self.axes, values['rate_noise_rad_s'])
-        self.learning.configure(values)
+    def configure(self, node_settings: CompensationSettings, values: dict) -> None:
+        """Take the node's new settings (``values``: the learner's); the offset carries over."""
+        tracking = node_settings.tracking
+        self.save_period_s = tracking.save_period_s
+        self._hint_limits(tracking.rest_hint)
+        settings = tracking.tracker
+        self.learning.configure(node_settings, values)
         if settings == self.settings:
             # The learner's prior error may have changed (model_error.*).
             if self.tracker is not None:

@@ -35,8 +35,8 @@ from .mpu6000_stream import MpuStream
 from .qos import EEPROM_QOS, SENSOR_INPUT_QOS, stream_publisher
 from .runner import run
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..parameters.driver import bus_of, DRIVER_SPECS
-from ..parameters.specs import axes_of, check_choices, ParameterError, transfer_of
+from ..parameters.driver import driver_settings, DRIVER_SPECS
+from ..parameters.specs import check_choices, ParameterError
 from ..recordings.bag import (absolute_topic, ImuRecord, RawTopics, SupplyVoltageRecord,
                               TemperatureRecord)
 from ..recordings.bag_reader import RawBagReader
@@ -63,22 +63,19 @@ class DriverNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('driver_node', **kwargs)
+        # The values build the candidate settings of a change; the node reads the settings.
         self.values = declare(self, DRIVER_SPECS)
-        self.device = self.values['device']
-        self.axes = axes_of(self.values)
+        self.settings = driver_settings(self.values)
+        settings = self.settings
+        self.device = settings.device
+        self.axes = settings.axes
         self.indices = messages.axis_indices(self.axes)
-        # Every device refuses bad sensor.* values at start, though only the MLX90609 uses them.
-        transfer_of(self.values)
-        # A part that speaks SPI only refuses source i2c (and simulation.bus i2c).
-        bus_of(self.values)
-        self.frame_id = self.values['frame_id']
-        self.covariance = messages.rate_covariance(self.indices,
-                                                   self.values['rate_noise_rad_s'])
+        self.covariance = messages.rate_covariance(self.indices, settings.rate_noise_rad_s)
         self.imu_publisher = stream_publisher(self, Imu, 'imu/data_raw')
         self.temperature_publisher = stream_publisher(self, Temperature,
                                                       'imu/temperature_raw')
         # One temperature per chip, and the EEPROM, are MLX90609 things (a bag may hold them).
-        mlx = self.device == 'mlx90609' or self.values['source'] == 'bag'
+        mlx = self.device == 'mlx90609' or settings.source == 'bag'
         self.axis_temperature_publishers = [
             stream_publisher(self, Temperature, f'imu/temperature_raw/{axis}')
             for axis in self.axes] if len(self.axes) > 1 and mlx else []
@@ -89,17 +86,11 @@ class DriverNode(Node):
         # handed to it directly, once per timer tick: (pairer stream, message) pairs.
         self.local_consumers = []
         self.handoff = []
-        self.simulated_mlx = self.device == 'mlx90609' and self.values['source'] == 'simulated'
-        if self.values['simulation.supply_monitor_hz'] and not self.simulated_mlx:
-            msg = ('invalid parameter simulation.supply_monitor_hz: the supply monitor belongs '
-                   'to the simulated MLX90609 (device mlx90609, source simulated); a real '
-                   'board monitor publishes imu/supply_voltage itself')
-            raise ParameterError(msg)
-        if self.values['source'] == 'bag':
+        if settings.source == 'bag':
             self.stream = BagStream(self)
         else:
             self.stream = STREAMS[self.device](StreamPorts(
-                node=self, values=self.values, axes=self.axes, publish_raw=self.publish_raw,
+                node=self, settings=lambda: self.settings, publish_raw=self.publish_raw,
                 hand_off=self.hand_off, has_consumer=self.has_consumer,
                 eeprom_publisher=self.eeprom_publisher))
         self.create_timer(1.0, self.publish_diagnostics)
@@ -110,19 +101,20 @@ class DriverNode(Node):
         services = [self.resolve_service_name(s.srv_name) for s in self.services
                     if 'imu/' in s.srv_name]
         self.get_logger().info(
-            f'device {self.device}, source {self.values["source"]}, axes {list(self.axes)}: '
+            f'device {self.device}, source {settings.source}, axes {list(self.axes)}: '
             f'{self.stream.hardware_id}; publishes {", ".join(outputs)}'
             + (f'; services {", ".join(services)}' if services else ''))
 
     def validate_parameters(self, parameters) -> SetParametersResult:
-        values = {p.name: p.value for p in parameters}
+        """Refuse a change whose candidate settings do not build, or the stream cannot take."""
+        changed = {p.name for p in parameters}
+        candidate = {**self.values, **{p.name: p.value for p in parameters}}
         try:
-            check_choices(DRIVER_SPECS, values)
-            if 'frame_id' in values and not values['frame_id']:
-                raise ParameterError('invalid parameter frame_id: must not be empty')
-            if 'simulation.fault' in values:
-                self.stream.check_fault(values['simulation.fault'])
-            if 'simulation.supply_v' in values and not self.simulated_mlx:
+            check_choices(DRIVER_SPECS, candidate)
+            settings = driver_settings(candidate)
+            if 'simulation.fault' in changed:
+                self.stream.check_fault(settings.simulation.fault)
+            if 'simulation.supply_v' in changed and not settings.simulated_mlx90609:
                 raise ParameterError('simulation.supply_v changes at runtime on the simulated '
                                      'MLX90609 only')
         except ParameterError as err:
@@ -130,28 +122,29 @@ class DriverNode(Node):
         return SetParametersResult(successful=True)
 
     def apply_parameters(self, parameters) -> None:
+        """Swap in the settings of the values set (validated): the next message takes them."""
         for parameter in parameters:
             self.values[parameter.name] = parameter.value
-        self.frame_id = self.values['frame_id']
-        self.covariance = messages.rate_covariance(self.indices,
-                                                   self.values['rate_noise_rad_s'])
+        self.settings = settings = driver_settings(self.values)
+        self.covariance = messages.rate_covariance(self.indices, settings.rate_noise_rad_s)
         if self.stream.simulated:
-            self.stream.set_fault(self.values['simulation.fault'])
-        if self.simulated_mlx:
-            self.stream.array.supply_v = self.values['simulation.supply_v']
+            self.stream.set_fault(settings.simulation.fault)
+        if settings.simulated_mlx90609:
+            self.stream.array.supply_v = settings.simulation.supply_v
 
     def publish_raw(self, stamp_ns: int, rate_rad_s, temperatures_c, acceleration_m_s2=None,
                     acceleration_covariance=None) -> None:
         stamp = messages.ns_to_stamp(stamp_ns)
+        frame_id = self.settings.frame_id
         # Temperature first: a subscriber pairing by stamp then completes on the Imu.
         for axis, publisher, temperature in zip(self.axes, self.axis_temperature_publishers,
                                                 temperatures_c):
             self.send(publisher, f'temperature_{axis}',
-                      messages.temperature_message(stamp, self.frame_id, temperature))
+                      messages.temperature_message(stamp, frame_id, temperature))
         self.send(self.temperature_publisher, 'temperature', messages.temperature_message(
-            stamp, self.frame_id, sum(temperatures_c) / len(temperatures_c)))
+            stamp, frame_id, sum(temperatures_c) / len(temperatures_c)))
         self.send(self.imu_publisher, 'imu', messages.imu_message(
-            stamp, self.frame_id, self.indices, rate_rad_s, self.covariance, acceleration_m_s2,
+            stamp, frame_id, self.indices, rate_rad_s, self.covariance, acceleration_m_s2,
             acceleration_covariance))
 
     def send(self, publisher, stream: str, msg) -> None:
@@ -174,7 +167,7 @@ class DriverNode(Node):
 
     def publish_diagnostics(self) -> None:
         level, message, values = self.stream.status()
-        status = messages.diagnostic_status(f'{self.get_name()}: {self.values["source"]}',
+        status = messages.diagnostic_status(f'{self.get_name()}: {self.settings.source}',
                                             self.stream.hardware_id, level, message, values)
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
@@ -199,14 +192,12 @@ class BagStream:
     def __init__(self, node: DriverNode):
         self.node = node
         self.simulated = False
-        values = node.values
-        path = values['bag.path']
-        if not path:
-            raise ParameterError('invalid parameter bag.path: the bag source needs a path')
-        temperature_topic = values['bag.temperature_topic']
+        bag = node.settings.bag
+        path = bag.path
+        temperature_topic = bag.temperature_topic
         axis_topics = tuple(f'{temperature_topic.rstrip("/")}/{axis}' for axis in node.axes) \
             if len(node.axes) > 1 else ()
-        temperature_2_topic = values['bag.temperature_2_topic']
+        temperature_2_topic = bag.temperature_2_topic
         extra_topics = axis_topics + ((temperature_2_topic,) if temperature_2_topic else ())
         if temperature_2_topic and absolute_topic(temperature_2_topic) in \
                 {absolute_topic(t) for t in (temperature_topic,) + axis_topics}:
@@ -214,9 +205,8 @@ class BagStream:
                    'already the temperature topic')
             raise ParameterError(msg)
         self.reader = RawBagReader(
-            path, RawTopics(imu=values['bag.imu_topic'], temperature=temperature_topic,
-                            eeprom=values['bag.eeprom_topic'],
-                            supply_voltage=values['bag.supply_voltage_topic']),
+            path, RawTopics(imu=bag.imu_topic, temperature=temperature_topic,
+                            eeprom=bag.eeprom_topic, supply_voltage=bag.supply_voltage_topic),
             extra_temperature_topics=extra_topics)
         # Topic (without slashes) -> (publisher, pairer stream of the compensation node); the
         # main temperature topic is the default.
@@ -239,8 +229,8 @@ class BagStream:
             else None
         if self.reader.eeprom is not None:
             node.eeprom_publisher.publish(messages.eeprom_message(self.reader.eeprom.images))
-        self.rate_factor = values['bag.rate_factor']
-        self.on_end = values['bag.on_end']
+        self.rate_factor = bag.rate_factor
+        self.on_end = bag.on_end
         self.hardware_id = f'bag {path}'
         self.records = self.reader.records()
         self.next_record = next(self.records, None)
@@ -258,9 +248,9 @@ class BagStream:
         self.in_flight = collections.deque()
         self.last_progress = time.monotonic()
         self.pace_timeouts = 0
-        self.pace_timeout_s = values['bag.pace_timeout_s']
+        self.pace_timeout_s = bag.pace_timeout_s
         if self.rate_factor == 0.0:
-            node.create_subscription(Imu, values['bag.pace_topic'], self.on_consumed,
+            node.create_subscription(Imu, bag.pace_topic, self.on_consumed,
                                      SENSOR_INPUT_QOS)
         self.timer = node.create_timer(0.002, self.tick)
         node.get_logger().info(f'{self.reader.message_count} messages in {path}, rate factor '
@@ -412,7 +402,7 @@ class BagStream:
                   'passes': self.passes, 'stamp_shift_ns': self.shift_ns}
         if self.reader.skipped:
             return DiagnosticStatus.WARN, f'{self.reader.skipped} bag messages skipped', values
-        return DiagnosticStatus.OK, values['state'], values
+        return DiagnosticStatus.OK, state, values
 
     def close(self) -> None:
         self.reader.close()

@@ -17,8 +17,6 @@ from .qos import stream_publisher
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
 from ..core.mlx90609 import NominalConversion, Output, sensor_tables
 from ..hardware.errors import HardwareError
-from ..parameters.driver import effects_of
-from ..parameters.specs import ParameterError, transfer_of
 from ..simulation.mlx90609 import Fault
 from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 
@@ -35,47 +33,40 @@ class Mlx90609Stream(TimedStream):
 
     def __init__(self, ports: StreamPorts):
         super().__init__(ports)
-        values = ports.values
-        axes = ports.axes
-        self.transfer = transfer_of(values)
-        if values['source'] == 'simulated':
+        settings = self.settings
+        axes = self.axes
+        self.transfer = settings.sensor.transfer
+        simulation = settings.simulation
+        if settings.simulated:
             config = SimulationConfig(
-                seed=values['simulation.seed'],
-                eeprom_version=values['simulation.eeprom_version'],
-                start_temperature_c=values['simulation.start_temperature_c'],
-                cycle_temperatures_c=tuple(values['simulation.cycle_temperatures_c']),
-                ramp_c_per_min=values['simulation.ramp_c_per_min'],
-                hold_s=values['simulation.hold_s'],
-                die_time_constant_s=values['simulation.die_time_constant_s'],
-                rate_dps=tuple(values['simulation.rate_dps']),
-                supply_v=values['simulation.supply_v'],
-                effects=effects_of(values))
+                seed=simulation.seed, eeprom_version=simulation.eeprom_version,
+                start_temperature_c=simulation.start_temperature_c,
+                cycle_temperatures_c=simulation.cycle_temperatures_c,
+                ramp_c_per_min=simulation.ramp_c_per_min, hold_s=simulation.hold_s,
+                die_time_constant_s=simulation.die_time_constant_s,
+                rate_dps=simulation.rate_dps, supply_v=simulation.supply_v,
+                effects=simulation.effects)
             self.array = SimulatedArray(config, len(axes))
-            self.array.fault = Fault(values['simulation.fault'])
-            real_time_factor = values['simulation.real_time_factor']
+            self.array.fault = Fault(simulation.fault)
+            real_time_factor = simulation.real_time_factor
             self.hardware_id = f'simulated MLX90609 x{len(axes)} (seed {config.seed})'
         else:
-            chip_selects = values['spi.chip_selects']
-            if len(chip_selects) != len(axes):
-                msg = (f'invalid parameter spi.chip_selects: {len(chip_selects)} chip selects '
-                       f'for {len(axes)} axes')
-                raise ParameterError(msg)
-            self.array = spidev_array(values['spi.bus'], chip_selects,
-                                      values['spi.speed_hz'] or MLX90609_SPEED_HZ,
-                                      values['spi.mode'])
+            spi = settings.spi
+            self.array = spidev_array(spi.bus, spi.chip_selects,
+                                      spi.speed_hz or MLX90609_SPEED_HZ, spi.mode)
             real_time_factor = None
-            self.hardware_id = f'MLX90609 on /dev/spidev{values["spi.bus"]}.{chip_selects}'
+            self.hardware_id = f'MLX90609 on /dev/spidev{spi.bus}.{list(spi.chip_selects)}'
         self.tables = sensor_tables(self._read_eeproms(), Output.DIGITAL, self.transfer,
-                                    values['sensor.full_scale_dps'])
+                                    settings.sensor.full_scale_dps)
         self.nominal = NominalConversion.for_range(self.tables.full_scale_dps, Output.DIGITAL,
                                                    len(axes), self.transfer)
         ports.eeprom_publisher.publish(messages.eeprom_message(self.images))
-        self.oversample = values['oversample']
+        self.oversample = settings.oversample
         self.simulated = real_time_factor is not None
         self.start_schedule(real_time_factor, MLX90609_SAMPLE_RATE_HZ,
-                            self.simulated and values['simulation.lossless'],
-                            self.simulated and values['simulation.wait_for_subscriber'])
-        monitor_hz = values['simulation.supply_monitor_hz']
+                            self.simulated and simulation.lossless,
+                            self.simulated and simulation.wait_for_subscriber)
+        monitor_hz = simulation.supply_monitor_hz
         self.supply_publisher = stream_publisher(
             ports.node, BatteryState, 'imu/supply_voltage') if monitor_hz else None
         self.supply_period_s = 1.0 / monitor_hz if monitor_hz else None
@@ -115,7 +106,7 @@ class Mlx90609Stream(TimedStream):
             # Over DDS even in bringup: the compensation node subscribes to its auxiliary
             # inputs, as it would to a real monitor.
             self.supply_publisher.publish(messages.supply_voltage_message(
-                stamp, self.values['frame_id'], self.array.supply_v))
+                stamp, self.settings.frame_id, self.array.supply_v))
             self.supply_readings += 1
 
     def read(self):

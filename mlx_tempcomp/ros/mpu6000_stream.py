@@ -7,7 +7,6 @@ offset registers saved in its state file at start, offers
 registers as the temperature moves (`mlx_tempcomp.core.procedures.mpu6000_offsets.OffsetRefresh`).
 """
 
-import dataclasses
 from datetime import datetime, timezone
 import math
 import os
@@ -20,17 +19,15 @@ from std_srvs.srv import Trigger
 from . import messages
 from .service_window import (await_window, guarded, Outcome, Refused, SampleWindow, ServiceGuard,
                              STALL_TIMEOUT_S)
-from .timed_stream import chip_select, DeviceStream, speed_hz, StreamPorts, thermal_profile
+from .timed_stream import DeviceStream, StreamPorts, thermal_profile
 from ..core.errors import CalibrationError
-from ..core.node_models import AXIS_NAMES
 from ..core.procedures import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
 from ..core.standstill import check_window, RecalibrationLimits
 from ..hardware.errors import HardwareError
 from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
-from ..parameters.driver import bus_of
-from ..parameters.files import node_values
-from ..parameters.models import build_model, correction_of
-from ..parameters.specs import axes_of, ParameterError
+from ..parameters.driver import DriverSettings, Mpu6000Settings
+from ..parameters.files import offset_register_model
+from ..parameters.specs import ParameterError
 from ..parameters.state_file import Field, load_state
 from ..parameters.state_paths import state_path
 from ..simulation.mlx90609 import Fault
@@ -73,35 +70,13 @@ def offsets_state(variant: str, gyro_lsb, accel_lsb, registers, bias, temperatur
             'time': datetime.now(timezone.utc).isoformat(timespec='seconds')}
 
 
-def _offset_refresh(values: dict):
+def _offset_refresh(mpu: Mpu6000Settings):
     """Give the `_OffsetRefresh` of ``mpu6000.offset_model_file``; None when it is ''."""
-    path = values['mpu6000.offset_model_file']
-    if not path:
+    if not mpu.offset_model_file:
         return None
-    path = os.path.expanduser(path)
-    try:
-        model_values = node_values(path, values['mpu6000.offset_model_node'])
-        if model_values['model'] != 'polynomial':
-            msg = (f'model {model_values["model"]!r}: the offset registers take a polynomial '
-                   'bias (mlx-tempcomp fit --model polynomial or relative)')
-            raise ParameterError(msg)
-        if correction_of(model_values) is not None:
-            msg = ('correction.* (a learnt correction table): the offset registers take the '
-                   "polynomial's bias alone; run the learnt model in compensation_node (its "
-                   'model less the table), or give the file the node started from')
-            raise ParameterError(msg)
-        if axes_of(model_values) != AXIS_NAMES:
-            msg = (f'axes {model_values["axes"]}: the model must cover gyro x, y and z in that '
-                   'order')
-            raise ParameterError(msg)
-        model = build_model(model_values)
-    except ParameterError as err:
-        msg = f'invalid parameter mpu6000.offset_model_file ({path}): {err}'
-        raise ParameterError(msg) from None
-    # A register can only add: the scale polynomial does not apply at rest.
-    bias_only = dataclasses.replace(model, terms=tuple(
-        dataclasses.replace(term, scale=()) for term in model.terms))
-    return _OffsetRefresh(bias_only, path, values['mpu6000.offset_refresh_c'])
+    path = os.path.expanduser(mpu.offset_model_file)
+    return _OffsetRefresh(offset_register_model(path, mpu.offset_model_node), path,
+                          mpu.offset_refresh_c)
 
 
 class _OffsetRefresh(OffsetRefresh):
@@ -135,31 +110,24 @@ class MpuStream(DeviceStream):
     """
 
     def __init__(self, ports: StreamPorts):
-        values = ports.values
-        if values['oversample'] != 1:
-            msg = (f'invalid parameter oversample: the mpu6000 averages in its DLPF, not in '
-                   f'the driver; give 1, got {values["oversample"]}')
-            raise ParameterError(msg)
-        self.refresh = _offset_refresh(values)
-        options = {'gyro_full_scale_dps': values['mpu6000.gyro_full_scale_dps'],
-                   'accel_full_scale_g': values['mpu6000.accel_full_scale_g'],
-                   'dlpf_config': values['mpu6000.dlpf_config'],
-                   'sample_rate_divider': values['mpu6000.sample_rate_divider']}
+        settings = ports.settings()
+        mpu = settings.mpu6000
+        self.refresh = _offset_refresh(mpu)
+        options = {'gyro_full_scale_dps': mpu.gyro_full_scale_dps,
+                   'accel_full_scale_g': mpu.accel_full_scale_g,
+                   'dlpf_config': mpu.dlpf_config, 'sample_rate_divider': mpu.sample_rate_divider}
         for name, allowed in (('gyro_full_scale_dps', GYRO_LSB_PER_DPS),
                               ('accel_full_scale_g', ACCEL_LSB_PER_G)):
             if options[name] not in allowed:
                 msg = (f'invalid parameter mpu6000.{name}: one of '
                        f'{", ".join(str(v) for v in sorted(allowed))}, got {options[name]}')
                 raise ParameterError(msg)
-        variant = values['mpu6000.variant']
-        source, hardware_id = self._open(values, ports.axes, options)
+        source, hardware_id = self._open(settings, options)
         source.start()
-        self.variant = variant
-        self.acceleration_covariance = messages.acceleration_covariance(
-            values['mpu6000.accel_noise_m_s2'])
-        self.offsets_path = state_path(values['mpu6000.offsets_file'],
-                                       ports.node.get_fully_qualified_name(), '_offsets.yaml',
-                                       ports.node.get_logger().warn)
+        self.variant = mpu.variant
+        self.acceleration_covariance = messages.acceleration_covariance(mpu.accel_noise_m_s2)
+        self.offsets_path = state_path(mpu.offsets_file, ports.node.get_fully_qualified_name(),
+                                       '_offsets.yaml', ports.node.get_logger().warn)
         self.gyro_lsb = (0, 0, 0)
         self.accel_bias_lsb = (0, 0, 0)
         self.accel_registers = tuple(source.device.factory_accel_lsb)
@@ -168,7 +136,7 @@ class MpuStream(DeviceStream):
         self.guard = ServiceGuard()   # the driver's one calibration service: one call at a time
         self.source = source
         self.logger = ports.node.get_logger()
-        self.indices = messages.axis_indices(ports.axes)
+        self.indices = messages.axis_indices(settings.axes)
         self._write_saved_offsets()
         if self.refresh is not None:
             self._start_refresh()
@@ -176,53 +144,48 @@ class MpuStream(DeviceStream):
                                   callback_group=ReentrantCallbackGroup())
         # The gyro's natural rate: 8 kHz with DLPF_CFG 0 or 7, else 1 kHz, over 1 + SMPLRT_DIV.
         gyro_rate_hz = 8000.0 if options['dlpf_config'] in (0, 7) else 1000.0
-        super().__init__(ports, source, hardware_id, values['source'] == 'simulated',
+        super().__init__(ports, source, hardware_id, settings.simulated,
                          gyro_rate_hz / (1 + options['sample_rate_divider']))
 
-    def _open(self, values: dict, axes, options: dict) -> tuple:
-        """Open the part on its bus (`bus_of`): give the source and its hardware id."""
-        variant = values['mpu6000.variant']
-        self.bus_name = bus_of(values).upper()
-        bus_parameter = 'source' if values['source'] != 'simulated' else 'simulation.bus'
+    def _open(self, settings: DriverSettings, options: dict) -> tuple:
+        """Open the part on its bus (`DriverSettings.bus`): give the source and its hardware id."""
+        variant = settings.mpu6000.variant
+        self.bus_name = settings.bus.upper()
+        bus_parameter = 'source' if not settings.simulated else 'simulation.bus'
         if self.bus_name == 'SPI' and not variant_named(variant).spi:
             msg = (f'invalid parameter {bus_parameter}: the {variant} speaks I2C only, give i2c '
                    '(and i2c.bus, i2c.address)')
             raise ParameterError(msg)
-        address = values['i2c.address']
+        address = settings.i2c.address
         if self.bus_name == 'I2C' and address not in I2C_ADDRESSES:
             msg = (f'invalid parameter i2c.address: an MPU answers at 0x68 (104, AD0 low) or '
                    f'0x69 (105, AD0 high), got 0x{address:02X} ({address})')
             raise ParameterError(msg)
         at = f' on I2C at 0x{address:02X}' if self.bus_name == 'I2C' else ''
-        if values['source'] == 'simulated':
-            if values['simulation.die_time_constant_s'] != 0.0:
-                msg = ('invalid parameter simulation.die_time_constant_s: the simulated mpu6000 '
-                       'follows its thermal profile directly, give 0')
-                raise ParameterError(msg)
-            seed = values['simulation.seed']
+        if settings.simulated:
+            seed = settings.simulation.seed
             source = mpu6000.SimulatedMpuSource(
                 MpuTruth.random(np.random.default_rng(seed),
-                                rate_dps=self._true_rate_dps(values, axes),
-                                thermal=thermal_profile(values, 0.0)),
+                                rate_dps=self._true_rate_dps(settings),
+                                thermal=thermal_profile(settings.simulation, 0.0)),
                 variant, seed, self.bus_name.lower(), address, **options)
             return source, f'simulated {variant.upper()}{at} (seed {seed})'
         if self.bus_name == 'I2C':
-            source = mpu6000.i2c_mpu(values['i2c.bus'], address, variant, **options)
-            return source, f'{variant.upper()} on /dev/i2c-{values["i2c.bus"]} at 0x{address:02X}'
-        cs = chip_select(values, 'mpu6000')
-        source = mpu6000.spidev_mpu(values['spi.bus'], cs, speed_hz(values, 1_000_000),
-                                    values['spi.mode'], variant, **options)
-        return source, f'{variant.upper()} on /dev/spidev{values["spi.bus"]}.{cs}'
+            bus = settings.i2c.bus
+            source = mpu6000.i2c_mpu(bus, address, variant, **options)
+            return source, f'{variant.upper()} on /dev/i2c-{bus} at 0x{address:02X}'
+        spi = settings.spi
+        cs = spi.chip_selects[0]
+        source = mpu6000.spidev_mpu(spi.bus, cs, spi.speed_hz or 1_000_000, spi.mode, variant,
+                                    **options)
+        return source, f'{variant.upper()} on /dev/spidev{spi.bus}.{cs}'
 
     @staticmethod
-    def _true_rate_dps(values: dict, axes) -> tuple:
-        rate_dps = values['simulation.rate_dps']
-        if len(rate_dps) not in (1, len(axes)):
-            msg = (f'invalid parameter simulation.rate_dps: one value or one per axis '
-                   f'({len(axes)}), got {len(rate_dps)}')
-            raise ParameterError(msg)
+    def _true_rate_dps(settings: DriverSettings) -> tuple:
+        """Give the true rate of gyro x, y and z: ``simulation.rate_dps`` on the axes measured."""
+        rate_dps = settings.simulation.rate_dps
         true_dps = [0.0, 0.0, 0.0]
-        for position, axis in enumerate(axes):
+        for position, axis in enumerate(settings.axes):
             true_dps['xyz'.index(axis)] = rate_dps[position if len(rate_dps) > 1 else 0]
         return tuple(true_dps)
 
@@ -329,12 +292,12 @@ class MpuStream(DeviceStream):
 
     async def _calibrate(self) -> Outcome:
         """Fill the window from the stream (or raise `Refused` on a stall); finish it."""
-        values = self.values
-        noise_rad_s = values['rate_noise_rad_s']
+        settings = self.settings
+        noise_rad_s = settings.rate_noise_rad_s
         if noise_rad_s <= 0.0:
             raise Refused('the motion check needs a positive rate_noise_rad_s (the 1-sigma '
                           'gyro noise of one sample)')
-        window = SampleWindow(int(values['mpu6000.calibration.duration_s'] * 1e9))
+        window = SampleWindow(int(settings.mpu6000.calibration_duration_s * 1e9))
 
         def stalled() -> None:
             stalled_s = time.monotonic() - self.last_sample
@@ -347,7 +310,7 @@ class MpuStream(DeviceStream):
             await await_window(self.ports.node, window.future, stalled)
         finally:
             self.window = None
-        return self._finish(window, noise_rad_s, values['mpu6000.calibration.noise_multiple'])
+        return self._finish(window, noise_rad_s, settings.mpu6000.calibration_noise_multiple)
 
     def _finish(self, window: SampleWindow, noise_rad_s: float, multiple: float) -> Outcome:
         gyro, acceleration, temperature = window.columns()

@@ -6,7 +6,8 @@ Driver streams: a part sampled at its own rate on a timer, published as means at
 devices (SPI, or I2C for the MPU) share: a source of
 `mlx_tempcomp.sources.protocol`, data-line faults and the diagnostics. A
 stream gets `StreamPorts` from the driver node: what it may use of it, no
-more.
+more; its settings (`parameters.driver.DriverSettings`) among them, as the node
+holds them now: a parameter change swaps them, and a service reads them when called.
 """
 
 import collections
@@ -20,6 +21,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
 from ..hardware.errors import HardwareError
+from ..parameters.driver import DriverSettings, SimulationSettings
 from ..parameters.specs import ParameterError
 from ..simulation.mlx90609 import Fault
 from ..simulation.physics import ThermalProfile
@@ -46,32 +48,17 @@ class StreamPorts:
     """What a driver stream gets from its node: it reaches no further."""
 
     node: Node                  # creates the stream's timers, services and publishers
-    values: dict                # the parameter values, kept current by the node
-    axes: tuple
+    settings: Callable[[], DriverSettings]     # the node's settings now
     publish_raw: Callable       # DriverNode.publish_raw
     hand_off: Callable          # DriverNode.hand_off, at the end of every tick
     has_consumer: Callable      # DriverNode.has_consumer: someone takes imu/data_raw
     eeprom_publisher: Optional[object]      # imu/eeprom, where the device has one
 
 
-def thermal_profile(values: dict, time_constant_s: float) -> ThermalProfile:
-    return ThermalProfile.cycle(tuple(values['simulation.cycle_temperatures_c']),
-                                values['simulation.ramp_c_per_min'],
-                                values['simulation.start_temperature_c'], time_constant_s,
-                                values['simulation.hold_s'])
-
-
-def chip_select(values: dict, device: str) -> int:
-    chip_selects = values['spi.chip_selects']
-    if len(chip_selects) != 1:
-        msg = (f'invalid parameter spi.chip_selects: the {device} is one part on one chip '
-               f'select, got {len(chip_selects)}')
-        raise ParameterError(msg)
-    return chip_selects[0]
-
-
-def speed_hz(values: dict, default_hz: int) -> int:
-    return values['spi.speed_hz'] or default_hz
+def thermal_profile(simulation: SimulationSettings, time_constant_s: float) -> ThermalProfile:
+    return ThermalProfile.cycle(simulation.cycle_temperatures_c, simulation.ramp_c_per_min,
+                                simulation.start_temperature_c, time_constant_s,
+                                simulation.hold_s)
 
 
 def refuse_fault() -> None:
@@ -106,15 +93,19 @@ class TimedStream:
 
     def __init__(self, ports: StreamPorts):
         self.ports = ports
-        self.values = ports.values
-        self.axes = ports.axes
+        self.axes = ports.settings().axes
         self.logger = ports.node.get_logger()
+
+    @property
+    def settings(self) -> DriverSettings:
+        """Give the node's settings now."""
+        return self.ports.settings()
 
     def start_schedule(self, real_time_factor, natural_rate_hz: float,
                        lossless: bool = False, wait_for_subscriber: bool = False) -> None:
-        values = self.values
-        publish_rate_hz = values['publish_rate_hz']
-        sample_rate_hz = values['sample_rate_hz'] or natural_rate_hz
+        settings = self.settings
+        publish_rate_hz = settings.publish_rate_hz
+        sample_rate_hz = settings.sample_rate_hz or natural_rate_hz
         if sample_rate_hz < publish_rate_hz:
             msg = (f'invalid parameter sample_rate_hz: {sample_rate_hz:g} Hz is below '
                    f'publish_rate_hz ({publish_rate_hz:g} Hz); every message averages the '
@@ -275,10 +266,10 @@ class DeviceStream(TimedStream):
         self.simulated = simulated
         # Start-up took simulated time (resets, settling): the schedule starts after it.
         self.source_start_s = source.clock.now_s if simulated else 0.0
-        self.start_schedule(self.values['simulation.real_time_factor'] if simulated
-                            else None, natural_rate_hz,
-                            simulated and self.values['simulation.lossless'],
-                            simulated and self.values['simulation.wait_for_subscriber'])
+        simulation = self.settings.simulation
+        self.start_schedule(simulation.real_time_factor if simulated else None, natural_rate_hz,
+                            simulated and simulation.lossless,
+                            simulated and simulation.wait_for_subscriber)
         self.logger.info(f'{hardware_id}: {self.rates}')
 
     def advance_to(self, time_s: float) -> None:
@@ -291,7 +282,7 @@ class DeviceStream(TimedStream):
         if Fault(value) not in DEVICE_FAULTS:
             choices = ', '.join(f.value for f in DEVICE_FAULTS)
             msg = (f'invalid parameter simulation.fault: the simulated '
-                   f'{self.values["device"]} knows {choices}, not {value!r}')
+                   f'{self.settings.device} knows {choices}, not {value!r}')
             raise ParameterError(msg)
 
     def set_fault(self, value: str) -> None:
@@ -302,7 +293,7 @@ class DeviceStream(TimedStream):
 
     def status(self) -> tuple:
         values = {'state': 'failing' if self.consecutive_failures else 'streaming',
-                  'device': self.values['device'], **self.sampling_status(),
+                  'device': self.settings.device, **self.sampling_status(),
                   **self.source.counters, **self.extra_status(), 'last_error': self.last_error}
         missed = self.missing_reads()
         if self.consecutive_failures:

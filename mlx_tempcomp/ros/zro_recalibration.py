@@ -30,7 +30,7 @@ from .service_window import Outcome, Refused, SampleWindow
 from ..core.errors import CalibrationError, TempCompError
 from ..core.node_models import AXIS_NAMES, CorrectedModel
 from ..core.standstill import check_window, RecalibrationLimits
-from ..parameters.compensation import limits_of
+from ..parameters.compensation import CompensationSettings
 from ..parameters.specs import ParameterError
 from ..parameters.state_file import Field, load_state, reject_state, StateFileError, write_state
 
@@ -176,9 +176,9 @@ class ZroRecalibration:
                          f'from {self.path}')
         return offset_model
 
-    def start(self, model, values: dict, correction=None) -> None:
+    def start(self, model, settings: CompensationSettings, correction=None) -> None:
         """
-        Open a window of ``recalibration.duration_s`` on ``model``, or raise `Refused`.
+        Open a window of ``recalibration.duration_s`` of ``settings`` on ``model``, or `Refused`.
 
         ``correction``: the learnt `CorrectionTable` taken off after ``model`` (None: none).
         One at a time: the node's `ServiceGuard` refuses a second call before this.
@@ -186,10 +186,10 @@ class ZroRecalibration:
         if model is None:
             raise Refused('no model yet (waiting for the EEPROM tables)')
         try:
-            limits = limits_of(values)
+            limits = settings.recalibration_limits()
         except (ParameterError, TempCompError) as err:
             raise Refused(str(err)) from None
-        duration_s = values['recalibration.duration_s']
+        duration_s = settings.recalibration.duration_s
         self.window = ZroWindow(SampleWindow(int(duration_s * 1e9)), model, model.fingerprint(),
                                 correction, limits, duration_s)
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from hypothesis import given, strategies as st
 from mlx_tempcomp.core.node_models.model_error import ModelErrorTable
-from mlx_tempcomp.parameters.compensation import (COMPENSATION_SPECS, covariance_noise_of,
-                                                  limits_of, model_error_of)
+from mlx_tempcomp.parameters.compensation import (compensation_settings, COMPENSATION_SPECS,
+                                                  covariance_noise_of, model_error_of)
 from mlx_tempcomp.parameters.driver import DEVICES, DRIVER_SPECS
 from mlx_tempcomp.parameters.files import flat_parameters, node_values
 from mlx_tempcomp.parameters.models import build_model, MODELS
@@ -157,7 +157,8 @@ def test_model_error_of_builds_the_table_of_the_measured_axes():
     # y is not measured: its values are not used, as polynomial.bias.y would not be.
     assert table == ModelErrorTable((0.0, 30.0), ((1e-3, 2e-3), (3e-3, 0.0)))
     # The sensor-noise limits of a ZRO recalibration do not take the model error.
-    assert limits_of(model_error_values()).rate_noise_rad_s == 0.0058
+    assert compensation_settings(model_error_values()).recalibration_limits().rate_noise_rad_s == \
+        0.0058
 
 
 @pytest.mark.parametrize('given, message', [
@@ -197,7 +198,7 @@ def test_the_covariance_takes_the_noise_of_each_axis_when_given():
     per_axis = model_error_values(**{'model_error.rate_noise_rad_s': [2e-4, 3e-4]})
     assert covariance_noise_of(per_axis) == (2e-4, 3e-4)
     # The recalibration's motion check keeps rate_noise_rad_s.
-    assert limits_of(per_axis).rate_noise_rad_s == 0.0058
+    assert compensation_settings(per_axis).recalibration_limits().rate_noise_rad_s == 0.0058
     for wrong in ([2e-4], [2e-4, -1.0], [2e-4, math.nan]):
         with pytest.raises(ParameterError, match='invalid parameter model_error.rate_noise_rad_s: '
                                                  r'needs one finite noise >= 0 per axis \(2: x, '

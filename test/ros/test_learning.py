@@ -25,6 +25,7 @@ import stat
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.node_models.correction import CorrectionTable
+from mlx_tempcomp.parameters.compensation import compensation_settings
 from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import read_state, write_state
@@ -286,7 +287,7 @@ def test_a_recalibration_zeroes_the_model_in_use_with_the_learnt_correction(tmp_
     for correction, rows, changed in ((table, in_use, None), (None, model_rate, None),
                                       (table, in_use, table.with_axis(0, (0.0,) * 3))):
         recalibration = ZroRecalibration(str(tmp_path / 'zro.yaml'), ('z',), logging.getLogger())
-        recalibration.start(model, values, correction)
+        recalibration.start(model, compensation_settings(values), correction)
         window = recalibration.window
         recalibration.add(stamps, [[r] for r in raw], [[t] for t in temperature],
                           [[r] for r in rows])

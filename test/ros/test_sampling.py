@@ -19,7 +19,7 @@ import signal
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from mlx_tempcomp.parameters.driver import DRIVER_SPECS
+from mlx_tempcomp.parameters.driver import driver_settings, DRIVER_SPECS
 from mlx_tempcomp.ros.adis16130_stream import simulated_adis
 from mlx_tempcomp.ros.timed_stream import MAX_BACKLOG_S
 from mlx_tempcomp.sources.decimation import Decimator
@@ -47,7 +47,7 @@ def driver_values(overrides: dict) -> dict:
 
 def replica_intervals(values: dict, intervals: int) -> list:
     """Read a replica of the driver's part; give (mean rate, mean temperature, mean time s)."""
-    source = simulated_adis(values)
+    source = simulated_adis(driver_settings(values))
     start_s = source.clock.now_s
     decimator = Decimator(SAMPLE_RATE_HZ, PUBLISH_RATE_HZ)
     means, index = [], 0
