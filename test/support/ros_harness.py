@@ -9,6 +9,7 @@ starts and shuts down its own ROS instance.
 
 import atexit
 from collections import defaultdict
+import contextlib
 import os
 import shutil
 import signal
@@ -244,8 +245,10 @@ class Probe:
         # in; the SingleThreadedExecutor built a wait set of every entity in Python for each
         # one and took two and a half times the CPU on a 5 x real-time pipeline. What keeps
         # the nodes off it (docs/ros.md, "Executors") is not the probe's: it never spin()s
-        # and serves no coroutine callback.
-        self.executor = EventsExecutor(context=self.context)
+        # and serves no coroutine callback. It turns faulthandler on for sys.stderr, which
+        # must then be a file: in a test that captures output (capsys) it is not.
+        with contextlib.redirect_stderr(sys.__stderr__):
+            self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.received = defaultdict(list)
         self.diagnostics = defaultdict(list)   # status name -> [DiagnosticStatus]
