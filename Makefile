@@ -13,6 +13,11 @@ PYTEST_ARGS ?=
 # module fixtures are built once: the ROS tests spend much of their time waiting on node
 # start-up and DDS, which the other process fills. TEST_WORKERS=0 runs it in this process.
 TEST_WORKERS ?= 2
+# The suite starts some 300 interpreters (nodes, commands, Dask workers): each reads the
+# package's bytecode from a cache in .venv instead of compiling its sources again, even where
+# PYTHONDONTWRITEBYTECODE is set (nothing is written into the checkout either way).
+test test-fast: export PYTHONDONTWRITEBYTECODE :=
+test test-fast: export PYTHONPYCACHEPREFIX := $(abspath $(VENV))/pycache
 
 .PHONY: venv demo test test-fast docs-check bench clean
 

@@ -50,7 +50,9 @@ setup(
         ],
         # Test runner, the ament linters with the flake8 plugins ament_flake8 expects (pinned,
         # so lint results change only when someone bumps them), and colcon for
-        # test/ros/test_colcon_build.py.
+        # test/ros/test_colcon_build.py. Not flake8-docstrings: its D codes are pydocstyle's,
+        # which test_pep257.py runs over the same files with every code ament's set leaves on
+        # (a superset of flake8-docstrings' pep257 convention less the same ignores).
         'test': [
             'pytest',
             'pytest-xdist',   # make test: two test processes (Makefile TEST_WORKERS)
@@ -59,7 +61,6 @@ setup(
             'flake8==7.5.0',
             'flake8-builtins==3.1.0',
             'flake8-comprehensions==3.17.0',
-            'flake8-docstrings==1.7.0',
             'flake8-import-order==0.19.2',
             'flake8-quotes==3.4.0',
             'pydocstyle==6.3.0',

@@ -26,5 +26,6 @@ EXCLUDES = [str(PACKAGE_ROOT / d) for d in ('build', 'install', 'log')]
 @pytest.mark.pep257
 def test_pep257(monkeypatch):
     monkeypatch.chdir(PACKAGE_ROOT)
-    rc = main(argv=['.', 'test', '--exclude', *EXCLUDES])
+    # '.' holds test/: naming it as well checked each of its files twice.
+    rc = main(argv=['.', '--exclude', *EXCLUDES])
     assert rc == 0, 'Found code style errors / warnings'

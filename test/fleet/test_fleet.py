@@ -5,9 +5,13 @@ Records are CSV files of a two-cycle -20..70 C chamber run, one axis, a
 quadratic bias whose coefficients differ unit to unit; one unit's slope is ten
 times the others' (the outlier the report must flag), two records are bad (a
 missing file, a file that is no CSV), one unit has two records (diagnosed as
-one). One fleet run on a LocalCluster of two workers serves most tests; the
-kill test starts a real ``dask scheduler`` and two ``dask worker`` processes
-and kills one while units run.
+one). One LocalCluster of two workers, started as the fleet command starts its
+own (`connect`), serves the module: the fleet runs reach it by ``--scheduler
+ADDRESS``, as users give an existing Dask cluster. One fleet run on it serves
+most tests; ``fleet fit``, the Ctrl-C test's interrupted run and the worker
+settings' tests start a local cluster of their own, as a run without
+``--scheduler`` does; the kill test starts a real ``dask scheduler`` and two
+``dask worker`` processes and kills one while units run.
 """
 
 import contextlib
@@ -58,11 +62,20 @@ def records(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope='module')
-def fleet_run(records, tmp_path_factory) -> tuple:
-    """Run fleet diagnose over the manifest on a local cluster of two workers."""
+def scheduler() -> str:
+    """Start the module's cluster (two single-threaded worker processes); give its address."""
+    client, cluster = connect(None, 2)
+    client.close()
+    yield cluster.scheduler_address
+    cluster.close()
+
+
+@pytest.fixture(scope='module')
+def fleet_run(records, scheduler, tmp_path_factory) -> tuple:
+    """Run fleet diagnose over the manifest on the module's cluster."""
     out = tmp_path_factory.mktemp('fleet') / 'out'
     result = run_cli(['fleet', 'diagnose', '--manifest', records / 'units.csv', '--out', out,
-                      '--workers', 2, '--progress'])
+                      '--scheduler', scheduler, '--progress'])
     return out, result
 
 
@@ -118,7 +131,7 @@ def test_fleet_fit_is_the_single_record_command(records, tmp_path):
     assert 'orders (chosen on held-out blocks' in (out / 'units' / 'a2' / 'log.txt').read_text()
 
 
-def test_held_out_records_give_the_units_row_its_figures(records, tmp_path):
+def test_held_out_records_give_the_units_row_its_figures(records, scheduler, tmp_path):
     # Several files per unit from a URL pattern; a unit of one record cannot hold one out.
     for unit, names in (('two', ('a3.csv', 'a4.csv')), ('one', ('a5.csv',))):
         (tmp_path / unit).mkdir()
@@ -126,8 +139,8 @@ def test_held_out_records_give_the_units_row_its_figures(records, tmp_path):
             (tmp_path / unit / f'{k}.csv').write_bytes((records / name).read_bytes())
     out = tmp_path / 'out'
     code, _, stderr = run_cli(['fleet', 'diagnose', '--records',
-                               f'file://{tmp_path}/{{unit}}/*.csv', '--out', out, '--workers', 1,
-                               '--options=--test each'])
+                               f'file://{tmp_path}/{{unit}}/*.csv', '--out', out, '--scheduler',
+                               scheduler, '--options=--test each'])
     assert code == 1
     assert f'failed: one: file://{tmp_path}/one/1.csv: --test each holds out whole records' \
         in stderr
@@ -385,7 +398,7 @@ def test_slope_outliers_stand_out_of_a_fleet_of_200_and_nothing_else():
 
 
 @pytest.mark.slow
-def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
+def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run, scheduler):
     out = fleet_run[0]
     manifest = records / 'units.csv'
     inode = {unit: (out / 'units' / unit / 'unit.json').stat().st_ino for unit in GOOD_UNITS}
@@ -404,13 +417,13 @@ def test_a_rerun_skips_finished_units_and_force_redoes_them(records, fleet_run):
     one = records / 'a1_only.csv'
     one.write_text('unit,path\na1,a1.csv\n', encoding='utf-8')
     code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', one, '--out', out,
-                               '--workers', 1, '--force'])
+                               '--scheduler', scheduler, '--force'])
     assert code == 0 and '1 units: 1 done, 0 finished before (skipped), 0 failed' in stdout
     assert (out / 'units' / 'a1' / 'unit.json').stat().st_ino != inode['a1']
 
 
 @pytest.mark.slow
-def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
+def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, scheduler, tmp_path):
     manifest = tmp_path / 'good.csv'
     manifest.write_text('unit,path\n' + ''.join(f'{u},{records / u}.csv\n' for u in GOOD_UNITS),
                         encoding='utf-8')
@@ -435,7 +448,7 @@ def test_ctrl_c_keeps_what_finished_and_a_rerun_resumes(records, tmp_path):
     finished = len(list(out.glob('units/[!.]*/unit.json')))
     assert 1 <= finished < len(GOOD_UNITS)
     code, stdout, _ = run_cli(['fleet', 'diagnose', '--manifest', manifest, '--out', out,
-                               '--workers', 2])
+                               '--scheduler', scheduler])
     assert code == 0
     assert f'{len(GOOD_UNITS) - finished} done, {finished} finished before (skipped)' in stdout
     assert len(json.loads((out / 'fleet.json').read_text())['rows']) == len(GOOD_UNITS)
@@ -578,12 +591,13 @@ def test_a_local_cluster_beside_another_warns_of_no_port(monkeypatch, recwarn):
 
 
 @pytest.mark.slow
-def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(tmp_path):
+def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(scheduler, tmp_path):
     """
     docs/fleet.md's simulated fleet, 20 units: the outliers are flagged on their slope, alone.
 
     An effect may not stand in for the temperature polynomial (a play operator as wide as
     the range once took an outlier's slope to 0), so the slope each unit writes is its own.
+    The units' plots (nine tenths of a unit's time) are not what this checks: --no-plots.
     """
     fleet = tmp_path / 'fleet'
     code, _, _ = run_cli(['simulate', '--fleet', 20, '--fleet-outliers', 3, '--out', fleet,
@@ -594,7 +608,8 @@ def test_the_simulated_fleet_flags_exactly_its_planted_slope_outliers(tmp_path):
     planted = {unit['unit'] for unit in truth['units'] if unit['outlier']}
     assert len(planted) == 3
     out = tmp_path / 'out'
-    code, _, _ = run_cli(['fleet', 'diagnose', '--manifest', fleet / 'units.csv', '--out', out])
+    code, _, _ = run_cli(['fleet', 'diagnose', '--manifest', fleet / 'units.csv', '--out', out,
+                          '--scheduler', scheduler, '--options=--no-plots'])
     assert code == 0
     report = json.loads((out / 'fleet.json').read_text())
     flagged = {(o['unit'], o['metric']) for o in report['outliers']}

@@ -32,6 +32,8 @@ from mlx_tempcomp.fleet.run import connect
 import pytest
 
 UNITS = ('t1', 't2', 't3')
+# The units' plots are most of their time and nothing the connection changes.
+NO_PLOTS = '--options=--no-plots'
 # What the fleet's subprocesses and the Dask processes get: a generous connect timeout.
 TIMEOUT_S = 300
 NEEDS_TLS = ('error: scheduler {address} needs TLS: give --tls-ca-file, --tls-cert and '
@@ -165,7 +167,8 @@ def test_the_certificates_as_options_run_every_unit(manifest, certificates, tls_
                                                     tmp_path):
     out = tmp_path / 'out'
     code, stdout, stderr = run_cli(['fleet', 'diagnose', '--manifest', manifest, '--out', out,
-                                    '--scheduler', tls_scheduler, *tls_options(certificates)])
+                                    '--scheduler', tls_scheduler, *tls_options(certificates),
+                                    NO_PLOTS])
     all_done(code, stdout, out)
 
 
@@ -173,7 +176,7 @@ def test_the_certificates_as_options_run_every_unit(manifest, certificates, tls_
 def test_the_certificates_in_dasks_configuration_run_every_unit(manifest, certificates,
                                                                 tls_scheduler, tmp_path):
     out = tmp_path / 'out'
-    code, stdout, stderr = fleet(manifest, out, '--scheduler', tls_scheduler, env={
+    code, stdout, stderr = fleet(manifest, out, '--scheduler', tls_scheduler, NO_PLOTS, env={
         'DASK_DISTRIBUTED__COMM__TLS__CA_FILE': str(certificates / 'ca.pem'),
         'DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT': str(certificates / 'node.crt'),
         'DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY': str(certificates / 'node.key')})

@@ -138,7 +138,7 @@ def replay_and_compare(launcher, probe, tmp_path, capsys, csv, options: tuple,
     """
     out, bag = tmp_path / 'diagnosis', tmp_path / 'bag'
     run(capsys, 'diagnose', csv, *options, '--test-fraction', TEST_FRACTION, '--average-s',
-        AVERAGE_S, '--out', out)
+        AVERAGE_S, '--out', out, '--no-plots')
     report = json.loads((out / 'report.json').read_text())
     axes = tuple(report['axes'])
     assert axes == ('x', 'y', 'z')

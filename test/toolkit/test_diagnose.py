@@ -5,6 +5,8 @@ Data come from the project's simulator (`GyroPhysics` with `Effects`): a
 chamber that ramps -20..70 C three times at 1, 2 and 3 C/min with 10 min
 holds, sampled at 1 Hz, a cubic ZRO, white rate noise, a wandering supply
 voltage recorded alongside, and one effect the diagnosis is not told about.
+Command runs whose plots nothing here looks at pass --no-plots (drawing is most of
+a run's time); cli_run and the plots test draw them.
 """
 
 from dataclasses import replace
@@ -226,7 +228,7 @@ def test_on_the_measured_cycle_no_axis_is_worse_than_the_cubic(tmp_path):
         pytest.skip(f'measured data not present: {MEASURED_CSV}')
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', MEASURED_CSV, '--preset', 'tofupilot', '--test', 0.25,
-                         '--out', out])
+                         '--out', out, '--no-plots'])
     report = json.loads((out / 'report.json').read_text())
     test = report['comparison']['test']
     ratio = {a: test['diagnosed'][a]['rms'] / test['px4_cubic'][a]['rms'] for a in 'xyz'}
@@ -369,7 +371,7 @@ def test_slow_ramps_of_a_motionless_imu_keep_low_orders_and_the_cubic(tmp_path):
              24, 5, 24, 5, '--ramp-c-per-min', 0.08, '--duration-s', 90000])
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', record, '--test', TEST_FRACTION, '--average-s', 60,
-                         '--out', out])
+                         '--out', out, '--no-plots'])
     print(stdout)
     report = json.loads((out / 'report.json').read_text())
     test = report['comparison']['test']
@@ -709,7 +711,7 @@ def test_cli_record_effects_puts_the_step_into_the_parameter_file(tmp_path):
     path = write_csv(tmp_path)
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', path, '--out', out, '--test-fraction', TEST_FRACTION,
-                         '--record-effects'])
+                         '--record-effects', '--no-plots'])
     assert 'bias_step' in stdout
     effects = parameters_of(out)['effects']
     assert effects['bias_step_time_s']['y'] == [pytest.approx(STEP_TIME_S, abs=5.0)]

@@ -4,7 +4,8 @@
 Each record is a run of the same simulated device (`GyroPhysics`, the cubic
 ZRO of test_diagnose.py, 0.02 deg/s white noise, 1 Hz) in the chamber of
 test_diagnose.py, with a bias offset of its own (a re-mount between runs)
-and noise of its own.
+and noise of its own. The commands run with --no-plots: nothing here looks at the
+plots (test_diagnose.py does), and drawing them is most of a run's time.
 """
 
 import contextlib
@@ -182,7 +183,7 @@ def rms(values) -> float:
 def test_cli_test_record_holds_out_the_last_run_as_the_node_would_run_it(runs_csv, tmp_path):
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *runs_csv, '--test', 'record', '--rezero-s', REZERO_S,
-                         '--out', out])
+                         '--out', out, '--no-plots'])
     report = json.loads((out / 'report.json').read_text())
     cold, hot, full = runs_csv
     assert report['settings']['test'] == 'record' and report['settings']['rezero_s'] == REZERO_S
@@ -218,7 +219,7 @@ def test_cli_test_record_holds_out_the_last_run_as_the_node_would_run_it(runs_cs
 def test_cli_test_each_leaves_each_record_out_then_writes_all(runs_csv, tmp_path):
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *runs_csv, '--test', 'each', '--rezero-s', REZERO_S,
-                         '--out', out])
+                         '--out', out, '--no-plots'])
     report = json.loads((out / 'report.json').read_text())
     held = report['held_out_records']
     assert [r['record'] for r in held] == runs_csv
@@ -292,7 +293,7 @@ def test_three_periods_of_slow_ramps_held_out_are_no_worse_than_the_cubic(tmp_pa
                  '--bias-step', f'0:{offset_dps}'])
     out = tmp_path / 'out'
     stdout, _ = run_cli(['diagnose', *paths, '--test', 'record', '--average-s', 60,
-                         '--out', out])
+                         '--out', out, '--no-plots'])
     print(stdout)
     report = json.loads((out / 'report.json').read_text())
     assert report['settings']['rezero_s'] == 9.0
@@ -308,7 +309,7 @@ def test_the_fleet_runs_several_records_as_one_command(runs_csv, tmp_path):
     """A fleet worker parses the command with diagnose's own parser and runs its handler."""
     out = tmp_path / 'out'
     args = parse_command(['diagnose', *runs_csv, '--out', str(out), '--test', 'record',
-                          '--rezero-s', str(REZERO_S)])
+                          '--rezero-s', str(REZERO_S), '--no-plots'])
     assert args.records == runs_csv and args.input == runs_csv[0]
     with contextlib.redirect_stdout(io.StringIO()):
         assert run_handler(args) == 0

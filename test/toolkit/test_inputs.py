@@ -53,7 +53,7 @@ def options(command: str, tmp_path, params) -> list:
     """Give the options each subcommand that reads a recording needs, outputs in tmp_path."""
     return {'fit': ['--out', tmp_path / 'x.yaml'], 'evaluate': ['--params', params],
             'allan': [], 'convert': ['--out', tmp_path / 'bag'],
-            'diagnose': ['--out', tmp_path / 'report']}[command]
+            'diagnose': ['--out', tmp_path / 'report', '--no-plots']}[command]
 
 
 def without_first_line(text: str) -> str:
@@ -78,7 +78,7 @@ def test_a_spliced_block_is_sorted_and_said_by_every_subcommand(tmp_path, capsys
             'evaluate': run(capsys, 'evaluate', path, '--params', params),
             'allan': run(capsys, 'allan', path),
             'convert': run(capsys, 'convert', path, '--out', folder / 'bag'),
-            'diagnose': run(capsys, 'diagnose', path, '--out', folder / 'report'),
+            'diagnose': run(capsys, 'diagnose', path, '--out', folder / 'report', '--no-plots'),
         }
     said = f'{folders["moved"] / "run.csv"}: 3000 rows used; skipped: none; 1000 rows out of ' \
            'time order (whole blocks) sorted into place\n'

@@ -114,11 +114,19 @@ def records(tmp_path_factory):
     return {'cycle': cycle, 'long': long, 'late': late}
 
 
+@pytest.fixture(scope='module')
+def earlier_diagnosis(records, tmp_path_factory) -> Path:
+    """Give the --out folder of a diagnose run on the cycle, once for the module."""
+    out = tmp_path_factory.mktemp('earlier') / 'diagnosis'
+    assert main(['diagnose', str(records['cycle']), '--out', str(out)]) == 0
+    return out
+
+
 @pytest.fixture
-def diagnosed(records, tmp_path):
+def diagnosed(earlier_diagnosis, tmp_path):
     """Give a folder holding a diagnose --out folder from an earlier run, and its files."""
     out = tmp_path / 'diagnosis'
-    assert main(['diagnose', str(records['cycle']), '--out', str(out)]) == 0
+    shutil.copytree(earlier_diagnosis, out)   # a copy each: a test may not touch the others'
     return out, _snapshot(tmp_path)
 
 

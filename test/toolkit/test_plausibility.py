@@ -108,13 +108,21 @@ def command_options(command: str, tmp_path, params) -> list:
 COMMANDS = ('fit', 'evaluate', 'allan', 'convert', 'diagnose', 'inspect', 'inject-motion')
 
 
+@pytest.fixture(scope='module')
+def clean_params(tmp_path_factory):
+    """Give the parameter file fit writes for the clean record (evaluate's model)."""
+    folder = tmp_path_factory.mktemp('clean')
+    params = folder / 'p.yaml'
+    assert main(['fit', write(folder / 'clean.csv', rows()), '--out', str(params)]) == 0
+    return params
+
+
 @pytest.mark.parametrize('case', ['accelerometer_as_gyro', 'time_in_ns_read_as_us'])
 @pytest.mark.parametrize('command', COMMANDS)
-def test_every_command_that_reads_a_record_warns_or_refuses(tmp_path, capsys, case,
-                                                            command):
+def test_every_command_that_reads_a_record_warns_or_refuses(tmp_path, capsys, clean_params,
+                                                            case, command):
     path, columns, warning, _ = case_file(tmp_path, case)
-    params = tmp_path / 'p.yaml'
-    assert main(['fit', write(tmp_path / 'clean.csv', rows()), '--out', str(params)]) == 0
+    params = clean_params
     capsys.readouterr()
     argv = [command, path, *columns, *map(str, command_options(command, tmp_path, params))]
     # convert writes a bag of what it reads: it takes no record as still.

@@ -129,7 +129,7 @@ def test_tracking_settings_in_the_file_are_checked(tmp_path, capsys):
 
 def test_diagnose_writes_the_section_beside_the_effects(tmp_path, capsys):
     source = rest_record(tmp_path / 'rest.csv', duration_s=600.0)
-    run('diagnose', source, '--out', tmp_path / 'diagnosed')
+    run('diagnose', source, '--out', tmp_path / 'diagnosed', '--no-plots')
     assert 'bias tracking (bias_tracking.*, on)' in capsys.readouterr().out
     parameters = yaml.safe_load((tmp_path / 'diagnosed' / 'params.yaml').read_text())[
         'compensation_node']['ros__parameters']
