@@ -79,8 +79,8 @@ setup(
     entry_points={
         'console_scripts': [
             'mlx-tempcomp = mlx_tempcomp.cli:main',
-            'driver_node = mlx_tempcomp.ros.driver_node:main',
-            'compensation_node = mlx_tempcomp.ros.compensation_node:main',
+            'driver_node = mlx_tempcomp.ros.driver.node:main',
+            'compensation_node = mlx_tempcomp.ros.compensation.node:main',
             'bringup = mlx_tempcomp.ros.bringup:main',
         ],
     },

@@ -311,7 +311,7 @@ def _node_command(name: str, folder: str) -> list:
         return [sys.executable, str(Path(__file__).resolve()), '--relay']
     executable = Path(sys.executable).with_name('compensation_node')
     command = [str(executable)] if executable.exists() else \
-        [sys.executable, '-m', 'mlx_tempcomp.ros.compensation_node']
+        [sys.executable, '-m', 'mlx_tempcomp.ros.compensation.node']
     return command + ['--ros-args', '-p', 'model:=eeprom', '-p',
                       f'recalibration.state_file:={folder}/zro.yaml']
 
@@ -475,7 +475,7 @@ def _process_samples(count: int) -> list:
 
 def _process_node(key: str, path: str):
     """Build part (d)'s node for ``key``, its own state file ``path`` (no offset shared)."""
-    from mlx_tempcomp.ros.compensation_node import CompensationNode
+    from mlx_tempcomp.ros.compensation.node import CompensationNode
     from rclpy.parameter import Parameter
 
     return CompensationNode(local_input=True, parameter_overrides=[

@@ -261,6 +261,24 @@ def test_the_architecture_document_shows_the_rooms_of_core():
     assert documented == CORE_ROOMS
 
 
+# The nodes' rooms of ros/: each imports the modules both share, never the other; only
+# bringup and the demo, which run both nodes in one process, import both.
+ROS_ROOMS = ('driver', 'compensation')
+BOTH_NODES = {'mlx_tempcomp.ros.bringup', 'mlx_tempcomp.ros.demo'}
+
+
+def test_the_nodes_rooms_import_only_what_both_share():
+    wrong = []
+    for module, line, target, _ in _package_imports():
+        if _layer(module) != 'ros' or module in BOTH_NODES:
+            continue
+        room = module.split('.')[2] if len(module.split('.')) > 3 else ''
+        for other in ROS_ROOMS:
+            if other != room and (target + '.').startswith(f'mlx_tempcomp.ros.{other}.'):
+                wrong.append(f'{module}:{line} imports {target}')
+    assert not wrong, '\n'.join(wrong)
+
+
 # Run by a fresh interpreter: argv[1] is JSON {modules, folder}; prints a JSON report.
 _WITHOUT_ROS = r"""
 import contextlib, importlib, io, json, re, sys

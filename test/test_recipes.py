@@ -160,8 +160,8 @@ SENSOR_STEPS = {
         Edit('test/sources/test_protocol.py', ('SOURCES',),
              "    'adis16130': lambda: adis16130.SimulatedSensor(),\n",
              f"    '{PART}': lambda: adis16130.SimulatedSensor(),\n")),
-    4: (StandIn('mlx_tempcomp/ros/<part>_stream.py'), StandIn('test/ros/test_devices.py')),
-    5: (Edit('mlx_tempcomp/ros/driver_node.py', ('STREAMS',), "'mpu6000': MpuStream",
+    4: (StandIn('mlx_tempcomp/ros/driver/<part>_stream.py'), StandIn('test/ros/test_devices.py')),
+    5: (Edit('mlx_tempcomp/ros/driver/node.py', ('STREAMS',), "'mpu6000': MpuStream",
              f", '{PART}': AdisStream"),),
     6: (Edit('mlx_tempcomp/parameters/driver.py', ('DEVICES',), "'adis16130', 'mpu6000'",
              f", '{PART}'"),
@@ -382,7 +382,7 @@ def test_the_tests_that_hold_effects_to_the_table_pass_on_the_copy(effect_copy):
 START_COMPENSATION = textwrap.dedent(f"""
     import json
     import rclpy
-    from mlx_tempcomp.ros.compensation_node import CompensationNode
+    from mlx_tempcomp.ros.compensation.node import CompensationNode
     rclpy.init(args=['--ros-args', '--params-file', 'diag/params.yaml', '-p',
                      'recalibration.state_file:=zro.yaml'])
     node = CompensationNode()
@@ -437,7 +437,7 @@ def test_a_toy_part_is_accepted_by_the_driver_s_parameters_and_listed(sensor_cop
 
 START_DRIVER = textwrap.dedent(f"""
     import rclpy
-    from mlx_tempcomp.ros.driver_node import DriverNode
+    from mlx_tempcomp.ros.driver.node import DriverNode
     rclpy.init(args=['--ros-args', '-p', 'device:={PART}', '-p', '{PART_SETTING}:=200.0'])
     node = DriverNode()
     print(type(node.stream).__name__, node.get_parameter('{PART_SETTING}').value)

@@ -20,7 +20,7 @@ from ..core.errors import ConfigError
 from ..core.standstill import StandstillSettings, TrackingSettings
 
 PREFIX = 'bias_tracking.'
-# The messages a rest hint may come as (`ros/rest_hint.py` reads each).
+# The messages a rest hint may come as (`ros/compensation/rest_hint.py` reads each).
 REST_HINT_TYPES = ('nav_msgs/Odometry', 'geometry_msgs/Twist', 'geometry_msgs/TwistStamped',
                    'std_msgs/Bool')
 

@@ -9,8 +9,8 @@ topics are still published for anyone else (a recorder, a second node).
 
 import functools
 
-from .compensation_node import CompensationNode
-from .driver_node import DriverNode
+from .compensation.node import CompensationNode
+from .driver.node import DriverNode
 from .runner import run
 
 

@@ -44,8 +44,8 @@ from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import Trigger
 import yaml
 
-from .compensation_node import CompensationNode
-from .driver_node import DriverNode
+from .compensation.node import CompensationNode
+from .driver.node import DriverNode
 from .messages import stamp_to_ns
 from .qos import SENSOR_INPUT_QOS
 from .runner import run

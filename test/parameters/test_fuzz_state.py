@@ -20,8 +20,7 @@ import math
 import os
 import tempfile
 
-from hypothesis import (currently_in_test_context, event, example, given, settings,
-                        strategies as st)
+from hypothesis import currently_in_test_context, event, example, given, settings, strategies as st
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
 from mlx_tempcomp.core.mlx90609.conversion import Output
@@ -33,10 +32,10 @@ from mlx_tempcomp.parameters.files import node_values
 from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.specs import axes_of
 from mlx_tempcomp.parameters.state_file import load_state, StateFileError, write_state
-from mlx_tempcomp.ros.compensation_tracking import checked_section
-from mlx_tempcomp.ros.mpu6000_stream import MPU_OFFSETS_FIELDS
-from mlx_tempcomp.ros.zro_recalibration import (saved_offset_model, state_fields,
-                                                TRACKING_SECTION, zro_state_fields)
+from mlx_tempcomp.ros.compensation.bias_tracking import checked_section
+from mlx_tempcomp.ros.compensation.zro_recalibration import (saved_offset_model, state_fields,
+                                                             TRACKING_SECTION, zro_state_fields)
+from mlx_tempcomp.ros.driver.mpu6000_stream import MPU_OFFSETS_FIELDS
 import numpy as np
 import pytest
 import yaml

@@ -16,9 +16,9 @@ from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.procedures.mpu6000_offsets import STANDARD_GRAVITY_M_S2
 from mlx_tempcomp.parameters.driver import DEVICES
 from mlx_tempcomp.parameters.state_file import write_state
-from mlx_tempcomp.ros.adis16130_stream import file_linear_btc
-from mlx_tempcomp.ros.driver_node import STREAMS
-from mlx_tempcomp.ros.mpu6000_stream import offsets_state
+from mlx_tempcomp.ros.driver.adis16130_stream import file_linear_btc
+from mlx_tempcomp.ros.driver.mpu6000_stream import offsets_state
+from mlx_tempcomp.ros.driver.node import STREAMS
 from mlx_tempcomp.ros.qos import EEPROM_QOS, STATUS_QOS
 from mlx_tempcomp.simulation.mpu6000 import MpuTruth
 from mlx_tempcomp.simulation.physics import ThermalProfile

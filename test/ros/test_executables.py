@@ -16,8 +16,8 @@ from mlx_tempcomp.core.node_models.chain import CalibrationChain, ChainModel
 from mlx_tempcomp.parameters.files import chain_parameters
 from mlx_tempcomp.ros.qos import STATUS_QOS
 import pytest
-from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable,
-                         rates, simulated_driver_params, start_in_namespace, write_sections)
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, DRIVER_DIAGNOSTIC, executable, rates,
+                         simulated_driver_params, start_in_namespace, write_sections)
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -28,8 +28,8 @@ TIMEOUT_S = 60.0
 # The product stops within 2 s (bench/bench_stop.py measures it); a loaded machine may
 # take longer, and the tests check that the node stops by itself, cleanly.
 STOP_TIMEOUT_S = 60.0
-NODES = {'driver_node': 'mlx_tempcomp.ros.driver_node:main',
-         'compensation_node': 'mlx_tempcomp.ros.compensation_node:main',
+NODES = {'driver_node': 'mlx_tempcomp.ros.driver.node:main',
+         'compensation_node': 'mlx_tempcomp.ros.compensation.node:main',
          'bringup': 'mlx_tempcomp.ros.bringup:main'}
 
 

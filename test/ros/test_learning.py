@@ -31,8 +31,8 @@ from mlx_tempcomp.parameters.models import build_model
 from mlx_tempcomp.parameters.state_file import read_state, write_state
 from mlx_tempcomp.recordings.bag import RawTopics
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
-from mlx_tempcomp.ros.compensation_node import CompensationNode
-from mlx_tempcomp.ros.zro_recalibration import ZroRecalibration
+from mlx_tempcomp.ros.compensation.node import CompensationNode
+from mlx_tempcomp.ros.compensation.zro_recalibration import ZroRecalibration
 import numpy as np
 import pytest
 import rclpy

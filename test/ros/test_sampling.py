@@ -20,8 +20,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from mlx_tempcomp.parameters.driver import driver_settings, DRIVER_SPECS
-from mlx_tempcomp.ros.adis16130_stream import simulated_adis
-from mlx_tempcomp.ros.timed_stream import MAX_BACKLOG_S
+from mlx_tempcomp.ros.driver.adis16130_stream import simulated_adis
+from mlx_tempcomp.ros.driver.timed_stream import MAX_BACKLOG_S
 from mlx_tempcomp.sources.decimation import Decimator
 import numpy as np
 import pytest

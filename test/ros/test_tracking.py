@@ -37,8 +37,8 @@ from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.csv_writer import write_csv
 from mlx_tempcomp.recordings.load import load_recording
 from mlx_tempcomp.ros import messages, rest_hint
-from mlx_tempcomp.ros.compensation_node import CompensationNode
-from mlx_tempcomp.ros.compensation_tracking import NS_PER_S, stamp_second, stamp_seconds
+from mlx_tempcomp.ros.compensation.bias_tracking import NS_PER_S, stamp_second, stamp_seconds
+from mlx_tempcomp.ros.compensation.node import CompensationNode
 from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
@@ -48,9 +48,9 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rest_records import offset_record, rest_record
-from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay,
-                         first_line_with, paired, Probe, reliable, simulated_driver_params,
-                         start_model_replay, status_values, write_params)
+from ros_harness import (by_stamp, COMPENSATION_DIAGNOSTIC, finish_model_replay, first_line_with,
+                         paired, Probe, reliable, simulated_driver_params, start_model_replay,
+                         status_values, write_params)
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 import yaml

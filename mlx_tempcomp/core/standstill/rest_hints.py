@@ -20,7 +20,7 @@ the window's last sample.
 
 The core takes times only (seconds of the samples' own clock). The node gives a stamped
 message its header stamp and an unstamped one the time of the latest sample it has
-tracked (`ros/compensation_tracking.py`); the offline twin gives each sample the hint of
+tracked (`ros/compensation/bias_tracking.py`); the offline twin gives each sample the hint of
 its row (``evaluate --rest-hint COLUMN``). Hints are kept in time order (a late one slots
 in) from the latest at or before the open window's start; a clock going back forgets them.
 """

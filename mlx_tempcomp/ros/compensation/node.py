@@ -41,25 +41,25 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import UInt8MultiArray
 from std_srvs.srv import Trigger
 
-from . import messages
-from .compensation_inputs import AUXILIARY, CompensationInputs
-from .compensation_learning import CompensationLearning
-from .compensation_outputs import CompensationOutputs
-from .compensation_status import compensation_status, missing_inputs
-from .compensation_tracking import CompensationTracking
-from .declare import declare
-from .qos import EEPROM_QOS, stream_subscription
-from .runner import run
-from .service_window import await_window, guarded, Outcome, Refused, ServiceGuard
+from .bias_tracking import CompensationTracking
+from .field_learning import CompensationLearning
+from .inputs import AUXILIARY, CompensationInputs
+from .outputs import CompensationOutputs
+from .status import compensation_status, missing_inputs
 from .zro_recalibration import full_scale_rad_s, ZroRecalibration
-from ..core.errors import CalibrationError, TempCompError
-from ..core.mlx90609 import Output, sensor_tables
-from ..core.node_models import RateOnlyModel
-from ..parameters.compensation import (compensation_settings, COMPENSATION_SPECS,
-                                       learned_model_file_of, state_file_of)
-from ..parameters.models import build_model, MODEL_PREFIXES
-from ..parameters.specs import check_choices, ParameterError
-from ..recordings.eeprom_multiarray import eeprom_images_from_multiarray
+from .. import messages
+from ..declare import declare
+from ..qos import EEPROM_QOS, stream_subscription
+from ..runner import run
+from ..service_window import await_window, guarded, Outcome, Refused, ServiceGuard
+from ...core.errors import CalibrationError, TempCompError
+from ...core.mlx90609 import Output, sensor_tables
+from ...core.node_models import RateOnlyModel
+from ...parameters.compensation import (compensation_settings, COMPENSATION_SPECS,
+                                        learned_model_file_of, state_file_of)
+from ...parameters.models import build_model, MODEL_PREFIXES
+from ...parameters.specs import check_choices, ParameterError
+from ...recordings.eeprom_multiarray import eeprom_images_from_multiarray
 
 _POLL_S = 0.05
 # An input missing this long after the start is a WARN naming what to set, repeated at most

@@ -13,11 +13,11 @@ the gyro is still, the rate published is checked against that covariance
 
 from sensor_msgs.msg import Imu, Temperature
 
-from . import messages
-from .compensation_inputs import InputBlock
-from .qos import stream_publisher
-from ..core.node_models import StillWindows
-from ..parameters.compensation import CompensationSettings
+from .inputs import InputBlock
+from .. import messages
+from ..qos import stream_publisher
+from ...core.node_models import StillWindows
+from ...parameters.compensation import CompensationSettings
 
 
 class CompensationOutputs:

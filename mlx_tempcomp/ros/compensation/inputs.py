@@ -27,9 +27,9 @@ from typing import Callable, Optional
 import numpy as np
 from sensor_msgs.msg import BatteryState, Temperature
 
-from . import messages
-from ..core.node_models import ModelInputs
-from ..core.series import ReadingPairer, StampPairer, zero_order_hold
+from .. import messages
+from ...core.node_models import ModelInputs
+from ...core.series import ReadingPairer, StampPairer, zero_order_hold
 
 
 @dataclass(frozen=True)

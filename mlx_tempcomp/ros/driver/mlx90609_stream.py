@@ -12,13 +12,13 @@ import math
 from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import BatteryState
 
-from . import messages
-from .qos import stream_publisher
 from .timed_stream import refuse_fault, StreamPorts, TimedStream
-from ..core.mlx90609 import NominalConversion, Output, sensor_tables
-from ..hardware.errors import HardwareError
-from ..simulation.mlx90609 import Fault
-from ..sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
+from .. import messages
+from ..qos import stream_publisher
+from ...core.mlx90609 import NominalConversion, Output, sensor_tables
+from ...hardware.errors import HardwareError
+from ...simulation.mlx90609 import Fault
+from ...sources.mlx90609 import SimulatedArray, SimulationConfig, spidev_array
 
 EEPROM_READ_ATTEMPTS = 3
 MLX90609_SPEED_HZ = 500_000

@@ -16,20 +16,19 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 import yaml
 
-from . import messages
-from .qos import STATUS_QOS
-from .service_window import (await_window, guarded, Outcome, Refused, ServiceGuard,
-                             STALL_TIMEOUT_S)
 from .timed_stream import DeviceStream, StreamPorts, thermal_profile
-from ..core.errors import CalibrationError, TempCompError
-from ..core.procedures import BiasProcedure, Phase
-from ..core.series import allan_deviation
-from ..parameters.driver import DriverSettings, procedure_settings
-from ..parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
-from ..parameters.specs import ParameterError
-from ..parameters.state_paths import default_state_path
-from ..simulation.adis16130 import Adis16130Truth, Fault
-from ..sources import adis16130
+from .. import messages
+from ..qos import STATUS_QOS
+from ..service_window import await_window, guarded, Outcome, Refused, ServiceGuard, STALL_TIMEOUT_S
+from ...core.errors import CalibrationError, TempCompError
+from ...core.procedures import BiasProcedure, Phase
+from ...core.series import allan_deviation
+from ...parameters.driver import DriverSettings, procedure_settings
+from ...parameters.files import linear_btc_parameters, parameter_file, write_parameter_file
+from ...parameters.specs import ParameterError
+from ...parameters.state_paths import default_state_path
+from ...simulation.adis16130 import Adis16130Truth, Fault
+from ...sources import adis16130
 
 # RATE and TEMP refresh at 5.7 kHz (AN-1042): the natural sample rate.
 ADIS16130_SAMPLE_RATE_HZ = 5700.0

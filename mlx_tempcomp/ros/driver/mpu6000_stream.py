@@ -16,23 +16,23 @@ import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
 from std_srvs.srv import Trigger
 
-from . import messages
-from .service_window import (await_window, guarded, Outcome, Refused, SampleWindow, ServiceGuard,
-                             STALL_TIMEOUT_S)
 from .timed_stream import DeviceStream, StreamPorts, thermal_profile
-from ..core.errors import CalibrationError
-from ..core.procedures import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
-from ..core.standstill import check_window, RecalibrationLimits
-from ..hardware.errors import HardwareError
-from ..hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
-from ..parameters.driver import DriverSettings, Mpu6000Settings
-from ..parameters.files import offset_register_model
-from ..parameters.specs import ParameterError
-from ..parameters.state_file import Field, load_state
-from ..parameters.state_paths import state_path
-from ..simulation.mlx90609 import Fault
-from ..simulation.mpu6000 import MpuTruth
-from ..sources import mpu6000
+from .. import messages
+from ..service_window import (await_window, guarded, Outcome, Refused, SampleWindow, ServiceGuard,
+                              STALL_TIMEOUT_S)
+from ...core.errors import CalibrationError
+from ...core.procedures import INT16_MAX, INT16_MIN, OffsetRefresh, recalibrated_offsets, rest_bias
+from ...core.standstill import check_window, RecalibrationLimits
+from ...hardware.errors import HardwareError
+from ...hardware.mpu6000 import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, I2C_ADDRESSES, variant_named
+from ...parameters.driver import DriverSettings, Mpu6000Settings
+from ...parameters.files import offset_register_model
+from ...parameters.specs import ParameterError
+from ...parameters.state_file import Field, load_state
+from ...parameters.state_paths import state_path
+from ...simulation.mlx90609 import Fault
+from ...simulation.mpu6000 import MpuTruth
+from ...sources import mpu6000
 
 _STUCK_MISO = {Fault.NONE: None, Fault.SILENT_HIGH: 0xFF, Fault.SILENT_LOW: 0x00}
 _INT16 = {'low': INT16_MIN, 'high': INT16_MAX}

@@ -14,10 +14,10 @@ from typing import Optional
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from .compensation_inputs import CompensationInputs
-from .compensation_outputs import CompensationOutputs
+from .inputs import CompensationInputs
+from .outputs import CompensationOutputs
 from .zro_recalibration import ZroRecalibration
-from ..parameters.compensation import CompensationSettings
+from ...parameters.compensation import CompensationSettings
 
 
 def _age(now: float, then: Optional[float]) -> float:

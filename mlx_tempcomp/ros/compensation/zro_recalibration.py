@@ -25,14 +25,14 @@ from datetime import datetime, timezone
 import math
 from typing import Optional
 
-from .messages import saved_reply
-from .service_window import Outcome, Refused, SampleWindow
-from ..core.errors import CalibrationError, TempCompError
-from ..core.node_models import AXIS_NAMES, CorrectedModel
-from ..core.standstill import check_window, RecalibrationLimits
-from ..parameters.compensation import CompensationSettings
-from ..parameters.specs import ParameterError
-from ..parameters.state_file import Field, load_state, reject_state, StateFileError, write_state
+from ..messages import saved_reply
+from ..service_window import Outcome, Refused, SampleWindow
+from ...core.errors import CalibrationError, TempCompError
+from ...core.node_models import AXIS_NAMES, CorrectedModel
+from ...core.standstill import check_window, RecalibrationLimits
+from ...parameters.compensation import CompensationSettings
+from ...parameters.specs import ParameterError
+from ...parameters.state_file import Field, load_state, reject_state, StateFileError, write_state
 
 # How the log names the state.
 ZRO_STATE = 'saved ZRO offset'

@@ -33,14 +33,14 @@ import os
 import threading
 from typing import Optional
 
-from .service_window import Outcome, Refused
-from ..core.errors import CalibrationError, TempCompError
-from ..core.learning import FieldLearner
-from ..core.node_models import CorrectedModel, CorrectionTable
-from ..parameters.compensation import CompensationSettings, unit_values
-from ..parameters.files import learned_parameters, parameter_file, write_parameter_file
-from ..parameters.learning import largest_correction_rad_s, renewal_lines
-from ..parameters.state_file import move_aside
+from ..service_window import Outcome, Refused
+from ...core.errors import CalibrationError, TempCompError
+from ...core.learning import FieldLearner
+from ...core.node_models import CorrectedModel, CorrectionTable
+from ...parameters.compensation import CompensationSettings, unit_values
+from ...parameters.files import learned_parameters, parameter_file, write_parameter_file
+from ...parameters.learning import largest_correction_rad_s, renewal_lines
+from ...parameters.state_file import move_aside
 
 LEARNING_STATE = 'saved learning state'
 

@@ -18,7 +18,7 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from std_msgs.msg import Bool
 
-from . import messages
+from .. import messages
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """
 Driver streams: a part sampled at its own rate on a timer, published as means at a lower one.
 
-`TimedStream` is the schedule every part shares (`mlx_tempcomp.ros.mlx90609_stream`,
+`TimedStream` is the schedule every part shares (`mlx_tempcomp.ros.driver.mlx90609_stream`,
 `adis16130_stream`, `mpu6000_stream`); `DeviceStream` adds what the one-part
 devices (SPI, or I2C for the MPU) share: a source of
 `mlx_tempcomp.sources.protocol`, data-line faults and the diagnostics. A
@@ -20,13 +20,13 @@ from typing import Callable, Optional
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
-from ..hardware.errors import HardwareError
-from ..parameters.driver import DriverSettings, SimulationSettings
-from ..parameters.specs import ParameterError
-from ..simulation.mlx90609 import Fault
-from ..simulation.physics import ThermalProfile
-from ..sources.decimation import Decimator
-from ..sources.protocol import SampleSource
+from ...hardware.errors import HardwareError
+from ...parameters.driver import DriverSettings, SimulationSettings
+from ...parameters.specs import ParameterError
+from ...simulation.mlx90609 import Fault
+from ...simulation.physics import ThermalProfile
+from ...sources.decimation import Decimator
+from ...sources.protocol import SampleSource
 
 # Faults both parts can simulate: MISO stuck high or low.
 DEVICE_FAULTS = (Fault.NONE, Fault.SILENT_HIGH, Fault.SILENT_LOW)

@@ -30,7 +30,7 @@ last write, at most once every ``bias_tracking.save_period_s`` of sensor time, a
 clean stop; read back at start (`tracking_state`) and applied when the model matches.
 
 With ``bias_tracking.rest_hint_topic`` the node subscribes to the robot's word that it
-stands still (`ros/rest_hint.py`: Odometry, Twist, TwistStamped or Bool) and hands each
+stands still (`rest_hint.py`: Odometry, Twist, TwistStamped or Bool) and hands each
 message to the tracker as a hint (`core.standstill.rest_hints`): at its stamp, or,
 unstamped, at the latest sample tracked (a hint before the first sample is ignored and
 counted). The hints are kept across the trackers a parameter change or a recalibration
@@ -48,17 +48,18 @@ from geometry_msgs.msg import TwistWithCovarianceStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from . import messages, rest_hint
-from .compensation_inputs import waiting_messages
-from .compensation_learning import CompensationLearning
-from .qos import stream_subscription
+from . import rest_hint
+from .field_learning import CompensationLearning
+from .inputs import waiting_messages
 from .zro_recalibration import LEARNING_SECTION, TRACKING_SECTION, ZroRecalibration
-from ..core.errors import CalibrationError
-from ..core.learning import LearningTracking
-from ..core.node_models import AXIS_NAMES
-from ..core.standstill import BiasTracking, RestHints, tracking_state
-from ..parameters.compensation import CompensationSettings, RestHintSettings
-from ..parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
+from .. import messages
+from ..qos import stream_subscription
+from ...core.errors import CalibrationError
+from ...core.learning import LearningTracking
+from ...core.node_models import AXIS_NAMES
+from ...core.standstill import BiasTracking, RestHints, tracking_state
+from ...parameters.compensation import CompensationSettings, RestHintSettings
+from ...parameters.state_file import check_state, Field, move_aside, reject_state, StateFileError
 
 NS_PER_S = 1_000_000_000
 # The estimate: the latest kept for late joiners, as the EEPROM images are.
