@@ -36,7 +36,8 @@ from mlx_tempcomp.recordings.bag import RawTopics
 from mlx_tempcomp.recordings.bag_reader import RawBagReader
 from mlx_tempcomp.recordings.csv_writer import write_csv
 from mlx_tempcomp.recordings.load import load_recording
-from mlx_tempcomp.ros import messages, rest_hint
+from mlx_tempcomp.ros import messages
+from mlx_tempcomp.ros.compensation import rest_hint
 from mlx_tempcomp.ros.compensation.bias_tracking import NS_PER_S, stamp_second, stamp_seconds
 from mlx_tempcomp.ros.compensation.node import CompensationNode
 from nav_msgs.msg import Odometry
