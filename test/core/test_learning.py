@@ -330,6 +330,7 @@ def numbers(value) -> int:
     return int(isinstance(value, (int, float)) and not isinstance(value, bool))
 
 
+@pytest.mark.slow
 def test_the_state_size_is_flat():
     stream, _ = run(data=record(hours=4.0))
     windows, size = stream.learner.windows, numbers(stream.learner.state())

@@ -8,6 +8,8 @@ file written runs again through ``evaluate`` as a parameter file, as the node lo
 and takes off exactly the correction the learner applied at the end of the record.
 """
 
+import contextlib
+import io
 import json
 
 from cli_checks import assert_user_error, node_values
@@ -31,7 +33,11 @@ def read(path) -> dict:
 
 @pytest.fixture(scope='module')
 def learnt(tmp_path_factory):
-    """Give the folder after inject-motion, fit --order 1, evaluate with and without --learn."""
+    """
+    Give the folder after inject-motion, fit --order 1, evaluate with and without --learn.
+
+    What each evaluate printed is kept beside its CSV (NAME.txt).
+    """
     folder = tmp_path_factory.mktemp('learning')
     rest = bowl_record(folder / 'rest.csv')
     assert main(['inject-motion', rest, '--out', str(folder / 'moving.csv'), '--seed', '2']) == 0
@@ -40,9 +46,12 @@ def learnt(tmp_path_factory):
     for name, options in (('prior', []), ('tracked', ['--track-bias']),
                           ('learnt', ['--track-bias', '--learn', '--learned-params',
                                       str(folder / 'learnt.yaml')])):
-        assert main(['evaluate', str(folder / 'moving.csv'), '--params',
-                     str(folder / 'line.yaml'), *options,
-                     '--out-csv', str(folder / f'{name}.csv')]) == 0
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            assert main(['evaluate', str(folder / 'moving.csv'), '--params',
+                         str(folder / 'line.yaml'), *options,
+                         '--out-csv', str(folder / f'{name}.csv')]) == 0
+        (folder / f'{name}.txt').write_text(printed.getvalue())
     return folder
 
 
@@ -90,10 +99,7 @@ def test_learning_beats_tracking_alone_on_the_bowl(learnt):
 
 
 def test_evaluate_learn_reports_in_text_and_json(learnt, capsys):
-    capsys.readouterr()
-    run('evaluate', learnt / 'moving.csv', '--params', learnt / 'line.yaml', '--track-bias',
-        '--learn')
-    out = capsys.readouterr().out
+    out = (learnt / 'learnt.txt').read_text()
     assert 'field learning: ' in out and ' windows used in ' in out
     for axis in 'xyz':
         assert f'\n  {axis}: ' in out

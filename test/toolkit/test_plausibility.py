@@ -117,8 +117,15 @@ def clean_params(tmp_path_factory):
     return params
 
 
-@pytest.mark.parametrize('case', ['accelerometer_as_gyro', 'time_in_ns_read_as_us'])
-@pytest.mark.parametrize('command', COMMANDS)
+# inject-motion takes the ns read as µs at its word: 2000 samples 500 s apart are 11.5 days
+# of motion to schedule (a 23 MB schedule), some seconds: in the slow tier.
+LONG_RUNS = {('time_in_ns_read_as_us', 'inject-motion')}
+
+
+@pytest.mark.parametrize('case, command', [
+    pytest.param(case, command, marks=[pytest.mark.slow] if (case, command) in LONG_RUNS
+                 else []) for case in ('accelerometer_as_gyro', 'time_in_ns_read_as_us')
+    for command in COMMANDS])
 def test_every_command_that_reads_a_record_warns_or_refuses(tmp_path, capsys, clean_params,
                                                             case, command):
     path, columns, warning, _ = case_file(tmp_path, case)
