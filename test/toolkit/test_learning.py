@@ -39,7 +39,7 @@ def learnt(tmp_path_factory):
     What each evaluate printed is kept beside its CSV (NAME.txt).
     """
     folder = tmp_path_factory.mktemp('learning')
-    rest = bowl_record(folder / 'rest.csv')
+    rest = bowl_record(folder / 'rest.csv', rate_hz=1.0)
     assert main(['inject-motion', rest, '--out', str(folder / 'moving.csv'), '--seed', '2']) == 0
     assert main(['fit', str(folder / 'moving.csv'), '--order', '1',
                  '--out', str(folder / 'line.yaml')]) == 0
