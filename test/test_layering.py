@@ -16,6 +16,7 @@ function) stay unloaded.
 """
 
 import ast
+import functools
 import importlib.util
 import json
 from pathlib import Path
@@ -61,8 +62,9 @@ OPTIONAL_HEAVY = ('matplotlib', 'allantools', 'scipy', 'dask', 'distributed', 'f
 FLEET_ONLY = ('dask', 'distributed', 'fsspec')
 
 
+@functools.cache
 def _modules() -> dict:
-    """Give {dotted module name: path} of every module of the package."""
+    """Give {dotted module name: path} of every module of the package (read once a run)."""
     modules = {}
     for path in sorted(PACKAGE.rglob('*.py')):
         parts = ('mlx_tempcomp',) + path.relative_to(PACKAGE).with_suffix('').parts
@@ -91,11 +93,11 @@ def _imports(module: str, path: Path):
             yield node.lineno, target, tuple(alias.name for alias in node.names)
 
 
-def _package_imports():
-    """Yield (module, line, imported module, names) of every import of the package."""
-    for module, path in _modules().items():
-        for line, target, names in _imports(module, path):
-            yield module, line, target, names
+@functools.cache
+def _package_imports() -> tuple:
+    """Give (module, line, imported module, names) of every import of the package, parsed once."""
+    return tuple((module, line, target, names) for module, path in _modules().items()
+                 for line, target, names in _imports(module, path))
 
 
 def test_every_module_is_in_a_layer():
