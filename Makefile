@@ -11,8 +11,11 @@ STAMP := $(VENV)/.stamp
 PYTEST_ARGS ?=
 # make test runs the suite in two processes (pytest-xdist), one test file each at a time, so
 # module fixtures are built once: the ROS tests spend much of their time waiting on node
-# start-up and DDS, which the other process fills. TEST_WORKERS=0 runs it in this process.
+# start-up and DDS, which the other process fills. The files go in the order pytest collects
+# them (the linters first: test/conftest.py), not by their number of tests. TEST_WORKERS=0
+# runs it in this process.
 TEST_WORKERS ?= 2
+XDIST := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 # The suite starts some 300 interpreters (nodes, commands, Dask workers): each reads the
 # package's bytecode from a cache in .venv instead of compiling its sources again, even where
 # PYTHONDONTWRITEBYTECODE is set (nothing is written into the checkout either way).
@@ -41,13 +44,13 @@ demo: $(NODES_STAMP)
 	$(VENV_PY) -m mlx_tempcomp.ros.demo
 
 test: venv
-	$(VENV_PY) -m pytest test -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+	$(VENV_PY) -m pytest test $(XDIST) $(PYTEST_ARGS)
 
 # The suite without test/ros/ (the nodes over DDS) and the tests marked slow or ros
 # elsewhere (setup.cfg): the quick check while working.
 test-fast: venv
-	$(VENV_PY) -m pytest test --ignore=test/ros -n $(TEST_WORKERS) --dist loadfile \
-		-m 'not ros and not slow' $(PYTEST_ARGS)
+	$(VENV_PY) -m pytest test --ignore=test/ros $(XDIST) -m 'not ros and not slow' \
+		$(PYTEST_ARGS)
 
 # The marked commands of README.md and docs/, run from README's set-up, what they print compared
 # with the docs (test/support/docs_check.py; .ci/run runs it after make test).

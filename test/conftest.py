@@ -81,7 +81,14 @@ settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
 def pytest_collection_modifyitems(config, items):
-    """Skip tests marked ``hardware`` on a machine without the device nodes they need."""
+    """
+    Run the linters first; skip tests marked ``hardware`` without the devices they need.
+
+    Each linter is one test of some seconds over every file: last (where pytest-xdist's
+    default order, files by their number of tests, put them), one process linted while
+    the other had nothing left (make test runs the files in this order instead).
+    """
+    items.sort(key=lambda item: item.get_closest_marker('linter') is None)
     for item in items:
         marker = item.get_closest_marker('hardware')
         if marker is None:
