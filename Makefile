@@ -21,6 +21,8 @@ XDIST := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 # PYTHONDONTWRITEBYTECODE is set (nothing is written into the checkout either way).
 test test-fast: export PYTHONDONTWRITEBYTECODE :=
 test test-fast: export PYTHONPYCACHEPREFIX := $(abspath $(VENV))/pycache
+# The fast tier's property-based tests draw a quarter of their examples (test/support/fuzz.py).
+test-fast: export HYPOTHESIS_PROFILE ?= fast
 
 .PHONY: venv demo test test-fast docs-check bench clean
 

@@ -76,6 +76,8 @@ _FUZZ_COMMON = {'deadline': None, 'database': None, 'print_blob': True,
                 'suppress_health_check': [HealthCheck.too_slow,
                                           HealthCheck.function_scoped_fixture]}
 settings.register_profile('ci', derandomize=True, **_FUZZ_COMMON)
+# make test-fast: the same, each test drawing a quarter of its examples (test/support/fuzz.py).
+settings.register_profile('fast', derandomize=True, **_FUZZ_COMMON)
 settings.register_profile('explore', derandomize=False, **_FUZZ_COMMON)
 settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 

@@ -14,12 +14,13 @@ same state.
 from dataclasses import replace
 import math
 
+from fuzz import examples
 from hypothesis import given, settings, strategies as st
 from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
 from mlx_tempcomp.core.standstill.detector import StandstillSettings
 import numpy as np
 
-FUZZ = settings(max_examples=150)
+FUZZ = settings(max_examples=examples(150))
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e300])
 
 

@@ -13,6 +13,7 @@ either sign for the same row depending on the block's length.
 import itertools
 import math
 
+from fuzz import examples
 from hypothesis import given, settings, strategies as st
 from mlx_tempcomp.core.effects import AxisTerms, EFFECT_NAMES, EffectModel
 from mlx_tempcomp.core.errors import ConfigError
@@ -21,7 +22,7 @@ import numpy as np
 import pytest
 
 # A few seconds (the profile in conftest.py sets the rest).
-FUZZ = settings(max_examples=300)
+FUZZ = settings(max_examples=examples(300))
 
 SPECIAL = st.sampled_from([0.0, -0.0, math.nan, math.inf, -math.inf])
 # Coefficients: mostly of a real model's size, sometimes any finite float (overflow).

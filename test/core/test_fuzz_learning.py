@@ -11,6 +11,7 @@ standard deviations, still flags and corrections as one block, and the same stat
 
 import math
 
+from fuzz import examples
 from hypothesis import given, settings, strategies as st
 from mlx_tempcomp.core.learning import LearningTracking
 from mlx_tempcomp.core.standstill.bias_tracker import BiasTracking, TrackingSettings
@@ -18,7 +19,7 @@ from mlx_tempcomp.core.standstill.detector import StandstillSettings
 from mlx_tempcomp.parameters.learning import learning_settings
 import numpy as np
 
-FUZZ = settings(max_examples=60, deadline=None)
+FUZZ = settings(max_examples=examples(60), deadline=None)
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 1e300])
 
 

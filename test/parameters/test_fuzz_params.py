@@ -15,6 +15,7 @@ import math
 import os
 import tempfile
 
+from fuzz import examples
 from hypothesis import (currently_in_test_context, event, example, given, settings,
                         strategies as st)
 from mlx_tempcomp.core.effects import LinearBtc, polynomial_model
@@ -29,7 +30,7 @@ import yaml
 
 NODE = 'compensation_node'
 # A few seconds per test (the profile in conftest.py sets the rest).
-FUZZ = settings(max_examples=300)
+FUZZ = settings(max_examples=examples(300))
 FULL_SCALE_RAD_S = math.radians(2000.0)
 RATES = np.linspace(-FULL_SCALE_RAD_S, FULL_SCALE_RAD_S, 5)
 TEMPERATURES_C = np.linspace(-40.0, 125.0, 34)
@@ -170,7 +171,7 @@ def leaves(tree: dict, prefix=()) -> list:
 # More examples here: an overflow takes a huge number in the right place (300 missed the one
 # 3000 found: a bias of 1.8e308 rad/s).
 @pytest.mark.slow
-@settings(FUZZ, max_examples=800)
+@settings(FUZZ, max_examples=examples(800))
 @given(case=st.one_of(polynomial_models(), linear_btc_models()), data=st.data())
 def test_written_files_with_values_replaced(case, data):
     tree = parameters_of(*case)

@@ -20,6 +20,7 @@ import math
 import os
 import tempfile
 
+from fuzz import examples
 from hypothesis import currently_in_test_context, event, example, given, settings, strategies as st
 from mlx_tempcomp.core.effects import polynomial_model
 from mlx_tempcomp.core.errors import CalibrationError
@@ -61,7 +62,7 @@ FULL_STATE = {**ZRO_STATE, TRACKING_SECTION: SECTION}
 SCHEMAS = {'zro': (ZRO_FIELDS, ZRO_STATE), 'mpu': (MPU_OFFSETS_FIELDS, MPU_STATE),
            'state': (state_fields(FULL_SCALE_RAD_S), FULL_STATE)}
 # A few seconds per test (the profile in conftest.py sets the rest).
-FUZZ = settings(max_examples=300)
+FUZZ = settings(max_examples=examples(300))
 
 
 class Log(logging.Handler):

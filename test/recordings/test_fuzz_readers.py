@@ -15,6 +15,7 @@ import re
 import shutil
 import tempfile
 
+from fuzz import examples
 from hypothesis import assume, example, given, settings, strategies as st
 from mlx_tempcomp.cli import main
 from mlx_tempcomp.core.errors import TempCompError
@@ -33,9 +34,9 @@ import numpy as np
 import pytest
 
 # Examples per test (the profile in conftest.py sets the rest).
-FUZZ = settings(max_examples=150)
+FUZZ = settings(max_examples=examples(150))
 # Bags cost a copy and a sqlite or mcap open per example.
-BAG_FUZZ = settings(FUZZ, max_examples=60)
+BAG_FUZZ = settings(FUZZ, max_examples=examples(60))
 
 HEADER = ['time', 'temperature', 'gyro_x', 'gyro_z', 'ref_x', 'ref_z', 'temperature_2',
           'supply_voltage']
