@@ -30,6 +30,7 @@ import math
 from typing import Optional
 
 import numpy as np
+from numpy.polynomial import legendre as legendre_series, polynomial as power_series
 
 from ..effects import EffectModel, polynomial_model
 from ..errors import CalibrationError
@@ -165,73 +166,18 @@ def _about_reference(legendre: np.ndarray, centre_c: float, scale_c: float,
     """
     Give Legendre coefficients in x = (T - centre) / scale as powers of (T - reference).
 
-    The arithmetic of ``Polynomial(leg2poly(legendre))(Polynomial((a, b)))``, step for
-    step (`_series_add` and its siblings are numpy.polynomial's own), so the bits are
-    its; without its per-call argument checks, which cost the held-out folds' thousands
-    of calls most of their time.
+    The steps of ``Polynomial(leg2poly(legendre))(Polynomial((a, b)))`` in numpy's own
+    series functions, so the bits are its; without the Polynomial objects, whose
+    construction cost the held-out folds' thousands of calls half their time.
     """
-    powers = _leg2poly(legendre)
+    powers = legendre_series.leg2poly(legendre)
     # Polynomial.__call__ maps the line through the default domain and window first.
-    line = _series_add(0.0, _series_mul(1.0, ((reference_c - centre_c) / scale_c,
-                                              1.0 / scale_c)))
-    shifted = _series_add(powers[-1], _series_mul(line, 0))   # polyval, Horner's rule
+    line = power_series.polyadd(0.0, power_series.polymul(
+        1.0, ((reference_c - centre_c) / scale_c, 1.0 / scale_c)))
+    shifted = power_series.polyadd(powers[-1], power_series.polymul(line, 0))   # Horner
     for index in range(2, len(powers) + 1):
-        shifted = _series_add(powers[-index], _series_mul(shifted, line))
+        shifted = power_series.polyadd(powers[-index], power_series.polymul(shifted, line))
     return tuple(float(c) for c in np.pad(shifted, (0, PX4_ORDER + 1 - shifted.size)))
-
-
-def _series(coefficients) -> np.ndarray:
-    """Give a float copy without trailing zeros (the first kept): numpy's as_series."""
-    series = np.array(coefficients, dtype=np.float64, ndmin=1)   # a copy
-    end = series.size
-    while end > 1 and series[end - 1] == 0:
-        end -= 1
-    return series[:end]
-
-
-def _series_add(first, second) -> np.ndarray:
-    first, second = _series(first), _series(second)
-    if len(first) > len(second):
-        first[:second.size] += second
-        return _series(first)
-    second[:first.size] += first
-    return _series(second)
-
-
-def _series_sub(first, second) -> np.ndarray:
-    first, second = _series(first), _series(second)
-    if len(first) > len(second):
-        first[:second.size] -= second
-        return _series(first)
-    second = -second
-    second[:first.size] += first
-    return _series(second)
-
-
-def _series_mul(first, second) -> np.ndarray:
-    return _series(np.convolve(_series(first), _series(second)))
-
-
-def _series_mulx(series) -> np.ndarray:
-    series = _series(series)
-    if len(series) == 1 and series[0] == 0:
-        return series
-    product = np.empty(len(series) + 1)
-    product[0] = series[0] * 0
-    product[1:] = series
-    return product
-
-
-def _leg2poly(legendre) -> np.ndarray:
-    """numpy.polynomial.legendre.leg2poly: the recurrence, in the same steps."""
-    series = _series(legendre)
-    if len(series) < 3:
-        return series
-    low, high = series[-2], series[-1]
-    for degree in range(len(series) - 1, 1, -1):
-        low, high = (_series_sub(series[degree - 2], (high * (degree - 1)) / degree),
-                     _series_add(low, (_series_mulx(high) * (2 * degree - 1)) / degree))
-    return _series_add(low, _series_mulx(high))
 
 
 def fit_cubic(temperature_c, values, record: Optional[np.ndarray] = None,
